@@ -1,0 +1,77 @@
+"""Argument types and scenario options shared by several subcommands."""
+from __future__ import annotations
+
+import argparse
+import math
+
+from gateway.core.motion_profiles import StrokeSettings
+from gateway.core.scenarios import SCENARIOS, ScenarioSettings
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number ≥ 0")
+    return value
+
+
+def positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
+    return value
+
+
+def seed_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be ≥ 0")
+    return value
+
+
+def add_scenario_options(p: argparse.ArgumentParser, default_strokes: int = 10) -> None:
+    d = StrokeSettings()
+    g = p.add_argument_group("scenario (defaults: the paper's experiment)")
+    g.add_argument("--scenario", choices=SCENARIOS, default="paper",
+                   help="paper: reciprocating strokes; move: one move; standstill: at rest (default: paper)")
+    g.add_argument("--strokes", type=positive_int, default=default_strokes,
+                   help=f"one-way strokes, each followed by a stop (default: {default_strokes})")
+    g.add_argument("--stroke-m", type=positive_float, default=d.stroke_m, help=f"stroke length, m (default: {d.stroke_m})")
+    g.add_argument("--speed-mps", type=positive_float, default=d.max_speed_mps, help=f"cruise speed, m/s (default: {d.max_speed_mps})")
+    g.add_argument("--acc-mps2", type=positive_float, default=d.max_acc_mps2, help=f"acceleration, m/s² (default: {d.max_acc_mps2})")
+    g.add_argument("--dwell-s", type=non_negative_float, default=d.dwell_s, help=f"stop at each end, s (default: {d.dwell_s})")
+    g.add_argument("--rest-s", type=non_negative_float, default=d.rest_start_s, help=f"rest before the first stroke, s (default: {d.rest_start_s})")
+    g.add_argument("--duration", type=positive_float, default=60.0, dest="standstill_s",
+                   help="length of the standstill scenario, s (default: 60)")
+    g.add_argument("--seed", type=seed_int, default=0, help="random seed (default: 0)")
+
+
+def scenario_from_args(args: argparse.Namespace) -> ScenarioSettings:
+    strokes = StrokeSettings(
+        stroke_m=args.stroke_m,
+        max_speed_mps=args.speed_mps,
+        max_acc_mps2=args.acc_mps2,
+        strokes=args.strokes,
+        dwell_s=args.dwell_s,
+        rest_start_s=args.rest_s,
+    )
+    return ScenarioSettings(name=args.scenario, strokes=strokes, standstill_s=args.standstill_s)

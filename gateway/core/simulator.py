@@ -1,0 +1,195 @@
+"""The paper's experiment in numbers: motion → ADXL202 → 8051 timer counts → host.
+
+Pipeline, per axis (values in g until the duty cycle):
+    truth (motion profile, at each period's start)
+    → sensor low-pass (CX/CY, one pole)         → + white noise (same filter)
+    → + zero-g offset + exponential zero drift → extra error terms (hook)
+    → sensitivity → clipping at ±range         → duty cycle
+    → 8051 timer: edges counted in ticks (T1 and T2 quantised)
+
+Everything is seeded; nothing here does I/O.  An extra error term is one small class:
+subclass ``ErrorTerm`` and override ``acceleration_g`` (before clipping and
+quantisation) and/or ``samples`` (after: loss, host timing).
+"""
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.signal import lfilter
+
+from gateway.core.drift_model import drift_g
+from gateway.core.motion_profiles import PiecewiseConstantAcceleration
+from gateway.core.sensor_model import HostLinkParams, SensorParams
+from gateway.core.units import SEQ_MODULUS, STANDARD_GRAVITY_MPS2
+
+
+@dataclass
+class SignalContext:
+    """What an error term may look at while the signal is made."""
+
+    t_s: np.ndarray
+    ref_pos_m: np.ndarray
+    ref_vel_mps: np.ndarray
+    ref_acc_mps2: np.ndarray
+    temp_c: np.ndarray
+    sensor: SensorParams
+    seed: int
+
+    def rng(self, name: str) -> np.random.Generator:
+        """An independent, reproducible stream per name: adding a term leaves the others' draws alone."""
+        return np.random.default_rng([self.seed, zlib.crc32(name.encode())])
+
+
+@dataclass
+class SimulatedRun:
+    """Board counts of a run plus the truth. Arrays are one entry per sample sent."""
+
+    tick_hz: float
+    seq: np.ndarray
+    t1x: np.ndarray
+    t1y: np.ndarray
+    t2: np.ndarray
+    flags: np.ndarray
+    t_s: np.ndarray  # true start time of each sample's period
+    t_host_s: np.ndarray  # host arrival time
+    temp_c: np.ndarray
+    ref_pos_m: np.ndarray
+    ref_vel_mps: np.ndarray
+    ref_acc_mps2: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.seq.size)
+
+    def select(self, keep: np.ndarray) -> "SimulatedRun":
+        """The run with only the samples where keep is true (seq keeps its gaps)."""
+        return replace(self, **{k: v[keep] for k, v in self.__dict__.items() if isinstance(v, np.ndarray)})
+
+    def recording_columns(self) -> dict[str, np.ndarray]:
+        """Columns of the raw recording form, with the truth."""
+        return {
+            "seq": self.seq,
+            "t1x": self.t1x,
+            "t1y": self.t1y,
+            "t2": self.t2,
+            "flags": self.flags,
+            "t_host_s": self.t_host_s,
+            "temp_c": self.temp_c,
+            "ref_pos_m": self.ref_pos_m,
+            "ref_vel_mps": self.ref_vel_mps,
+            "ref_acc_mps2": self.ref_acc_mps2,
+        }
+
+
+class ErrorTerm:
+    """An effect the baseline sensor model lacks. Override one or both hooks."""
+
+    name = "error_term"
+
+    def acceleration_g(self, ctx: SignalContext, acc_x_g: np.ndarray, acc_y_g: np.ndarray):
+        return acc_x_g, acc_y_g
+
+    def samples(self, ctx: SignalContext, run: SimulatedRun) -> SimulatedRun:
+        return run
+
+
+def one_pole_lowpass(u: np.ndarray, period_s: float, bandwidth_hz: float) -> np.ndarray:
+    """y_k = a·y_(k−1) + (1 − a)·u_k, a = e^(−2π f Ts): the CX/CY filter on the sample grid.
+
+    Starts settled at u_0 (the sensor has been powered long before the run).
+    """
+    a = np.exp(-2.0 * np.pi * bandwidth_hz * period_s)
+    y, _ = lfilter([1.0 - a], [1.0, -a], u, zi=[a * u[0]] if u.size else [0.0])
+    return y
+
+
+def filtered_white_noise(rng: np.random.Generator, n: int, period_s: float, sensor: SensorParams) -> np.ndarray:
+    """White noise of the data sheet's density through the one-pole filter, sampled exactly.
+
+    The filtered noise is an Ornstein–Uhlenbeck process: its exact discretisation is
+    AR(1) with a = e^(−2π f Ts) and innovation variance σ²(1 − a²), σ² = N²·π/2·f.
+    """
+    sigma = sensor.noise_rms_g
+    a = np.exp(-2.0 * np.pi * sensor.bandwidth_hz * period_s)
+    w = rng.standard_normal(n) * sigma * np.sqrt(1.0 - a * a)
+    w[0] = rng.standard_normal() * sigma  # stationary start
+    y, _ = lfilter([1.0], [1.0, -a], w, zi=[0.0])
+    return y
+
+
+def _timer_counts(edges_s: np.ndarray, duty_x, duty_y, tick_hz: float, rng: np.random.Generator):
+    """8051 capture: each edge is latched as floor(t·f + phase); T1, T2 are differences of latches.
+
+    Because T2 counts are differences of successive latches, their sum telescopes: the
+    board-derived time never drifts from the true time by more than one tick.
+    """
+    phase = rng.uniform()
+    latch = np.floor(edges_s * tick_hz + phase).astype(np.int64)
+    t2 = np.diff(latch)
+    starts = edges_s[:-1]
+    periods = np.diff(edges_s)
+    fall_x = np.floor((starts + duty_x * periods) * tick_hz + phase).astype(np.int64)
+    fall_y = np.floor((starts + duty_y * periods) * tick_hz + phase).astype(np.int64)
+    return fall_x - latch[:-1], fall_y - latch[:-1], t2
+
+
+def simulate(
+    profile: PiecewiseConstantAcceleration,
+    sensor: SensorParams = SensorParams(),
+    seed: int = 0,
+    error_terms: tuple[ErrorTerm, ...] = (),
+    host: HostLinkParams = HostLinkParams(),
+    duration_s: float | None = None,
+) -> SimulatedRun:
+    """Simulate the board's sample stream for a motion (along the sensor's X axis)."""
+    duration_s = profile.duration_s if duration_s is None else duration_s
+    period_s = sensor.t2_s
+    n = int(np.floor(duration_s / period_s)) + 1
+    if n < 2:
+        raise ValueError("the run must last at least two sensor periods")
+    edges_s = np.arange(n + 1) * period_s
+    t_s = edges_s[:-1]
+    pos, vel, acc = profile.evaluate(t_s)
+    temp_c = np.full(n, sensor.temperature_c)
+    ctx = SignalContext(t_s, pos, vel, acc, temp_c, sensor, seed)
+
+    true_x_g = acc / STANDARD_GRAVITY_MPS2
+    true_y_g = np.zeros(n)
+    axes = []
+    for name, true_g, axis in (("x", true_x_g, sensor.x), ("y", true_y_g, sensor.y)):
+        sensed = one_pole_lowpass(true_g, period_s, sensor.bandwidth_hz)
+        sensed = sensed + filtered_white_noise(ctx.rng(f"noise_{name}"), n, period_s, sensor)
+        sensed = sensed + axis.zero_g_offset_g + drift_g(t_s, axis.drift)
+        axes.append(sensed)
+    acc_x_g, acc_y_g = axes
+    for term in error_terms:
+        acc_x_g, acc_y_g = term.acceleration_g(ctx, acc_x_g, acc_y_g)
+
+    duties = []
+    for sensed, axis in ((acc_x_g, sensor.x), (acc_y_g, sensor.y)):
+        sensed = np.clip(sensed, -sensor.range_g, sensor.range_g)
+        duties.append(0.5 + 0.125 * (1.0 + axis.sensitivity_error_frac) * sensed)
+    t1x, t1y, t2 = _timer_counts(edges_s, duties[0], duties[1], sensor.tick_hz, ctx.rng("timer"))
+
+    latency = ctx.rng("host").exponential(host.latency_mean_s, n)
+    t_host_s = edges_s[1:] + host.frame_time_s + latency
+    t_host_s = np.maximum.accumulate(t_host_s)  # a serial line delivers in order
+
+    run = SimulatedRun(
+        tick_hz=sensor.tick_hz,
+        seq=np.arange(n, dtype=np.int64) % SEQ_MODULUS,
+        t1x=t1x,
+        t1y=t1y,
+        t2=t2,
+        flags=np.zeros(n, dtype=np.int64),
+        t_s=t_s,
+        t_host_s=t_host_s,
+        temp_c=temp_c,
+        ref_pos_m=pos,
+        ref_vel_mps=vel,
+        ref_acc_mps2=acc,
+    )
+    for term in error_terms:
+        run = term.samples(ctx, run)
+    return run

@@ -1,0 +1,86 @@
+import numpy as np
+import pytest
+
+from gateway.core.conversion import (
+    AxisCalibration,
+    SampleTimeline,
+    acceleration_mps2,
+    axis_valid,
+    lost_before_from_seq,
+    sample_times_s,
+)
+from gateway.core.units import STANDARD_GRAVITY_MPS2
+
+
+def test_spec_example_sample_converts_by_the_data_sheet_formula():
+    # board-protocol.md example: t1x=921, t1y=925, t2=1843
+    cal = AxisCalibration(0.5, 0.125)
+    expected_g = (921 / 1843 - 0.5) / 0.125
+    assert acceleration_mps2(921, 1843, cal) == pytest.approx(expected_g * STANDARD_GRAVITY_MPS2, rel=1e-12)
+    assert acceleration_mps2(925, 1843, cal) > 0 > acceleration_mps2(921, 1843, cal)
+
+
+def test_per_axis_calibration_is_applied():
+    cal = AxisCalibration(zero_g_duty=0.52, sensitivity_duty_per_g=0.13)
+    # a duty of exactly D0 + S is 1 g
+    t2 = 2000
+    t1 = (0.52 + 0.13) * t2
+    assert acceleration_mps2(t1, t2, cal) == pytest.approx(STANDARD_GRAVITY_MPS2)
+
+
+def test_unusable_counts_are_nan_and_invalid():
+    cal = AxisCalibration()
+    assert np.isnan(acceleration_mps2(10, 0, cal))
+    assert np.isnan(acceleration_mps2(30, 20, cal))
+    flags = np.array([0, 1, 2, 4, 0, 0])
+    t1 = np.array([900, 900, 900, 900, 900, 1900])
+    t2 = np.array([1843, 1843, 1843, 1843, 0, 1843])
+    assert axis_valid(flags, t1, t2, "x").tolist() == [True, False, True, False, False, False]
+    assert axis_valid(flags, t1, t2, "y").tolist() == [True, True, False, False, False, False]
+
+
+def test_calibration_rejects_impossible_values():
+    with pytest.raises(ValueError):
+        AxisCalibration(zero_g_duty=1.5)
+    with pytest.raises(ValueError):
+        AxisCalibration(sensitivity_duty_per_g=0.0)
+
+
+def test_seq_gaps_wrap_around():
+    seq = np.array([65533, 65534, 65535, 0, 1, 5, 6])
+    assert lost_before_from_seq(seq).tolist() == [0, 0, 0, 0, 0, 3, 0]
+
+
+def test_sample_time_is_the_sum_of_previous_periods_and_lost_ones_count():
+    tick_hz = 1000.0
+    t2 = np.array([2, 3, 2, 4, 2])
+    lost = np.array([0, 0, 2, 0, 0])  # two samples lost before the third
+    t = sample_times_s(t2, tick_hz, lost)
+    # 0, 2 ms, then 3 ms of sample 1 plus two lost periods of 3 ms, ...
+    assert t.tolist() == pytest.approx([0.0, 0.002, 0.005 + 0.006, 0.013, 0.017])
+
+
+def test_sample_time_ignores_host_arrival_and_survives_bad_periods():
+    t2 = np.array([2000, 0, 2000, 2000])
+    t = sample_times_s(t2, 1e6)
+    assert t.tolist() == pytest.approx([0.0, 0.002, 0.004, 0.006])
+
+
+def test_streaming_timeline_equals_vectorised_form():
+    rng = np.random.default_rng(3)
+    n = 5000
+    t2 = rng.integers(1800, 1900, n)
+    t2[rng.integers(1, n, 20)] = 0  # unusable counts after the first
+    lost = np.where(rng.uniform(size=n) < 0.01, rng.integers(1, 5, n), 0)
+    lost[0] = 0
+    tl = SampleTimeline()
+    streamed = np.array([tl.advance(int(a), 921600.0, int(b)) for a, b in zip(t2, lost)])
+    np.testing.assert_allclose(streamed, sample_times_s(t2, 921600.0, lost), rtol=0, atol=1e-9)
+
+
+def test_timeline_restarts_after_board_reset():
+    tl = SampleTimeline()
+    tl.advance(1843, 921600.0)
+    assert tl.advance(1843, 921600.0) > 0
+    tl.reset()
+    assert tl.advance(1843, 921600.0) == 0.0

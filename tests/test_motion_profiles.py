@@ -1,0 +1,47 @@
+import numpy as np
+import pytest
+from scipy.integrate import cumulative_trapezoid
+
+from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes, single_move, standstill
+
+
+def test_paper_stroke_matches_its_numbers():
+    p = reciprocating_strokes(StrokeSettings(strokes=2, dwell_s=0.5, rest_start_s=1.0, rest_end_s=1.0))
+    t = np.linspace(0, p.duration_s, 200001)
+    pos, vel, acc = p.evaluate(t)
+    assert pos.max() == pytest.approx(0.30, abs=1e-12)
+    assert vel.max() == pytest.approx(1.0, abs=1e-12)
+    assert np.abs(acc).max() == pytest.approx(10.0)
+    assert pos[-1] == pytest.approx(0.0, abs=1e-12)  # back and forth
+    # each move: 0.1 s accelerating, 0.2 s cruising, 0.1 s braking
+    assert p.duration_s == pytest.approx(1.0 + 0.4 + 0.5 + 0.4 + 1.0)
+
+
+def test_closed_form_agrees_with_numerical_integration():
+    p = reciprocating_strokes(StrokeSettings(strokes=3))
+    t = np.linspace(0, p.duration_s, 400001)
+    pos, vel, acc = p.evaluate(t)
+    v_num = cumulative_trapezoid(acc, t, initial=0)
+    p_num = cumulative_trapezoid(vel, t, initial=0)
+    assert np.max(np.abs(v_num - vel)) < 1e-3
+    assert np.max(np.abs(p_num - pos)) < 1e-6
+
+
+def test_short_move_is_triangular():
+    p = single_move(distance_m=0.02, max_speed_mps=1.0, max_acc_mps2=10.0, rest_start_s=0, rest_end_s=0)
+    _, vel, _ = p.evaluate(np.linspace(0, p.duration_s, 10001))
+    assert vel.max() == pytest.approx(np.sqrt(0.02 * 10.0), rel=1e-6)
+    assert p.evaluate(p.duration_s)[0] == pytest.approx(0.02)
+
+
+def test_standstill_intervals_of_strokes():
+    s = StrokeSettings(strokes=4, dwell_s=0.7, rest_start_s=2.0, rest_end_s=1.5)
+    intervals = reciprocating_strokes(s).standstill_intervals()
+    assert len(intervals) == 5
+    assert intervals[0] == (0.0, 2.0)
+    assert intervals[-1][1] - intervals[-1][0] == pytest.approx(1.5)
+
+
+def test_standstill_is_at_rest():
+    pos, vel, acc = standstill(10.0).evaluate(np.linspace(0, 10, 11))
+    assert not pos.any() and not vel.any() and not acc.any()
