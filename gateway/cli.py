@@ -17,6 +17,7 @@ COMMAND_MODULES = (
     "demo",
     "simulate",
     "import_csv",
+    "config_cmd",
 )
 
 

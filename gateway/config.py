@@ -1,0 +1,224 @@
+"""The gateway's TOML configuration: one schema table, validated at start.
+
+The schema below is the single source for defaults, validation and the commented
+default file that `adxlgw config --default` prints. An unknown key or a bad value is
+one ``ConfigError`` that names the file and the key (exit code 2).
+"""
+from __future__ import annotations
+
+import ipaddress
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from gateway.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class Key:
+    section: str
+    name: str
+    default: Any
+    kind: type | tuple  # bool, int, float, str, list
+    doc: str
+    check: Callable[[Any], str | None] | None = None  # returns a complaint or None
+
+    @property
+    def dotted(self) -> str:
+        return f"{self.section}.{self.name}"
+
+
+def _range(lo=None, hi=None, *, lo_open=False):
+    def check(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return "must be finite"
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            return f"must be {'>' if lo_open else '≥'} {lo}"
+        if hi is not None and v > hi:
+            return f"must be ≤ {hi}"
+        return None
+    return check
+
+
+def _one_of(*choices):
+    def check(v):
+        return None if v in choices else f"must be one of {', '.join(map(repr, choices))}"
+    return check
+
+
+def _addresses(v):
+    for item in v:
+        if not isinstance(item, str):
+            return f"entries must be strings, got {item!r}"
+        try:
+            ipaddress.ip_network(item, strict=False)
+        except ValueError:
+            return f"{item!r} is not an IP address or network"
+    return None
+
+
+def _nonempty(v):
+    return None if v.strip() else "must not be empty"
+
+
+SCHEMA: tuple[Key, ...] = (
+    # --- the board ---------------------------------------------------------
+    Key("serial", "port", "emulated", str,
+        "Board serial port: a device path (/dev/ttyUSB0, /dev/serial/by-id/…), a pyserial URL "
+        "(socket://host:port, loop://), or \"emulated\" for the built-in virtual board.", _nonempty),
+    Key("serial", "baudrate", 115200, int, "Line speed of the board (8N1).", _range(1200, 4_000_000)),
+    Key("serial", "reconnect_min_s", 0.2, float, "First wait before reopening a lost port, s.", _range(0.01, 60)),
+    Key("serial", "reconnect_max_s", 5.0, float, "Longest wait between reopen attempts, s.", _range(0.01, 600)),
+    Key("serial", "stale_after_ms", 100, int,
+        "No sample for this long: the values are stale (status bit STALE).", _range(5, 60_000)),
+    Key("serial", "lost_after_ms", 2000, int,
+        "No byte for this long: the board is lost (status bit BOARD_LOST).", _range(50, 600_000)),
+    # --- calibration -------------------------------------------------------
+    Key("calibration", "axis", "x", str, "Which sensor axis lies along the motion.", _one_of("x", "y")),
+    Key("calibration", "zero_g_duty_x", 0.5, float, "X axis duty cycle at 0 g (D0).", _range(0.0, 1.0, lo_open=True)),
+    Key("calibration", "sensitivity_x", 0.125, float, "X axis duty cycle per g (S).", _range(0.0, 1.0, lo_open=True)),
+    Key("calibration", "zero_g_duty_y", 0.5, float, "Y axis duty cycle at 0 g (D0).", _range(0.0, 1.0, lo_open=True)),
+    Key("calibration", "sensitivity_y", 0.125, float, "Y axis duty cycle per g (S).", _range(0.0, 1.0, lo_open=True)),
+    # --- Modbus ------------------------------------------------------------
+    Key("modbus", "tcp_enabled", True, bool, "Serve Modbus TCP."),
+    Key("modbus", "host", "127.0.0.1", str, "Address to listen on (0.0.0.0 for every interface).", _nonempty),
+    Key("modbus", "port", 5020, int, "TCP port (502 is the standard one and needs privileges).", _range(0, 65535)),
+    Key("modbus", "unit_id", 1, int, "Modbus unit (slave) id answered.", _range(0, 247)),
+    Key("modbus", "word_order", "ABCD", str,
+        "Word order of 32-bit values: ABCD (high word first) or CDAB (low word first).", _one_of("ABCD", "CDAB")),
+    Key("modbus", "writes_enabled", False, bool, "Accept commands in the holding registers (tare, re-estimate bias)."),
+    Key("modbus", "write_allow", ["127.0.0.1"], list,
+        "Client addresses or networks allowed to write when writes are enabled.", _addresses),
+    Key("modbus", "rtu_enabled", False, bool, "Also serve Modbus RTU on a serial port (RS-485 to a PLC)."),
+    Key("modbus", "rtu_port", "/dev/ttyUSB1", str, "Serial port of the RTU server.", _nonempty),
+    Key("modbus", "rtu_baudrate", 19200, int, "RTU line speed.", _range(1200, 4_000_000)),
+    Key("modbus", "rtu_parity", "E", str, "RTU parity: N, E or O (Modbus default: E).", _one_of("N", "E", "O")),
+    Key("modbus", "rtu_writes_enabled", False, bool, "Accept commands over RTU (it has no client address)."),
+    # --- CAN ---------------------------------------------------------------
+    Key("can", "enabled", True, bool, "Publish on CAN."),
+    Key("can", "interface", "virtual", str,
+        "python-can interface: socketcan in production, virtual for tests and the demo.", _nonempty),
+    Key("can", "channel", "adxlgw", str, "CAN channel (vcan0, can0, or a virtual bus name).", _nonempty),
+    Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).", _range(10_000, 1_000_000)),
+    Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames.", _range(1, 10_000)),
+    Key("can", "commands_enabled", False, bool, "Accept the tare command frame."),
+    # --- state and service -------------------------------------------------
+    Key("state", "path", "/var/lib/adxl-gateway/state.json", str,
+        "Where calibration and the tare offset survive a restart (written atomically).", _nonempty),
+    Key("service", "log_level", "info", str, "debug, info, warning or error.", _one_of("debug", "info", "warning", "error")),
+    Key("service", "view", False, bool, "Draw a live terminal view of distance, velocity and status."),
+)
+
+SECTIONS = tuple(dict.fromkeys(k.section for k in SCHEMA))
+
+
+class Config:
+    """Validated settings; read as cfg.section.key (e.g. cfg.modbus.port)."""
+
+    def __init__(self, values: dict[str, dict[str, Any]], source: str):
+        self.source = source
+        self._values = values
+        for section, keys in values.items():
+            setattr(self, section, _Section(section, keys))
+
+    def as_dict(self) -> dict[str, dict[str, Any]]:
+        return {s: dict(k) for s, k in self._values.items()}
+
+    def replace(self, overrides: dict[str, Any]) -> "Config":
+        """A copy with dotted-key overrides (from the command line), validated like the file."""
+        data = self.as_dict()
+        for dotted, value in overrides.items():
+            section, name = dotted.split(".", 1)
+            data[section][name] = value
+        return validate(data, self.source + " (with command-line overrides)")
+
+
+class _Section:
+    def __init__(self, name: str, keys: dict[str, Any]):
+        self._name = name
+        self.__dict__.update(keys)
+
+    def __repr__(self) -> str:
+        items = ", ".join(f"{k}={v!r}" for k, v in self.__dict__.items() if not k.startswith("_"))
+        return f"[{self._name}] {items}"
+
+
+def _type_ok(key: Key, value: Any) -> tuple[bool, Any]:
+    if key.kind is bool:
+        return isinstance(value, bool), value
+    if key.kind is int:
+        return isinstance(value, int) and not isinstance(value, bool), value
+    if key.kind is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False, value
+        return True, float(value)
+    if key.kind is list:
+        return isinstance(value, list), value
+    return isinstance(value, key.kind), value
+
+
+_KIND_NAMES = {bool: "true or false", int: "a whole number", float: "a number", str: "a string", list: "a list"}
+
+
+def validate(data: dict[str, Any], source: str) -> Config:
+    by_section = {s: {k.name: k for k in SCHEMA if k.section == s} for s in SECTIONS}
+    values = {s: {k.name: k.default for k in SCHEMA if k.section == s} for s in SECTIONS}
+    for section, table in data.items():
+        if section not in by_section:
+            raise ConfigError(f"{source}: unknown section [{section}] (known: {', '.join(SECTIONS)})")
+        if not isinstance(table, dict):
+            raise ConfigError(f"{source}: [{section}] must be a table")
+        for name, value in table.items():
+            key = by_section[section].get(name)
+            if key is None:
+                raise ConfigError(f"{source}: unknown key {section}.{name}")
+            ok, value = _type_ok(key, value)
+            if not ok:
+                raise ConfigError(f"{source}: {key.dotted} = {value!r} must be {_KIND_NAMES[key.kind]}")
+            complaint = key.check(value) if key.check else None
+            if complaint:
+                raise ConfigError(f"{source}: {key.dotted} = {value!r} {complaint}")
+            values[section][name] = value
+    if values["serial"]["reconnect_min_s"] > values["serial"]["reconnect_max_s"]:
+        raise ConfigError(f"{source}: serial.reconnect_min_s must not exceed serial.reconnect_max_s")
+    return Config(values, source)
+
+
+def load_config(path: str | Path | None) -> Config:
+    if path is None:
+        return validate({}, "<defaults>")
+    path = str(path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    return validate(data, path)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return repr(v)
+
+
+def default_config_text() -> str:
+    lines = [
+        "# adxl-gateway configuration (TOML). Every key is shown with its default.",
+        "# Unknown keys are errors. Command-line options --serial, --modbus-host, --modbus-port,",
+        "# --can-interface and --can-channel override the file.",
+    ]
+    for section in SECTIONS:
+        lines += ["", f"[{section}]"]
+        for key in (k for k in SCHEMA if k.section == section):
+            lines.append(f"# {key.doc}")
+            lines.append(f"{key.name} = {_toml_value(key.default)}")
+    return "\n".join(lines) + "\n"

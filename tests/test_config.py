@@ -1,0 +1,78 @@
+import subprocess
+import sys
+import tomllib
+
+import pytest
+
+from gateway.config import SCHEMA, default_config_text, load_config, validate
+from gateway.errors import ConfigError
+
+
+def test_default_text_is_complete_valid_toml_with_every_key_commented():
+    text = default_config_text()
+    data = tomllib.loads(text)
+    cfg = validate(data, "<default>")
+    for key in SCHEMA:
+        assert data[key.section][key.name] == key.default
+        assert getattr(getattr(cfg, key.section), key.name) == key.default
+    # one comment line before each key
+    lines = text.splitlines()
+    for key in SCHEMA:
+        i = next(n for n, line in enumerate(lines) if line.startswith(f"{key.name} = ")
+                 and f"[{key.section}]" in [l for l in lines[:n] if l.startswith("[")][-1:])
+        assert lines[i - 1].startswith("# ")
+
+
+@pytest.mark.parametrize(
+    "toml, message",
+    [
+        ("[modbus]\nprot = 502\n", "unknown key modbus.prot"),
+        ("[modbuss]\nport = 502\n", "unknown section [modbuss]"),
+        ("[modbus]\nport = 70000\n", "modbus.port = 70000 must be ≤ 65535"),
+        ("[modbus]\nport = \"502\"\n", "modbus.port = '502' must be a whole number"),
+        ("[modbus]\nword_order = \"BADC\"\n", "modbus.word_order = 'BADC' must be one of 'ABCD', 'CDAB'"),
+        ("[modbus]\nwrite_allow = [\"10.0.0.300\"]\n", "'10.0.0.300' is not an IP address or network"),
+        ("[can]\nperiod_ms = 0\n", "can.period_ms = 0 must be ≥ 1"),
+        ("[calibration]\nsensitivity_x = 0.0\n", "calibration.sensitivity_x = 0.0 must be > 0.0"),
+        ("[serial]\nreconnect_min_s = 9.0\nreconnect_max_s = 1.0\n", "must not exceed serial.reconnect_max_s"),
+        ("[serial\n", "not valid TOML"),
+    ],
+)
+def test_bad_config_names_the_key(tmp_path, toml, message):
+    path = tmp_path / "gw.toml"
+    path.write_text(toml)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert message in str(info.value)
+    assert str(info.value).startswith(str(path))
+
+
+def test_ints_are_accepted_for_floats_but_not_bools_for_ints(tmp_path):
+    path = tmp_path / "gw.toml"
+    path.write_text("[serial]\nreconnect_max_s = 3\n")
+    assert load_config(path).serial.reconnect_max_s == 3.0
+    path.write_text("[modbus]\nport = true\n")
+    with pytest.raises(ConfigError, match="must be a whole number"):
+        load_config(path)
+
+
+def test_overrides_are_validated_too():
+    cfg = validate({}, "<d>")
+    assert cfg.replace({"modbus.port": 1502}).modbus.port == 1502
+    with pytest.raises(ConfigError, match="modbus.port = -1"):
+        cfg.replace({"modbus.port": -1})
+
+
+def test_cli_config_default_and_check(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--default"], capture_output=True, text=True)
+    assert r.returncode == 0
+    path = tmp_path / "gw.toml"
+    path.write_text(r.stdout)
+    r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and "modbus.port = 5020" in r.stdout
+    path.write_text("[can]\nchanel = \"vcan0\"\n")
+    r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"adxlgw config: error: {path}: unknown key can.chanel"

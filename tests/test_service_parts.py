@@ -1,0 +1,61 @@
+import json
+import os
+import socket
+
+from gateway.sd_notify import SystemdNotifier
+from gateway.state_store import PersistentState, StateStore
+
+
+def test_notifier_sends_datagrams_to_the_notify_socket(tmp_path):
+    path = str(tmp_path / "notify")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(path)
+    server.settimeout(2)
+    try:
+        n = SystemdNotifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "2000000"})
+        assert n.enabled and n.watchdog_interval_s == 2.0
+        n.ready("serving")
+        n.watchdog()
+        n.stopping()
+        got = [server.recv(4096).decode() for _ in range(3)]
+        assert got == ["READY=1\nSTATUS=serving", "WATCHDOG=1", "STOPPING=1"]
+        n.close()
+    finally:
+        server.close()
+
+
+def test_notifier_is_a_no_op_outside_systemd_and_ignores_other_pids_watchdog():
+    n = SystemdNotifier({"WATCHDOG_USEC": "1000", "WATCHDOG_PID": str(os.getpid() + 1)})
+    assert not n.enabled and n.watchdog_interval_s is None
+    n.ready()  # no socket: nothing happens, nothing raises
+
+
+def test_notifier_survives_a_vanished_socket(tmp_path):
+    n = SystemdNotifier({"NOTIFY_SOCKET": str(tmp_path / "gone")})
+    n.ready()  # logged, not raised
+
+
+def test_state_round_trip_and_atomic_replace(tmp_path):
+    store = StateStore(tmp_path / "sub" / "state.json")
+    assert store.load() == PersistentState()
+    assert store.save(PersistentState(tare_offset_m=0.125, bias_estimate_mps2=0.01, saved_at_unix_s=5.0))
+    assert store.load().tare_offset_m == 0.125
+    assert not list((tmp_path / "sub").glob(".*tmp"))
+
+
+def test_corrupt_state_starts_unreferenced_and_says_why(tmp_path):
+    path = tmp_path / "state.json"
+    path.write_text("{ half a file")
+    store = StateStore(path)
+    assert store.load() == PersistentState()
+    assert "unreadable state" in store.last_error
+    path.write_text(json.dumps({"version": 99}))
+    assert store.load() == PersistentState() and "state version 99" in store.last_error
+
+
+def test_unwritable_state_is_reported_not_raised(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    store = StateStore(blocker / "state.json")  # parent is a file
+    assert store.save(PersistentState()) is False
+    assert "cannot save state" in store.last_error
