@@ -16,6 +16,7 @@ from gateway.errors import GatewayError
 COMMAND_MODULES = (
     "demo",
     "simulate",
+    "emulate",
     "import_csv",
     "config_cmd",
 )

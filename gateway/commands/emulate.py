@@ -1,0 +1,130 @@
+"""adxlgw emulate: a virtual board on a pseudo-terminal (or on a given serial port)."""
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import time
+
+import serial
+
+from drivers.pty_port import PtyPort
+from gateway.commands.common import add_scenario_options, non_negative_float, scenario_from_args
+from gateway.emulator import EmulatorSettings, FaultSettings, Pacer, board_schedule
+from gateway.errors import DeviceError
+
+log = logging.getLogger("adxlgw.emulate")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "emulate",
+        help="virtual board: stream a simulated run on a pty and print its path",
+        description="Create a pseudo-terminal (or write to --port), print the device path on the first "
+                    "line of stdout, and stream the board's frames of a simulated run: HELLO first, "
+                    "SAMPLE frames in real time (or as fast as the reader takes them with --fast), "
+                    "STATUS once a second.",
+    )
+    add_scenario_options(p)
+    p.add_argument("--port", help="write to this serial port or pyserial URL instead of creating a pty")
+    p.add_argument("--link", help="also make this path a symlink to the pty (a stable name, like /dev/serial/by-id)")
+    p.add_argument("--fast", action="store_true", help="do not pace: as fast as the line allows")
+    p.add_argument("--loop", action="store_true", help="repeat the scenario forever (new noise each time)")
+    p.add_argument("--linger", type=non_negative_float, default=1.0,
+                   help="keep the port open this long after the last frame, s (default: 1)")
+    f = p.add_argument_group("faults (each: period in seconds of board time; 0 = off)")
+    f.add_argument("--garbage-every", type=non_negative_float, default=0.0, help="random bytes between frames")
+    f.add_argument("--burst-every", type=non_negative_float, default=0.0, help="hold frames 50 ms, then send at once")
+    f.add_argument("--reset-every", type=non_negative_float, default=0.0, help="board reset: HELLO, seq from 0")
+    f.add_argument("--drop-every", type=non_negative_float, default=0.0, help="lose one sample on the line")
+    f.add_argument("--reopen-every", type=non_negative_float, default=0.0,
+                   help="the pty vanishes for 0.5 s and a new one appears (use with --link)")
+    p.set_defaults(run=run)
+
+
+class _SerialOut:
+    def __init__(self, url: str):
+        try:
+            self.port = serial.serial_for_url(url, baudrate=115200, timeout=1, write_timeout=None)
+        except (serial.SerialException, OSError, ValueError) as err:
+            raise DeviceError(f"cannot open {url}: {err}") from err
+        self.path = url
+
+    def write(self, data: bytes, block: bool = True) -> int:
+        return self.port.write(data)
+
+    def close(self, remove_link: bool = False) -> None:
+        self.port.close()
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = EmulatorSettings(
+        scenario=scenario_from_args(args),
+        seed=args.seed,
+        loop=args.loop,
+        faults=FaultSettings(
+            garbage_every_s=args.garbage_every,
+            burst_every_s=args.burst_every,
+            reset_every_s=args.reset_every,
+            reopen_every_s=args.reopen_every,
+            drop_every_s=args.drop_every,
+        ),
+    )
+    if args.reopen_every and args.port:
+        raise DeviceError("--reopen-every works on the emulator's own pty, not with --port")
+    out = _SerialOut(args.port) if args.port else PtyPort(args.link)
+    print(out.path, flush=True)
+
+    stop = False
+
+    def on_signal(signum, frame):
+        nonlocal stop
+        stop = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    pacer = Pacer(args.fast)
+    sent = {"sample": 0, "status": 0, "hello": 0, "garbage": 0}
+    next_burst = args.burst_every or float("inf")
+    next_reopen = args.reopen_every or float("inf")
+    held: list[bytes] = []
+    hold_until = -1.0
+    overflow = 0  # writes cut short because nobody read the port and its buffer was full
+    try:
+        for chunk in board_schedule(settings):
+            if stop:
+                break
+            if chunk.due_s >= next_reopen and isinstance(out, PtyPort):
+                next_reopen += args.reopen_every
+                out.close()
+                log.info("port closed (fault: reopen); back in %.1f s", settings.faults.reopen_gap_s)
+                time.sleep(settings.faults.reopen_gap_s)
+                pacer.start += settings.faults.reopen_gap_s  # the board's time went on; delivery resumes
+                out = PtyPort(args.link)
+                print(out.path, flush=True)
+            if chunk.due_s >= next_burst:
+                next_burst += args.burst_every
+                hold_until = chunk.due_s + 0.05
+            if chunk.due_s < hold_until:
+                held.append(chunk.data)
+            else:
+                pacer.wait_until(chunk.due_s)
+                if held:
+                    chunk.data = b"".join(held) + chunk.data
+                    held.clear()
+                if out.write(chunk.data, block=args.fast) < len(chunk.data):
+                    overflow += 1
+            sent[chunk.kind] += 1
+        if held:
+            out.write(b"".join(held))
+        if not stop:
+            time.sleep(args.linger)
+    except OSError as err:
+        raise DeviceError(f"writing to {out.path} failed: {err.strerror or err}") from err
+    finally:
+        out.close(remove_link=True)
+        print("emulate: sent " + ", ".join(f"{v} {k}" for k, v in sent.items())
+              + f"; {overflow} writes cut short (port buffer full, nobody reading)", file=sys.stderr)
+    return 0
