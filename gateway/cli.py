@@ -17,6 +17,7 @@ COMMAND_MODULES = (
     "demo",
     "simulate",
     "emulate",
+    "record",
     "import_csv",
     "config_cmd",
 )

@@ -31,6 +31,9 @@ def add_parser(sub) -> None:
     p.add_argument("--link", help="also make this path a symlink to the pty (a stable name, like /dev/serial/by-id)")
     p.add_argument("--fast", action="store_true", help="do not pace: as fast as the line allows")
     p.add_argument("--loop", action="store_true", help="repeat the scenario forever (new noise each time)")
+    p.add_argument("--no-wait", action="store_true",
+                   help="start at once; by default the board powers on when a reader first opens the port, "
+                        "so the reader sees the HELLO and every sample")
     p.add_argument("--linger", type=non_negative_float, default=1.0,
                    help="keep the port open this long after the last frame, s (default: 1)")
     f = p.add_argument_group("faults (each: period in seconds of board time; 0 = off)")
@@ -53,6 +56,12 @@ class _SerialOut:
 
     def write(self, data: bytes, block: bool = True) -> int:
         return self.port.write(data)
+
+    def has_reader(self) -> bool:
+        return True  # a real line: the board cannot tell
+
+    def wait_for_reader(self, timeout_s=None) -> bool:
+        return True
 
     def close(self, remove_link: bool = False) -> None:
         self.port.close()
@@ -85,13 +94,17 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
 
+    if not args.no_wait:
+        while not stop and not out.wait_for_reader(timeout_s=0.2):
+            pass
     pacer = Pacer(args.fast)
     sent = {"sample": 0, "status": 0, "hello": 0, "garbage": 0}
     next_burst = args.burst_every or float("inf")
     next_reopen = args.reopen_every or float("inf")
     held: list[bytes] = []
     hold_until = -1.0
-    overflow = 0  # writes cut short because nobody read the port and its buffer was full
+    overflow = 0  # writes cut short because the reader fell behind and the buffer was full
+    unheard = 0  # chunks sent while nobody had the port open
     try:
         for chunk in board_schedule(settings):
             if stop:
@@ -101,7 +114,6 @@ def run(args: argparse.Namespace) -> int:
                 out.close()
                 log.info("port closed (fault: reopen); back in %.1f s", settings.faults.reopen_gap_s)
                 time.sleep(settings.faults.reopen_gap_s)
-                pacer.start += settings.faults.reopen_gap_s  # the board's time went on; delivery resumes
                 out = PtyPort(args.link)
                 print(out.path, flush=True)
             if chunk.due_s >= next_burst:
@@ -114,7 +126,9 @@ def run(args: argparse.Namespace) -> int:
                 if held:
                     chunk.data = b"".join(held) + chunk.data
                     held.clear()
-                if out.write(chunk.data, block=args.fast) < len(chunk.data):
+                if not out.has_reader():
+                    unheard += 1  # a real line with nobody listening: the bytes are gone
+                elif out.write(chunk.data, block=args.fast) < len(chunk.data):
                     overflow += 1
             sent[chunk.kind] += 1
         if held:
@@ -126,5 +140,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         out.close(remove_link=True)
         print("emulate: sent " + ", ".join(f"{v} {k}" for k, v in sent.items())
-              + f"; {overflow} writes cut short (port buffer full, nobody reading)", file=sys.stderr)
+              + f"; {unheard} chunks sent with nobody listening; {overflow} writes cut short (reader behind)",
+              file=sys.stderr)
     return 0

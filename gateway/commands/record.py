@@ -1,0 +1,174 @@
+"""adxlgw record: read a board (or the emulator) and write a raw recording."""
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+
+from drivers.board_protocol import Hello, Sample, Status, StreamDecoder
+from drivers.errors import SerialPortError
+from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
+from gateway.commands.common import positive_float
+from gateway.errors import DeviceError
+from gateway.recording import RecordingWriter
+
+log = logging.getLogger("adxlgw.record")
+
+COLUMNS = ["seq", "t1x", "t1y", "t2", "flags", "t_host_s", "temp_c"]
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "record",
+        help="read the board's serial stream and write a raw recording",
+        description="Read a board from a serial port (device path or pyserial URL), decode its frames "
+                    "and write every SAMPLE as a row of a raw recording, with the tick rate the board "
+                    "reports. A board reset (HELLO) mid-recording starts a new file FILE.resetN.csv, "
+                    "since seq and time restart with it. On exit it prints the counters.",
+    )
+    p.add_argument("--port", required=True, help="serial device or pyserial URL")
+    p.add_argument("--out", required=True, help="recording to write")
+    p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--once", action="store_true",
+                   help="exit (code 3) when the port cannot be opened or is lost, instead of retrying")
+    p.add_argument("--tick-hz", type=positive_float,
+                   help="timer rate to assume if the board never reports one (it reports it in STATUS/HELLO)")
+    p.add_argument("--baudrate", type=int, default=115200, help="line speed (default: 115200)")
+    p.set_defaults(run=run)
+
+
+class _Segments:
+    """One file per continuous board session (a HELLO restarts seq and time)."""
+
+    def __init__(self, out: str, port: str):
+        self.out = Path(out)
+        self.port = port
+        self.index = 0
+        self.writer: RecordingWriter | None = None
+        self.paths: list[str] = []
+        self.rows_total = 0
+
+    def path(self) -> Path:
+        if self.index == 0:
+            return self.out
+        return self.out.with_name(f"{self.out.stem}.reset{self.index}{self.out.suffix}")
+
+    def open(self, tick_hz: float) -> None:
+        path = self.path()
+        meta = {"tick_hz": f"{tick_hz:g}", "source": "board", "axis": "x", "port": self.port,
+                "started_unix_s": f"{time.time():.3f}"}
+        self.writer = RecordingWriter(path, meta, COLUMNS)
+        self.paths.append(str(path))
+
+    def next(self) -> None:
+        self.close()
+        self.index += 1
+
+    def write(self, row: dict) -> None:
+        self.writer.write_row(row)
+        self.rows_total += 1
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+
+def _open_with_retry(source: SerialSource, once: bool, should_stop) -> bool:
+    delays = reconnect_delays_s(source.settings)
+    while not should_stop():
+        try:
+            source.open()
+            return True
+        except SerialPortError as err:
+            if once:
+                raise DeviceError(str(err)) from err
+            delay = next(delays)
+            log.warning("%s; retrying in %.1f s", err, delay)
+            time.sleep(delay)
+    return False
+
+
+def run(args: argparse.Namespace) -> int:
+    stop = False
+
+    def on_signal(signum, frame):
+        nonlocal stop
+        stop = True
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    started = time.monotonic()
+
+    def should_stop() -> bool:
+        return stop or (args.duration is not None and time.monotonic() - started >= args.duration)
+
+    source = SerialSource(SerialSettings(port=args.port, baudrate=args.baudrate, reconnect=not args.once))
+    decoder = StreamDecoder()
+    segments = _Segments(args.out, args.port)
+    tick_hz = None
+    temp_c = None
+    pending: list[dict] = []  # samples before the board told its tick rate
+    exit_code = 0
+    try:
+        if not _open_with_retry(source, args.once, should_stop):
+            return 0
+        log.info("recording %s → %s", args.port, args.out)
+        while not should_stop():
+            try:
+                data = source.read(timeout_s=0.1)
+            except SerialPortError as err:  # only with --once: the port is gone
+                log.error("%s", err)
+                exit_code = DeviceError.exit_code
+                break
+            if not data:
+                continue
+            t_host_s = time.monotonic() - started
+            for frame in decoder.feed(data):
+                if isinstance(frame, Sample):
+                    row = {"seq": frame.seq, "t1x": frame.t1x_ticks, "t1y": frame.t1y_ticks,
+                           "t2": frame.t2_ticks, "flags": frame.flags, "t_host_s": round(t_host_s, 6),
+                           "temp_c": temp_c}
+                    if segments.writer is None:
+                        pending.append(row)
+                    else:
+                        segments.write(row)
+                elif isinstance(frame, (Status, Hello)):
+                    if isinstance(frame, Hello) and (segments.rows_total or pending) and segments.writer is not None:
+                        log.warning("board reset (HELLO): continuing in a new file")
+                        segments.next()
+                    elif segments.writer is not None and frame.tick_hz != tick_hz:
+                        log.warning("board changed its tick rate %s → %s: new file", tick_hz, frame.tick_hz)
+                        segments.next()
+                    tick_hz = frame.tick_hz
+                    temp_c = frame.temp_c
+            if segments.writer is None and tick_hz is None and args.tick_hz and pending:
+                tick_hz = args.tick_hz
+            if segments.writer is None and tick_hz is not None:
+                segments.open(tick_hz)
+                for row in pending:
+                    segments.write(row)
+                pending.clear()
+            if segments.writer is not None:
+                segments.writer.flush()
+    finally:
+        segments.close()
+        source.close()
+        c = decoder.counters
+        state = source.state
+        print(
+            f"record: {segments.rows_total} samples written to {', '.join(segments.paths) or 'no file'}; "
+            f"frames {c.frames_decoded} (samples {c.samples_decoded}, status {c.statuses_decoded}, "
+            f"hello {c.hellos_decoded}); crc errors {c.crc_errors}; bytes skipped {c.bytes_skipped}; "
+            f"samples lost {c.samples_lost}; board resets {c.board_resets}; "
+            f"port losses {state.losses}, reconnects {state.reconnects}",
+            file=sys.stderr,
+        )
+    if pending:
+        print(f"adxlgw record: error: {len(pending)} samples not written: the board never reported its "
+              f"tick rate (no STATUS or HELLO); pass --tick-hz", file=sys.stderr)
+        return DeviceError.exit_code
+    return exit_code
