@@ -1,0 +1,367 @@
+"""Bytes from the board's serial port, surviving an unplugged adapter.
+
+:class:`SerialSource` opens a device path (``/dev/ttyUSB0``, ``/dev/serial/by-id/...``)
+or any pyserial URL (``loop://``, ``socket://host:port``) and hands out whatever bytes
+have arrived, without blocking its caller:
+
+* ``read_available()`` never blocks; ``read(timeout_s=...)`` blocks at most
+  ``timeout_s`` and suits a reader thread;
+* ``async for chunk in source.chunks()`` waits in the event loop's reader
+  (``loop.add_reader``) when the port has a file descriptor, else in one worker thread
+  polling with a short timeout, so a coroutine never blocks on the port.
+
+When the port disappears (read fails or reports EOF: adapter unplugged, pty closed)
+the source logs it, records it in :class:`SerialSourceState`, closes the port and
+reopens it with exponential back-off until it is back. With
+``SerialSettings(reconnect=False)`` (the ``record --once`` behaviour) it raises
+:class:`~drivers.errors.SerialPortError` instead. A port that cannot be opened in the
+first place always raises, naming the port and the OS error.
+
+One consumer at a time: the source is not meant to be read from two threads at once.
+Stop a running ``chunks()`` by cancelling its task, then ``close()``; calling
+``close()`` from the ``async for`` body also ends it. For a port without a
+descriptor, bytes the worker thread reads after cancellation are dropped.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import errno
+import logging
+import os
+import select
+import time
+from collections.abc import AsyncIterator, Callable, Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import serial
+
+from drivers.errors import SerialPortError
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SerialSettings:
+    #: Device path or pyserial URL.
+    port: str
+    baudrate: int = 115_200
+    bytesize: int = 8
+    parity: str = "N"
+    stopbits: float = 1
+    #: flock() the device so a second gateway cannot silently share the board's bytes.
+    exclusive: bool = True
+    #: False: give up (raise) at the first loss instead of reconnecting (``record --once``).
+    reconnect: bool = True
+    reconnect_initial_s: float = 0.1
+    reconnect_max_s: float = 5.0
+    reconnect_multiplier: float = 2.0
+    #: Most bytes handed out per read; the board sends ~7.5 kB/s.
+    read_chunk_bytes: int = 4096
+    #: Read timeout of the worker thread used for ports without a file descriptor (loop://).
+    thread_poll_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not self.port:
+            raise ValueError("serial port must not be empty")
+        if not 0 < self.reconnect_initial_s <= self.reconnect_max_s:
+            raise ValueError("need 0 < reconnect_initial_s <= reconnect_max_s")
+        if self.reconnect_multiplier < 1:
+            raise ValueError("reconnect_multiplier must be >= 1")
+        if self.read_chunk_bytes < 1 or self.thread_poll_s <= 0:
+            raise ValueError("read_chunk_bytes and thread_poll_s must be positive")
+
+
+def reconnect_delays_s(settings: SerialSettings) -> Iterator[float]:
+    """The back-off schedule: initial, initial*multiplier, ... capped at reconnect_max_s."""
+    delay = settings.reconnect_initial_s
+    while True:
+        yield delay
+        delay = min(delay * settings.reconnect_multiplier, settings.reconnect_max_s)
+
+
+@dataclass(frozen=True)
+class SerialSourceState:
+    """A snapshot for logs, health registers and tests."""
+
+    port: str
+    is_open: bool
+    #: Calls to open the port, successful or not (first open included).
+    open_attempts: int
+    #: Successful opens after a loss.
+    reconnects: int
+    #: Times an open port failed on read (unplugged, hung up, EOF).
+    losses: int
+    #: Reads attempted on an open port (a loop that spins shows up here).
+    reads: int
+    bytes_read: int
+    #: The most recent open or read error, kept after recovery for the operator.
+    last_error: str | None
+    #: time.monotonic() of the last byte received, None before the first one.
+    last_data_monotonic_s: float | None
+
+
+def _describe_os_error(err: BaseException) -> str:
+    code = getattr(err, "errno", None)
+    if isinstance(code, int) and code in errno.errorcode:
+        text = f"{os.strerror(code)} [{errno.errorcode[code]}]"
+        if code == errno.EACCES:
+            text += " (does this user belong to the group owning the device, e.g. dialout?)"
+        elif code in (errno.EBUSY, errno.EWOULDBLOCK):
+            text += " (another process holds the port)"
+        return text
+    return str(err) or type(err).__name__
+
+
+def open_with_pyserial(settings: SerialSettings) -> serial.SerialBase:
+    """Default opener: pyserial, non-blocking reads (timeout=0), no flow control."""
+    return serial.serial_for_url(
+        settings.port,
+        baudrate=settings.baudrate,
+        bytesize=settings.bytesize,
+        parity=settings.parity,
+        stopbits=settings.stopbits,
+        xonxoff=False,
+        rtscts=False,
+        dsrdtr=False,
+        exclusive=settings.exclusive,
+        timeout=0,
+    )
+
+
+class SerialSource:
+    def __init__(
+        self,
+        settings: SerialSettings,
+        *,
+        opener: Callable[[SerialSettings], serial.SerialBase] = open_with_pyserial,
+    ) -> None:
+        self.settings = settings
+        self._opener = opener
+        self._port: serial.SerialBase | None = None
+        self._fd: int | None = None
+        self._wanted_open = False
+        self._given_up = False
+        self._delays: Iterator[float] = reconnect_delays_s(settings)
+        self._next_attempt_s = 0.0
+        self._open_attempts = 0
+        self._reconnects = 0
+        self._losses = 0
+        self._reads = 0
+        self._bytes_read = 0
+        self._last_error: str | None = None
+        self._last_data_s: float | None = None
+
+    @classmethod
+    def from_config(cls, section: Mapping[str, Any]) -> SerialSource:
+        """Build from a config mapping whose keys are :class:`SerialSettings` field names."""
+        known = {f.name for f in dataclasses.fields(SerialSettings)}
+        unknown = set(section) - known
+        if unknown:
+            raise ValueError(f"unknown serial settings: {', '.join(sorted(unknown))}")
+        return cls(SerialSettings(**section))
+
+    @property
+    def state(self) -> SerialSourceState:
+        return SerialSourceState(
+            port=self.settings.port,
+            is_open=self._port is not None,
+            open_attempts=self._open_attempts,
+            reconnects=self._reconnects,
+            losses=self._losses,
+            reads=self._reads,
+            bytes_read=self._bytes_read,
+            last_error=self._last_error,
+            last_data_monotonic_s=self._last_data_s,
+        )
+
+    # --- opening and closing ------------------------------------------------------------
+
+    def open(self) -> None:
+        """Open the port now; raise SerialPortError naming the port and the OS error."""
+        if self._port is not None:
+            return
+        self._open_attempts += 1
+        port_name = self.settings.port
+        try:
+            port = self._opener(self.settings)
+        except (serial.SerialException, OSError, ValueError) as err:
+            self._last_error = f"cannot open serial port {port_name!r}: {_describe_os_error(err)}"
+            raise SerialPortError(self._last_error, port=port_name) from err
+        self._port = port
+        try:
+            self._fd = port.fileno()
+        except (OSError, AttributeError):  # loop:// and friends have no descriptor
+            self._fd = None
+        self._wanted_open = True
+        self._given_up = False
+        self._delays = reconnect_delays_s(self.settings)
+
+    def close(self) -> None:
+        """Close on purpose (a chunks() loop then ends); the next read opens afresh."""
+        self._wanted_open = False
+        self._drop_port()
+
+    def _drop_port(self) -> None:
+        port, self._port, self._fd = self._port, None, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError) as err:
+                # Closing a vanished device can fail; the port is gone either way.
+                logger.debug("closing %s failed: %s", self.settings.port, err)
+
+    def __enter__(self) -> SerialSource:
+        self.open()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def _lose(self, err: BaseException) -> None:
+        self._losses += 1
+        self._last_error = f"serial port {self.settings.port!r} lost: {_describe_os_error(err)}"
+        self._drop_port()
+        if not self.settings.reconnect:
+            self._given_up = True
+            logger.error("%s; not reconnecting", self._last_error)
+            raise SerialPortError(self._last_error, port=self.settings.port) from err
+        delay = next(self._delays)
+        self._next_attempt_s = time.monotonic() + delay
+        logger.warning("%s; reopening with back-off (first retry in %.2f s)", self._last_error, delay)
+
+    def _reopen_if_due(self) -> None:
+        if time.monotonic() < self._next_attempt_s:
+            return
+        try:
+            self.open()
+        except SerialPortError as err:
+            delay = next(self._delays)
+            self._next_attempt_s = time.monotonic() + delay
+            logger.debug("%s; next retry in %.2f s", err, delay)
+            return
+        self._reconnects += 1
+        logger.warning("serial port %r is back (reconnect %d)", self.settings.port, self._reconnects)
+
+    def _ensure_usable(self) -> None:
+        # The first read (or the first after close()) opens the port and, unlike a
+        # reopen after a loss, raises if it cannot.
+        if not self._wanted_open:
+            self.open()
+        if self._given_up:
+            raise SerialPortError(self._last_error or "serial port lost", port=self.settings.port)
+
+    # --- reading ---------------------------------------------------------------------------
+
+    def read_available(self, max_bytes: int | None = None) -> bytes:
+        """Whatever has arrived, up to max_bytes; b"" when nothing has or the port is away.
+
+        Never blocks. While the port is lost, a call also tries to reopen it once the
+        back-off delay has passed.
+        """
+        self._ensure_usable()
+        if self._port is None:
+            self._reopen_if_due()
+            if self._port is None:
+                return b""
+        return self._read_now(max_bytes or self.settings.read_chunk_bytes)
+
+    def _read_now(self, max_bytes: int) -> bytes:
+        assert self._port is not None
+        self._reads += 1
+        try:
+            data = self._port.read(max_bytes)
+        except (serial.SerialException, OSError) as err:
+            # pyserial reports EIO (pty hung up), and EOF (device gone: readable but
+            # empty) as SerialException; both mean the port is away.
+            self._lose(err)
+            return b""
+        if data:
+            self._bytes_read += len(data)
+            self._last_data_s = time.monotonic()
+        return data
+
+    def read(self, max_bytes: int | None = None, timeout_s: float = 0.05) -> bytes:
+        """Like read_available, but waits up to timeout_s for bytes (for a reader thread).
+
+        While the port is lost it sleeps until the next reopen attempt (at most
+        timeout_s), so a loop calling it does not spin.
+        """
+        self._ensure_usable()
+        max_bytes = max_bytes or self.settings.read_chunk_bytes
+        if self._port is None:
+            wait_s = min(timeout_s, max(0.0, self._next_attempt_s - time.monotonic()))
+            if wait_s > 0:
+                time.sleep(wait_s)
+            self._reopen_if_due()
+            return b""
+        if self._fd is not None:
+            try:
+                ready, _, _ = select.select([self._fd], [], [], timeout_s)
+            except (OSError, ValueError) as err:
+                self._lose(err)
+                return b""
+            return self._read_now(max_bytes) if ready else b""
+        # No descriptor to wait on: let pyserial's own timeout do the waiting.
+        port = self._port
+        try:
+            port.timeout = timeout_s
+            first = port.read(1)
+            port.timeout = 0
+        except (serial.SerialException, OSError) as err:
+            self._reads += 1
+            self._lose(err)
+            return b""
+        self._reads += 1
+        if not first:
+            return b""
+        self._bytes_read += 1
+        self._last_data_s = time.monotonic()
+        return first + (self._read_now(max_bytes - 1) if max_bytes > 1 and self._port is not None else b"")
+
+    async def chunks(self) -> AsyncIterator[bytes]:
+        """Yield non-empty chunks as they arrive, forever (or until the port is given up).
+
+        Raises SerialPortError if the port cannot be opened at first, or when it is lost
+        and ``reconnect`` is False.
+        """
+        # Opening may block (socket:// connects, a USB device settles), so it runs
+        # in a worker thread rather than in the event loop.
+        if not self._wanted_open:
+            await asyncio.to_thread(self.open)
+        loop = asyncio.get_running_loop()
+        while True:
+            if not self._wanted_open:
+                return  # close() was called
+            self._ensure_usable()
+            if self._port is None:
+                await asyncio.sleep(max(0.0, self._next_attempt_s - time.monotonic()))
+                await asyncio.to_thread(self._reopen_if_due)
+                continue
+            if self._fd is None:
+                data = await asyncio.to_thread(self.read, None, self.settings.thread_poll_s)
+            else:
+                await _wait_readable(loop, self._fd)
+                data = self.read_available()
+                if not data and self._port is not None:
+                    # Readable yet nothing to read and no error: do not let a quirky
+                    # driver turn the reader into a busy loop.
+                    await asyncio.sleep(self.settings.thread_poll_s)
+            if data:
+                yield data
+
+
+async def _wait_readable(loop: asyncio.AbstractEventLoop, fd: int) -> None:
+    ready = loop.create_future()
+
+    def on_readable() -> None:
+        if not ready.done():
+            ready.set_result(None)
+
+    loop.add_reader(fd, on_readable)
+    try:
+        await ready
+    finally:
+        loop.remove_reader(fd)

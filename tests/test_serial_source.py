@@ -1,0 +1,415 @@
+"""SerialSource against real parts: pty pairs, pyserial's loop://, a TCP socket://.
+
+Timing is never asserted as a lower bound. Waiting loops have generous deadlines that
+only a broken source would hit; "does not spin" is asserted as an upper bound on open
+attempts derived from the back-off schedule and the measured elapsed time (a busy loop
+would make thousands).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import os
+import socket
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import serial
+
+from drivers.board_protocol import Sample, StreamDecoder, encode
+from drivers.errors import DriverError, SerialPortError
+from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
+
+DEADLINE_S = 10.0  # only a broken source needs this long
+
+FAST_BACKOFF = dict(reconnect_initial_s=0.02, reconnect_max_s=0.16, reconnect_multiplier=2.0)
+
+
+def frames(seqs: range) -> list[Sample]:
+    return [Sample(s, 900 + s % 50, 930 - s % 40, 1843, 0) for s in seqs]
+
+
+def wire(samples: list[Sample]) -> bytes:
+    return b"".join(encode(s) for s in samples)
+
+
+class Pty:
+    """A pty pair; the slave path is what the source opens, the master plays the board."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        self.path = os.ttyname(self.slave)
+
+    def unplug(self) -> None:
+        for fd in (self.master, self.slave):
+            if fd >= 0:
+                os.close(fd)
+        self.master = self.slave = -1
+
+
+@pytest.fixture
+def make_pty() -> Iterator[Callable[[], Pty]]:
+    made: list[Pty] = []
+
+    def make() -> Pty:
+        made.append(Pty())
+        return made[-1]
+
+    yield make
+    for pty in made:
+        pty.unplug()
+
+
+async def wait_until(condition: Callable[[], bool], what: str) -> None:
+    deadline = time.monotonic() + DEADLINE_S
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        await asyncio.sleep(0.005)
+
+
+def max_attempts_within(settings: SerialSettings, elapsed_s: float) -> int:
+    """Most reopen attempts the back-off schedule allows in elapsed_s after a loss."""
+    total = 0.0
+    for count, delay in enumerate(reconnect_delays_s(settings)):
+        total += delay
+        if total > elapsed_s:
+            return count
+
+
+class Consumer:
+    """Runs ``async for chunk in source.chunks()`` into a decoder, as the daemon will."""
+
+    def __init__(self, source: SerialSource) -> None:
+        self.source = source
+        self.decoder = StreamDecoder()
+        self.frames: list = []
+        self.task = asyncio.create_task(self._run())
+
+    async def _run(self) -> None:
+        async for chunk in self.source.chunks():
+            self.frames += self.decoder.feed(chunk)
+
+    async def stop(self) -> None:
+        self.task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await self.task
+        self.source.close()
+
+
+# --- pty ------------------------------------------------------------------------------
+
+
+def test_chunks_reads_frames_from_a_pty(make_pty):
+    pty = make_pty()
+    sent = frames(range(200))
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path))
+        consumer = Consumer(source)
+        await wait_until(lambda: source.state.is_open, "port open")
+        os.write(pty.master, wire(sent))
+        await wait_until(lambda: len(consumer.frames) >= len(sent), "frames")
+        await consumer.stop()
+        return consumer, source.state
+
+    consumer, state = asyncio.run(scenario())
+    assert consumer.frames == sent
+    assert state.bytes_read == len(wire(sent))
+    assert (state.losses, state.reconnects, state.open_attempts) == (0, 0, 1)
+    assert consumer.decoder.counters.bytes_skipped == 0
+
+
+def test_close_from_the_loop_body_ends_chunks_and_a_later_read_reopens(make_pty):
+    pty = make_pty()
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path))
+        source.open()
+        os.write(pty.master, wire(frames(range(2))))
+        got = b""
+        async for chunk in source.chunks():
+            got += chunk
+            if len(got) >= 30:
+                source.close()
+        return source, got
+
+    source, got = asyncio.run(scenario())
+    assert StreamDecoder().feed(got) == frames(range(2))
+    assert not source.state.is_open
+    assert source.read_available() == b""
+    assert source.state.is_open and source.state.open_attempts == 2
+    source.close()
+
+
+def test_read_available_never_blocks_and_read_waits_at_most_its_timeout(make_pty):
+    pty = make_pty()
+    with SerialSource(SerialSettings(port=pty.path)) as source:
+        assert source.read_available() == b""
+        assert source.read(timeout_s=0.01) == b""
+        os.write(pty.master, wire(frames(range(3))))
+        got = b""
+        deadline = time.monotonic() + DEADLINE_S
+        while len(got) < 45 and time.monotonic() < deadline:
+            got += source.read(timeout_s=0.05)
+        assert StreamDecoder().feed(got) == frames(range(3))
+        assert source.read_available(max_bytes=10) == b""
+
+
+def test_pty_hangup_with_reconnect_disabled_raises_naming_the_port(make_pty):
+    pty = make_pty()
+    source = SerialSource(SerialSettings(port=pty.path, reconnect=False))
+    source.open()
+    pty.unplug()
+    with pytest.raises(SerialPortError, match="lost") as info:
+        source.read(timeout_s=1.0)
+    assert info.value.port == pty.path
+    assert pty.path in str(info.value)
+    assert isinstance(info.value.__cause__, serial.SerialException)
+    state = source.state
+    assert (state.is_open, state.losses) == (False, 1)
+    with pytest.raises(SerialPortError):  # stays given up; no silent reopen
+        source.read_available()
+    assert source.state.open_attempts == 1
+
+
+def test_chunks_with_reconnect_disabled_ends_with_an_error(make_pty):
+    pty = make_pty()
+    sent = frames(range(1))
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path, reconnect=False))
+        source.open()
+        os.write(pty.master, wire(sent))
+        got = b""
+        with pytest.raises(SerialPortError, match="lost"):
+            async for chunk in source.chunks():
+                got += chunk
+                if len(got) >= len(wire(sent)):
+                    pty.unplug()
+        return got, source.state
+
+    got, state = asyncio.run(scenario())
+    assert StreamDecoder().feed(got) == sent
+    assert (state.losses, state.open_attempts, state.is_open) == (1, 1, False)
+
+
+def test_port_lost_backs_off_then_reconnects_when_the_symlink_returns(make_pty, tmp_path: Path):
+    """A /dev/serial/by-id/... path is a symlink that udev removes on unplug and
+    recreates, pointing at a new tty, on replug; this plays that with ptys."""
+    link = tmp_path / "usb-FTDI_board-if00-port0"
+    first = make_pty()
+    link.symlink_to(first.path)
+    settings = SerialSettings(port=str(link), **FAST_BACKOFF)
+
+    async def scenario():
+        source = SerialSource(settings)
+        consumer = Consumer(source)
+        await wait_until(lambda: source.state.is_open, "first open")
+        os.write(first.master, wire(frames(range(0, 10))))
+        await wait_until(lambda: len(consumer.frames) == 10, "frames before unplug")
+
+        unplugged_at = time.monotonic()
+        link.unlink()
+        first.unplug()
+        await wait_until(lambda: source.state.losses == 1, "loss noticed")
+        lost = source.state
+        assert not lost.is_open and "lost" in lost.last_error
+        await wait_until(lambda: source.state.open_attempts >= 1 + 4, "four reopen attempts")
+        await asyncio.sleep(0.2)
+        waited_s = time.monotonic() - unplugged_at
+        away = source.state
+
+        second = make_pty()
+        link.symlink_to(second.path)
+        await wait_until(lambda: source.state.reconnects == 1, "reconnect")
+        os.write(second.master, wire(frames(range(10, 20))))
+        await wait_until(lambda: len(consumer.frames) == 20, "frames after replug")
+        final = source.state
+        await consumer.stop()
+        return consumer, lost, away, waited_s, final
+
+    consumer, lost, away, waited_s, final = asyncio.run(scenario())
+    retries = away.open_attempts - 1
+    # +1: a timer may fire a hair early and the boundary attempt land inside the window.
+    assert retries <= max_attempts_within(settings, waited_s) + 1, (retries, waited_s)
+    assert away.reads == lost.reads  # nothing read from a closed port
+    assert not away.is_open
+    assert "No such file or directory" in away.last_error and str(link) in away.last_error
+    assert consumer.frames == frames(range(20))
+    assert consumer.decoder.counters.samples_lost == 0
+    assert (final.is_open, final.losses, final.reconnects) == (True, 1, 1)
+
+
+def test_thread_reader_does_not_spin_while_the_port_is_away(make_pty, tmp_path: Path):
+    link = tmp_path / "ttyBOARD"
+    pty = make_pty()
+    link.symlink_to(pty.path)
+    settings = SerialSettings(port=str(link), **FAST_BACKOFF)
+    source = SerialSource(settings)
+    source.open()
+    unplugged_at = time.monotonic()
+    link.unlink()
+    pty.unplug()
+
+    calls = 0
+    deadline = unplugged_at + DEADLINE_S
+    while source.state.open_attempts < 1 + 4 and time.monotonic() < deadline:
+        assert source.read(timeout_s=0.05) == b""
+        calls += 1
+    waited_s = time.monotonic() - unplugged_at
+    state = source.state
+    assert state.losses == 1 and state.open_attempts >= 5
+    assert state.open_attempts - 1 <= max_attempts_within(settings, waited_s) + 1
+    # Each call sleeps until the next attempt or its timeout: no tight loop.
+    assert calls <= waited_s / 0.02 + state.open_attempts + 2, (calls, waited_s)
+
+    second = make_pty()
+    link.symlink_to(second.path)
+    deadline = time.monotonic() + DEADLINE_S
+    while not source.state.is_open and time.monotonic() < deadline:
+        source.read(timeout_s=0.05)
+    assert source.state.reconnects == 1
+    os.write(second.master, wire(frames(range(5))))
+    got = b""
+    while len(got) < 75 and time.monotonic() < deadline:
+        got += source.read(timeout_s=0.05)
+    assert StreamDecoder().feed(got) == frames(range(5))
+    source.close()
+
+
+# --- opening errors -------------------------------------------------------------------
+
+
+def test_missing_port_fails_at_first_open_with_a_clear_message(tmp_path: Path):
+    missing = str(tmp_path / "ttyUSB9")
+    source = SerialSource(SerialSettings(port=missing))
+    with pytest.raises(SerialPortError) as info:
+        source.open()
+    message = str(info.value)
+    assert missing in message and "No such file or directory" in message and "ENOENT" in message
+    assert info.value.port == missing
+    assert isinstance(info.value, DriverError)
+    assert isinstance(info.value.__cause__, serial.SerialException)
+    assert source.state.last_error == message
+
+
+def test_missing_port_fails_chunks_at_start(tmp_path: Path):
+    async def scenario():
+        async for _ in SerialSource(SerialSettings(port=str(tmp_path / "none"))).chunks():
+            pass
+
+    with pytest.raises(SerialPortError, match="cannot open serial port"):
+        asyncio.run(scenario())
+
+
+def test_a_file_that_is_not_a_tty_is_refused(tmp_path: Path):
+    not_a_tty = tmp_path / "plain-file"
+    not_a_tty.write_bytes(b"")
+    with pytest.raises(SerialPortError, match="cannot open serial port"):
+        SerialSource(SerialSettings(port=str(not_a_tty))).open()
+
+
+def test_second_reader_of_the_same_port_is_refused(make_pty):
+    pty = make_pty()
+    with SerialSource(SerialSettings(port=pty.path)):
+        with pytest.raises(SerialPortError, match="another process holds the port"):
+            SerialSource(SerialSettings(port=pty.path)).open()
+
+
+def test_settings_are_validated():
+    with pytest.raises(ValueError):
+        SerialSettings(port="")
+    with pytest.raises(ValueError):
+        SerialSettings(port="loop://", reconnect_initial_s=1.0, reconnect_max_s=0.5)
+    with pytest.raises(ValueError, match="unknown serial settings: baud"):
+        SerialSource.from_config({"port": "loop://", "baud": 9600})
+    assert SerialSource.from_config({"port": "loop://", "baudrate": 9600}).settings.baudrate == 9600
+
+
+def test_backoff_schedule_doubles_up_to_the_cap():
+    settings = SerialSettings(port="x", reconnect_initial_s=0.1, reconnect_max_s=5.0, reconnect_multiplier=2.0)
+    delays = list(itertools.islice(reconnect_delays_s(settings), 9))
+    assert delays == pytest.approx([0.1, 0.2, 0.4, 0.8, 1.6, 3.2, 5.0, 5.0, 5.0])
+
+
+# --- pyserial URLs --------------------------------------------------------------------
+
+
+class RecordingOpener:
+    """pyserial's own opener, keeping the instance so the test can write into loop://."""
+
+    def __init__(self) -> None:
+        self.ports: list[serial.SerialBase] = []
+
+    def __call__(self, settings: SerialSettings) -> serial.SerialBase:
+        from drivers.serial_source import open_with_pyserial
+
+        self.ports.append(open_with_pyserial(settings))
+        return self.ports[-1]
+
+
+def test_loop_url_read_available_and_thread_backed_chunks():
+    opener = RecordingOpener()
+    sent = frames(range(50))
+
+    source = SerialSource(SerialSettings(port="loop://"), opener=opener)
+    source.open()
+    opener.ports[0].write(wire(sent[:5]))
+    assert StreamDecoder().feed(source.read_available()) == sent[:5]
+
+    async def scenario():
+        consumer = Consumer(source)
+        await asyncio.sleep(0)
+        opener.ports[0].write(wire(sent[5:]))
+        await wait_until(lambda: len(consumer.frames) == 45, "loop:// frames")
+        await consumer.stop()
+        return consumer.frames
+
+    assert asyncio.run(scenario()) == sent[5:]
+
+
+def test_socket_url_reconnects_after_the_peer_hangs_up():
+    """socket:// has a descriptor, so chunks() waits on the event loop's reader;
+    a peer hang-up is pyserial's 'socket disconnected', i.e. a loss."""
+    sent = frames(range(30))
+
+    async def scenario():
+        connections: list[asyncio.StreamWriter] = []
+        # pyserial drops whatever is buffered while it opens, so the "board" sends
+        # only once the source reports the port open.
+        may_send = [asyncio.Event(), asyncio.Event()]
+
+        async def board(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            connections.append(writer)
+            n = len(connections) - 1
+            await may_send[n].wait()
+            writer.write(wire(sent[:10] if n == 0 else sent[10:]))
+            await writer.drain()
+            if n == 0:
+                writer.close()  # the link drops
+
+        server = await asyncio.start_server(board, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        source = SerialSource(SerialSettings(port=f"socket://127.0.0.1:{port}", **FAST_BACKOFF))
+        consumer = Consumer(source)
+        await wait_until(lambda: source.state.is_open, "connected")
+        may_send[0].set()
+        await wait_until(lambda: source.state.reconnects == 1, "reconnected")
+        may_send[1].set()
+        await wait_until(lambda: len(consumer.frames) == 30, "frames over two connections")
+        state = source.state
+        await consumer.stop()
+        for writer in connections:
+            writer.close()
+        server.close()
+        await server.wait_closed()
+        return consumer.frames, state
+
+    got, state = asyncio.run(scenario())
+    assert got == sent
+    assert (state.losses, state.reconnects, state.is_open) == (1, 1, True)
+    assert "socket disconnected" in state.last_error
