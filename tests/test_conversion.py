@@ -32,11 +32,11 @@ def test_unusable_counts_are_nan_and_invalid():
     cal = AxisCalibration()
     assert np.isnan(acceleration_mps2(10, 0, cal))
     assert np.isnan(acceleration_mps2(30, 20, cal))
-    flags = np.array([0, 1, 2, 4, 0, 0])
-    t1 = np.array([900, 900, 900, 900, 900, 1900])
-    t2 = np.array([1843, 1843, 1843, 1843, 0, 1843])
-    assert axis_valid(flags, t1, t2, "x").tolist() == [True, False, True, False, False, False]
-    assert axis_valid(flags, t1, t2, "y").tolist() == [True, True, False, False, False, False]
+    flags = np.array([0, 1, 2, 4, 0, 0, 8])
+    t1 = np.array([900, 900, 900, 900, 900, 1900, 900])
+    t2 = np.array([1843, 1843, 1843, 1843, 0, 1843, 1843])
+    assert axis_valid(flags, t1, t2, "x").tolist() == [True, False, True, False, False, False, False]
+    assert axis_valid(flags, t1, t2, "y").tolist() == [True, True, False, False, False, False, False]
 
 
 def test_calibration_rejects_impossible_values():

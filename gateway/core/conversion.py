@@ -14,6 +14,9 @@ from gateway.core.units import SEQ_MODULUS, STANDARD_GRAVITY_MPS2
 FLAG_X_TIMEOUT = 0x01
 FLAG_Y_TIMEOUT = 0x02
 FLAG_TIMER_OVERFLOW = 0x04
+# Bits 3–7 are 0 in protocol version 1; a sample with any of them set comes from a board
+# speaking something else, and neither axis is trusted (the codec reads it the same way).
+FLAGS_RESERVED = 0xF8
 
 
 @dataclass(frozen=True)
@@ -54,7 +57,7 @@ def axis_valid(flags, t1_ticks, t2_ticks, axis: str):
     timeout_bit = FLAG_X_TIMEOUT if axis == "x" else FLAG_Y_TIMEOUT
     t1 = np.asarray(t1_ticks)
     t2 = np.asarray(t2_ticks)
-    return ((flags & (timeout_bit | FLAG_TIMER_OVERFLOW)) == 0) & (t2 > 0) & (t1 <= t2)
+    return ((flags & (timeout_bit | FLAG_TIMER_OVERFLOW | FLAGS_RESERVED)) == 0) & (t2 > 0) & (t1 <= t2)
 
 
 def lost_before_from_seq(seq) -> np.ndarray:
