@@ -76,7 +76,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="best of N timings")
     args = parser.parse_args()
 
-    print(f"command: PYTHONPATH=. {sys.executable} benchmarks/decoder_benchmark.py "
+    print(f"command: .venv/bin/python benchmarks/decoder_benchmark.py "
           f"--minutes {args.minutes:g} --repeats {args.repeats}")
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
     print(f"python: {platform.python_implementation()} {platform.python_version()}")
