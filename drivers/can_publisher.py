@@ -53,9 +53,14 @@ class CanPublisherError(Exception):
 
 @dataclass(frozen=True, slots=True)
 class CanPublisherConfig:
+    """Settings; the names match the [can] section of the daemon's config."""
+
     #: python-can interface name: "socketcan" in production, "virtual" in tests.
     interface: str = "socketcan"
     channel: str = "can0"
+    #: Passed to can.Bus when set (interfaces that configure the bit rate themselves;
+    #: socketcan takes it from `ip link`).
+    bitrate: int | None = None
     period_ms: float = 10.0
     #: None: purely cyclic. A number: update() also transmits at once when at least
     #: this long has passed since the last transmission.
@@ -155,6 +160,7 @@ class CanPublisher:
                 channel=cfg.channel,
                 receive_own_messages=False,
                 can_filters=[{"can_id": COMMAND_FRAME.frame_id, "can_mask": 0x7FF, "extended": False}],
+                **({} if cfg.bitrate is None else {"bitrate": cfg.bitrate}),
                 **cfg.bus_options,
             )
         except (can.CanError, OSError, ValueError, ImportError) as err:

@@ -37,11 +37,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from pymodbus.constants import ExcCodes
+from pymodbus.exceptions import ModbusIOException
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.transaction import TransactionManager
 
 from .modbus_map import (
     HOLDING_REGISTERS,
@@ -90,46 +92,55 @@ class ModbusServerError(Exception):
 
 @dataclass(frozen=True, slots=True)
 class ModbusServerConfig:
+    """Settings; the names match the [modbus] section of the daemon's config."""
+
     tcp_enabled: bool = True
-    tcp_host: str = "0.0.0.0"
+    host: str = "127.0.0.1"
     #: 0 = let the OS choose (tests); read the bound port from `ModbusServer.tcp_port`.
-    tcp_port: int = 502
+    port: int = 5020
+    #: The RTU server answers only this unit id; other ids and broadcasts (0) belong to
+    #: other devices on a shared RS-485 line and get no answer. TCP answers any unit id
+    #: (the IP address is the device address there; PLCs send 0, 1 or 255).
+    unit_id: int = 1
     word_order: WordOrder = WordOrder.ABCD
     #: Master switch for the command registers on every wire.
     writes_enabled: bool = False
     #: TCP clients allowed to write when writes are enabled: addresses or networks
-    #: ("192.168.10.5", "10.0.0.0/24"). Empty = nobody. "0.0.0.0/0" = every IPv4 client.
-    write_allow_list: tuple[str, ...] = ()
-    #: Serial device for Modbus RTU (RS-485); None = no RTU server.
-    rtu_port: str | None = None
+    #: ("192.168.10.5", "10.0.0.0/24"). Empty = nobody; "0.0.0.0/0" = every IPv4 client.
+    write_allow: tuple[str, ...] = ("127.0.0.1",)
+    rtu_enabled: bool = False
+    #: Serial device (or pyserial URL) of the RTU server.
+    rtu_port: str = "/dev/ttyUSB1"
     rtu_baudrate: int = 19200
     #: Modbus over serial line specifies even parity as the default.
     rtu_parity: str = "E"
     rtu_bytesize: int = 8
     rtu_stopbits: int = 1
-    #: The RTU server answers only this unit id (1..247); other ids and broadcasts are
-    #: other devices' business on a shared RS-485 line and get no answer.
-    rtu_unit_id: int = 1
-    #: RTU has no client address: whether the RS-485 master may write (still needs
+    #: RTU has no client address: whether the RS-485 master may write (also needs
     #: writes_enabled).
-    rtu_writes_allowed: bool = False
+    rtu_writes_enabled: bool = False
 
     def __post_init__(self) -> None:
-        if not 0 <= self.tcp_port <= 65535:
-            raise ModbusServerError(f"tcp_port {self.tcp_port} outside 0..65535")
-        if not 1 <= self.rtu_unit_id <= 247:
-            raise ModbusServerError(f"rtu_unit_id {self.rtu_unit_id} outside 1..247")
+        if not 0 <= self.port <= 65535:
+            raise ModbusServerError(f"port {self.port} outside 0..65535")
+        if not 0 <= self.unit_id <= 247 or (self.rtu_enabled and self.unit_id == 0):
+            raise ModbusServerError(
+                f"unit_id {self.unit_id} outside 1..247 (0 is the RTU broadcast address)"
+            )
         if self.rtu_parity not in ("N", "E", "O"):
             raise ModbusServerError(f"rtu_parity {self.rtu_parity!r} is not N, E or O")
-        object.__setattr__(self, "word_order", WordOrder(self.word_order))
-        object.__setattr__(self, "write_allow_list", tuple(self.write_allow_list))
+        try:
+            object.__setattr__(self, "word_order", WordOrder(self.word_order))
+        except ValueError as err:
+            raise ModbusServerError(f"word_order {self.word_order!r} is not ABCD or CDAB") from err
+        object.__setattr__(self, "write_allow", tuple(self.write_allow))
         self.allowed_networks()  # validates
 
     def allowed_networks(self) -> tuple[ipaddress.IPv4Network | ipaddress.IPv6Network, ...]:
         try:
-            return tuple(ipaddress.ip_network(entry, strict=False) for entry in self.write_allow_list)
+            return tuple(ipaddress.ip_network(entry, strict=False) for entry in self.write_allow)
         except ValueError as err:
-            raise ModbusServerError(f"write_allow_list: {err}") from err
+            raise ModbusServerError(f"write_allow: {err}") from err
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,7 +189,7 @@ class ModbusServer:
 
     @property
     def tcp_port(self) -> int | None:
-        """The bound TCP port (useful with tcp_port=0), None if TCP is not running."""
+        """The bound TCP port (useful with port=0), None if TCP is not running."""
         if self._tcp is None or self._tcp.transport is None:
             return None
         sockets = getattr(self._tcp.transport, "sockets", None) or ()
@@ -191,10 +202,10 @@ class ModbusServer:
         cfg = self.config
         try:
             if cfg.tcp_enabled:
-                self._tcp = _TcpServer(self, context=device, address=(cfg.tcp_host, cfg.tcp_port))
+                self._tcp = _TcpServer(self, context=device, address=(cfg.host, cfg.port))
                 self._servers.append(self._tcp)
                 await self._tcp.serve_forever(background=True)
-            if cfg.rtu_port is not None:
+            if cfg.rtu_enabled:
                 rtu = _SerialServer(
                     self,
                     context=device,
@@ -213,7 +224,9 @@ class ModbusServer:
             await self.stop()
             raise ModbusServerError(f"cannot start Modbus server: {err}") from err
         log.info(
-            "Modbus server started (tcp port %s, rtu %s)", self.tcp_port, cfg.rtu_port or "off"
+            "Modbus server started (tcp port %s, rtu %s)",
+            self.tcp_port,
+            cfg.rtu_port if cfg.rtu_enabled else "off",
         )
 
     async def stop(self) -> None:
@@ -230,7 +243,7 @@ class ModbusServer:
         # Separate tables (tuple form): coils, discrete inputs, holding, input. Coils and
         # discrete inputs must exist for pymodbus but are refused before they are reached.
         return SimDevice(
-            id=0,  # 0 = answer every unit id; the RTU handler filters its own id
+            id=0,  # 0 = answer every unit id; the RTU handler filters unit_id
             simdata=(
                 [SimData(0, values=0, datatype=DataType.BITS)],
                 [SimData(0, values=0, datatype=DataType.BITS)],
@@ -264,7 +277,7 @@ class ModbusServer:
         if function_code not in WRITE_FUNCTIONS:
             return None
         if self.config.writes_enabled and (
-            self.config.rtu_writes_allowed if handler.is_rtu else self._ip_allowed(handler.peer_ip)
+            self.config.rtu_writes_enabled if handler.is_rtu else self._ip_allowed(handler.peer_ip)
         ):
             return None
         self._bump(rejected_writes=1)
@@ -365,7 +378,7 @@ class _GatewayRequestHandler(ServerRequestHandler):
     def callback_connected(self) -> None:
         super().callback_connected()
         if self.is_rtu:
-            self.source = f"modbus-rtu:{self.gateway.config.rtu_port}:unit{self.gateway.config.rtu_unit_id}"
+            self.source = f"modbus-rtu:{self.gateway.config.rtu_port}:unit{self.gateway.config.unit_id}"
             return
         peer = self.transport.get_extra_info("peername") if self.transport else None
         if peer:
@@ -381,18 +394,49 @@ class _GatewayRequestHandler(ServerRequestHandler):
             self.gateway._bump(clients_connected=-1)
         self.gateway._handlers.discard(self)
 
-    def handle_later(self) -> None:
-        # pymodbus re-reads self.last_pdu when its task runs, by which time a newer
-        # request may have replaced it; bind the PDU now so the request that is checked
-        # is the request that is executed.
-        pdu, addr = self.last_pdu, self.last_addr
-        if pdu is None:
-            return
-        task = asyncio.ensure_future(self._handle(pdu, addr))
-        self._tasks.add(task)
-        task.add_done_callback(self._tasks.discard)
+    def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
+        """Decode every complete request in `data` and schedule each with its PDU bound.
 
-    async def handle_request(self) -> None:  # pragma: no cover - replaced by handle_later
+        Replaces ServerRequestHandler.callback_data, which handles one request per
+        call (a second request in the same TCP segment waited for more data) and lets
+        the scheduled task re-read `last_pdu` later (a newer request could replace the
+        one that was checked).
+        """
+        used_total = 0
+        while used_total < len(data):
+            chunk = data[used_total:]
+            try:
+                used = TransactionManager.callback_data(self, chunk, addr)
+            except ModbusIOException as exc:
+                self._answer_undecodable(chunk, exc, addr)
+                return len(data)
+            if self.last_pdu is not None:
+                task = asyncio.ensure_future(self._handle(self.last_pdu, addr))
+                self._tasks.add(task)
+                task.add_done_callback(self._tasks.discard)
+                self.last_pdu = None
+            if not used:
+                break  # incomplete frame: wait for more bytes
+            used_total += used
+        return used_total
+
+    def _answer_undecodable(self, frame: bytes, exc: ModbusIOException, addr: tuple | None) -> None:
+        # pymodbus answers these with function code 0x80; answer with the request's own
+        # function code as the Modbus spec wants: 01 for a function we do not serve, 03
+        # for a known function whose quantity/byte count/length is wrong.
+        _, _, _, pdu_bytes = self.framer.decode(frame)
+        function_code = pdu_bytes[0] & 0x7F if pdu_bytes else 0
+        code = ExcCodes.ILLEGAL_VALUE if function_code in SUPPORTED_FUNCTIONS else ExcCodes.ILLEGAL_FUNCTION
+        dev_id = exc.dev_id if exc.dev_id is not None else 0
+        response = ExceptionResponse(function_code, code, device_id=dev_id, transaction=exc.transaction_id or 0)
+        if not self.is_rtu or dev_id == self.gateway.config.unit_id:
+            self.gateway._bump(requests=1)
+        self.server_send(response, addr)
+
+    def handle_later(self) -> None:  # pragma: no cover - callback_data schedules directly
+        raise RuntimeError("handle_later is not used by the gateway handler")
+
+    async def handle_request(self) -> None:  # pragma: no cover - see callback_data
         raise RuntimeError("handle_request is not used by the gateway handler")
 
     def cancel_pending(self) -> None:
@@ -400,7 +444,7 @@ class _GatewayRequestHandler(ServerRequestHandler):
             task.cancel()
 
     async def _handle(self, pdu: ModbusPDU, addr: tuple | None) -> None:
-        if self.is_rtu and pdu.dev_id != self.gateway.config.rtu_unit_id:
+        if self.is_rtu and pdu.dev_id != self.gateway.config.unit_id:
             return  # addressed to another device on the line (or broadcast): stay silent
         self.gateway._bump(requests=1)
         refusal = self.gateway._refusal(pdu.function_code, self)
@@ -422,7 +466,7 @@ class _GatewayRequestHandler(ServerRequestHandler):
     def server_send(self, pdu: ModbusPDU | None, addr: tuple | None) -> None:
         if pdu is None:
             return
-        if self.is_rtu and pdu.dev_id != self.gateway.config.rtu_unit_id:
+        if self.is_rtu and pdu.dev_id != self.gateway.config.unit_id:
             return  # e.g. pymodbus's answer to an undecodable frame for another device
         if isinstance(pdu, ExceptionResponse):
             self.gateway._bump(exceptions=1)
