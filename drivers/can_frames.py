@@ -336,8 +336,35 @@ def encode_ack(check: CommandCheck, result: AckResult, counter: int) -> bytes:
 
 
 # --------------------------------------------------------------------------- #
-# DBC
+# Printed forms: Markdown for the docs, the DBC file
 # --------------------------------------------------------------------------- #
+def frames_markdown() -> str:
+    """Frame and signal tables (embedded verbatim in docs/can-frames.md)."""
+    lines = []
+    for frame in FRAMES:
+        cycle = f"every {frame.cycle_time_ms} ms" if frame.cycle_time_ms is not None else "on event"
+        lines += [
+            f"### {frame.name} — 0x{frame.frame_id:03X} ({frame.frame_id}), {frame.sender} → "
+            f"{frame.receiver}, DLC {frame.dlc}, {cycle}, E2E data ID 0x{frame.data_id:04X}",
+            "",
+            frame.comment,
+            "",
+            "| Signal | Start bit | Bits | Signed | Factor | Range | Unit | Meaning |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for s in frame.signals:
+            meaning = s.comment
+            if s.choices:
+                meaning += " Values: " + ", ".join(f"{raw} = {label}" for raw, label in s.choices) + "."
+            lines.append(
+                f"| {s.name} | {s.start_bit} | {s.length} | {'yes' if s.signed else 'no'} "
+                f"| {_num(s.factor)} | {_num(s.minimum)} … {_num(s.maximum)} | {s.unit} | {meaning} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+
 def _num(value: float) -> str:
     """Plain decimal, no exponent (DBC readers differ on '1e-06')."""
     text = f"{value:.9f}".rstrip("0").rstrip(".")
