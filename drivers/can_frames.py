@@ -1,0 +1,424 @@
+"""CAN frames of the gateway: one table, the E2E protection, packing, and the DBC text.
+
+`FRAMES` is the single source. The publisher packs and unpacks with it,
+`dbc_text()` generates the DBC from it, and config/adxl-gateway.dbc is that text
+committed for users (a test fails if they differ). Nothing about the layout is written
+twice.
+
+Layout rules (details and rationale in docs/can-frames.md):
+- Classic CAN, 11-bit identifiers, DLC 8, all signals little-endian (Intel).
+- Every frame is protected like AUTOSAR E2E profile 1 (variant 1A, data ID mode BOTH):
+  byte 0 is a CRC-8, the low nibble of byte 1 an alive counter 0..14 (15 is never
+  sent and is invalid), and the CRC covers the data ID (low byte, then high byte)
+  followed by bytes 1..7. The CRC is CRC-8/SAE-J1850's polynomial 0x1D; profile 1
+  calls the library with start value 0xFF as a continuation and XORs 0xFF at the end,
+  which comes to: initial value 0x00, no reflection, no final XOR (CRC-8/GSM-A
+  parameters). The data ID of each frame is its CAN identifier.
+- Scaled integers that have no valid value carry the most negative raw value
+  (int32 0x80000000, int16 0x8000); out-of-range values clamp to ±(2^(n-1) − 1) and set
+  SCALED_CLAMPED in the status word.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from .published_values import Command, PublishedValues, StatusBits
+
+GATEWAY_NODE = "ADXL_GW"
+PLC_NODE = "PLC"
+
+COUNTER_MAX = 14  # E2E profile 1: the alive counter runs 0..14, 15 is invalid
+CRC8_POLY = 0x1D
+
+
+# --------------------------------------------------------------------------- #
+# The table
+# --------------------------------------------------------------------------- #
+@dataclass(frozen=True, slots=True)
+class SignalSpec:
+    name: str
+    #: Intel (little-endian) start bit = position of the least significant bit.
+    start_bit: int
+    length: int
+    signed: bool
+    factor: float
+    minimum: float
+    maximum: float
+    unit: str
+    comment: str
+    choices: tuple[tuple[int, str], ...] = ()
+
+    def raw_limits(self) -> tuple[int, int]:
+        if self.signed:
+            return -(2 ** (self.length - 1)), 2 ** (self.length - 1) - 1
+        return 0, 2**self.length - 1
+
+
+@dataclass(frozen=True, slots=True)
+class FrameSpec:
+    name: str
+    frame_id: int
+    sender: str
+    receiver: str
+    #: None = sent on event (command and its acknowledgement).
+    cycle_time_ms: int | None
+    comment: str
+    signals: tuple[SignalSpec, ...]
+    dlc: int = 8
+
+    @property
+    def data_id(self) -> int:
+        """E2E data ID mixed into the CRC (catches a frame on the wrong identifier)."""
+        return self.frame_id
+
+    def signal(self, suffix: str) -> SignalSpec:
+        """The signal named '<prefix>_<suffix>' (each frame prefixes its own names)."""
+        for spec in self.signals:
+            if spec.name.split("_", 1)[1] == suffix:
+                return spec
+        raise KeyError(f"{self.name} has no signal *_{suffix}")
+
+
+def _e2e_header(prefix: str, flags: bool) -> tuple[SignalSpec, ...]:
+    header = (
+        SignalSpec(f"{prefix}_CRC", 0, 8, False, 1, 0, 255, "",
+                   "E2E profile 1 CRC-8 over data ID and bytes 1..7."),
+        SignalSpec(f"{prefix}_Counter", 8, 4, False, 1, 0, COUNTER_MAX, "",
+                   "E2E alive counter, +1 per frame sent, 0..14 then 0 again."),
+    )
+    if not flags:
+        return header
+    # The four bits a receiver needs to judge the numbers travel in every cyclic frame.
+    return header + (
+        SignalSpec(f"{prefix}_Valid", 12, 1, False, 1, 0, 1, "", "StatusBits.VALID."),
+        SignalSpec(f"{prefix}_Standstill", 13, 1, False, 1, 0, 1, "", "StatusBits.STANDSTILL."),
+        SignalSpec(f"{prefix}_Stale", 14, 1, False, 1, 0, 1, "", "StatusBits.STALE."),
+        SignalSpec(f"{prefix}_BoardLost", 15, 1, False, 1, 0, 1, "", "StatusBits.BOARD_LOST."),
+    )
+
+
+class AckResult(enum.IntEnum):
+    """What the gateway did with a command frame (signal Ack_Result)."""
+
+    DONE = 0
+    DECLINED = 1  # the daemon declined (e.g. not at standstill)
+    FAILED = 2  # the daemon's handler raised
+    DISABLED = 3  # commands over CAN are not enabled
+    CRC_ERROR = 4
+    COUNTER_ERROR = 5  # counter 15, or the same counter as the previous command
+    UNKNOWN_COMMAND = 6
+    BAD_LENGTH = 7
+
+
+_INT32_NA = -(2**31)
+_INT16_NA = -(2**15)
+
+# fmt: off
+POSITION_FRAME = FrameSpec(
+    "ADXL_Position", 0x120, GATEWAY_NODE, PLC_NODE, 10,
+    "Position and full status word, cyclic.",
+    _e2e_header("Pos", flags=True) + (
+        SignalSpec("Pos_Position", 16, 32, True, 0.000001, -2147.483647, 2147.483647, "m",
+                   "Position, 1 um per bit; raw -2147483648 = not available.",
+                   ((_INT32_NA, "NotAvailable"),)),
+        SignalSpec("Pos_Status", 48, 16, False, 1, 0, 65535, "",
+                   "StatusBits word, same bits as Modbus input register STATUS."),
+    ),
+)
+VELOCITY_FRAME = FrameSpec(
+    "ADXL_Velocity", 0x121, GATEWAY_NODE, PLC_NODE, 10,
+    "Velocity and acceleration, cyclic.",
+    _e2e_header("Vel", flags=True) + (
+        SignalSpec("Vel_Velocity", 16, 32, True, 0.000001, -2147.483647, 2147.483647, "m/s",
+                   "Velocity, 1 um/s per bit; raw -2147483648 = not available.",
+                   ((_INT32_NA, "NotAvailable"),)),
+        SignalSpec("Vel_Acceleration", 48, 16, True, 0.001, -32.767, 32.767, "m/s2",
+                   "Acceleration, 1 mm/s2 per bit (ADXL202 range is about 19.6 m/s2); "
+                   "raw -32768 = not available.",
+                   ((_INT16_NA, "NotAvailable"),)),
+    ),
+)
+COMMAND_FRAME = FrameSpec(
+    "ADXL_Command", 0x130, PLC_NODE, GATEWAY_NODE, None,
+    "Command to the gateway; executed only when commands are enabled and the E2E check passes.",
+    _e2e_header("Cmd", flags=False) + (
+        SignalSpec("Cmd_Code", 16, 8, False, 1, 0, 255, "",
+                   "Command code.", tuple((int(c), c.name) for c in Command)),
+    ),
+)
+ACK_FRAME = FrameSpec(
+    "ADXL_CommandAck", 0x131, GATEWAY_NODE, PLC_NODE, None,
+    "Answer to every ADXL_Command frame received.",
+    _e2e_header("Ack", flags=False) + (
+        SignalSpec("Ack_Code", 16, 8, False, 1, 0, 255, "",
+                   "Command code of the frame answered.", tuple((int(c), c.name) for c in Command)),
+        SignalSpec("Ack_CommandCounter", 24, 4, False, 1, 0, 15, "",
+                   "Alive counter of the command frame answered."),
+        SignalSpec("Ack_Result", 32, 8, False, 1, 0, 255, "",
+                   "What the gateway did.", tuple((int(r), r.name) for r in AckResult)),
+    ),
+)
+# fmt: on
+
+FRAMES: tuple[FrameSpec, ...] = (POSITION_FRAME, VELOCITY_FRAME, COMMAND_FRAME, ACK_FRAME)
+CYCLIC_FRAMES: tuple[FrameSpec, ...] = tuple(f for f in FRAMES if f.cycle_time_ms is not None)
+
+
+# --------------------------------------------------------------------------- #
+# CRC and E2E profile 1
+# --------------------------------------------------------------------------- #
+def _crc8_table(poly: int) -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ poly) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC8_TABLE = _crc8_table(CRC8_POLY)
+
+
+def crc8(data: bytes, init: int = 0xFF, xor_out: int = 0xFF) -> int:
+    """CRC-8 with polynomial 0x1D, MSB first. Defaults are CRC-8/SAE-J1850 (check 0x4B)."""
+    crc = init
+    for byte in data:
+        crc = _CRC8_TABLE[crc ^ byte]
+    return crc ^ xor_out
+
+
+def e2e_p01_crc(data_id: int, payload: bytes) -> int:
+    """E2E profile 1 CRC of a frame (payload byte 0 is the CRC itself and is skipped)."""
+    covered = bytes((data_id & 0xFF, (data_id >> 8) & 0xFF)) + bytes(payload[1:])
+    return crc8(covered, init=0x00, xor_out=0x00)
+
+
+def e2e_p01_protect(frame: FrameSpec, payload: bytearray, counter: int) -> None:
+    """Write the counter (low nibble of byte 1) and then the CRC (byte 0) in place."""
+    if not 0 <= counter <= COUNTER_MAX:
+        raise ValueError(f"E2E counter {counter} outside 0..{COUNTER_MAX}")
+    payload[1] = (payload[1] & 0xF0) | counter
+    payload[0] = e2e_p01_crc(frame.data_id, payload)
+
+
+def next_counter(counter: int) -> int:
+    return 0 if counter >= COUNTER_MAX else counter + 1
+
+
+# --------------------------------------------------------------------------- #
+# Packing
+# --------------------------------------------------------------------------- #
+def pack(frame: FrameSpec, raw: Mapping[str, int]) -> bytearray:
+    """Payload with the given raw signal values (missing signals are 0)."""
+    word = 0
+    for spec in frame.signals:
+        value = int(raw.get(spec.name, 0))
+        low, high = spec.raw_limits()
+        if not low <= value <= high:
+            raise ValueError(f"{spec.name}: raw {value} outside {low}..{high}")
+        word |= (value & ((1 << spec.length) - 1)) << spec.start_bit
+    return bytearray(word.to_bytes(frame.dlc, "little"))
+
+
+def unpack(frame: FrameSpec, payload: bytes) -> dict[str, int]:
+    """Raw signal values of a payload of the frame's length."""
+    if len(payload) != frame.dlc:
+        raise ValueError(f"{frame.name}: {len(payload)} bytes, expected {frame.dlc}")
+    word = int.from_bytes(payload, "little")
+    raw = {}
+    for spec in frame.signals:
+        value = (word >> spec.start_bit) & ((1 << spec.length) - 1)
+        if spec.signed and value & (1 << (spec.length - 1)):
+            value -= 1 << spec.length
+        raw[spec.name] = value
+    return raw
+
+
+def _scaled(spec: SignalSpec, value: float) -> tuple[int, bool]:
+    """(raw, clamped) for a scaled signed signal whose most negative raw means n/a."""
+    low, high = spec.raw_limits()
+    if math.isnan(value):
+        return low, False
+    scaled = value / spec.factor if math.isfinite(value) else value
+    if scaled > high:
+        return high, True
+    if scaled < -high:
+        return -high, True
+    return round(scaled), False
+
+
+def encode_cyclic(values: PublishedValues, counters: Mapping[int, int]) -> list[tuple[FrameSpec, bytes]]:
+    """The protected payloads of all cyclic frames for one snapshot.
+
+    `counters` maps frame_id to the alive counter to put in this transmission.
+    """
+    position, clamped_p = _scaled(POSITION_FRAME.signal("Position"), values.position_m)
+    velocity, clamped_v = _scaled(VELOCITY_FRAME.signal("Velocity"), values.velocity_mps)
+    acceleration, clamped_a = _scaled(VELOCITY_FRAME.signal("Acceleration"), values.acceleration_mps2)
+    status = StatusBits(values.status)
+    if clamped_p or clamped_v or clamped_a:
+        status |= StatusBits.SCALED_CLAMPED
+    flags = {
+        "Valid": StatusBits.VALID,
+        "Standstill": StatusBits.STANDSTILL,
+        "Stale": StatusBits.STALE,
+        "BoardLost": StatusBits.BOARD_LOST,
+    }
+    raw_by_frame = {
+        POSITION_FRAME: {"Pos_Position": position, "Pos_Status": int(status) & 0xFFFF},
+        VELOCITY_FRAME: {"Vel_Velocity": velocity, "Vel_Acceleration": acceleration},
+    }
+    frames = []
+    for frame, raw in raw_by_frame.items():
+        prefix = frame.signals[0].name.split("_", 1)[0]
+        for suffix, bit in flags.items():
+            raw[f"{prefix}_{suffix}"] = int(bool(status & bit))
+        payload = pack(frame, raw)
+        e2e_p01_protect(frame, payload, counters[frame.frame_id])
+        frames.append((frame, bytes(payload)))
+    return frames
+
+
+@dataclass(frozen=True, slots=True)
+class CommandCheck:
+    """Outcome of checking a received command frame."""
+
+    #: None when the frame passed every check; else why not.
+    problem: AckResult | None
+    command: Command | None
+    code: int
+    counter: int
+
+
+def check_command(payload: bytes, last_counter: int | None) -> CommandCheck:
+    """E2E and content check of an ADXL_Command payload.
+
+    `last_counter` is the counter of the previous valid command (None: none yet); a
+    repeat of it is refused, any other value 0..14 is accepted (commands are rare, so
+    a gap only means frames were lost or the sender restarted).
+    """
+    if len(payload) != COMMAND_FRAME.dlc:
+        code = payload[2] if len(payload) > 2 else 0
+        counter = payload[1] & 0x0F if len(payload) > 1 else 0
+        return CommandCheck(AckResult.BAD_LENGTH, None, code, counter)
+    raw = unpack(COMMAND_FRAME, payload)
+    code, counter = raw["Cmd_Code"], raw["Cmd_Counter"]
+    if e2e_p01_crc(COMMAND_FRAME.data_id, payload) != raw["Cmd_CRC"]:
+        return CommandCheck(AckResult.CRC_ERROR, None, code, counter)
+    if counter > COUNTER_MAX or counter == last_counter:
+        return CommandCheck(AckResult.COUNTER_ERROR, None, code, counter)
+    try:
+        command = Command(code)
+    except ValueError:
+        return CommandCheck(AckResult.UNKNOWN_COMMAND, None, code, counter)
+    return CommandCheck(None, command, code, counter)
+
+
+def encode_command(command: Command | int, counter: int) -> bytes:
+    """A protected ADXL_Command payload (for PLC-side tools and tests)."""
+    payload = pack(COMMAND_FRAME, {"Cmd_Code": int(command)})
+    e2e_p01_protect(COMMAND_FRAME, payload, counter)
+    return bytes(payload)
+
+
+def encode_ack(check: CommandCheck, result: AckResult, counter: int) -> bytes:
+    payload = pack(
+        ACK_FRAME,
+        {"Ack_Code": check.code & 0xFF, "Ack_CommandCounter": check.counter & 0x0F, "Ack_Result": int(result)},
+    )
+    e2e_p01_protect(ACK_FRAME, payload, counter)
+    return bytes(payload)
+
+
+# --------------------------------------------------------------------------- #
+# Printed forms: Markdown for the docs, the DBC file
+# --------------------------------------------------------------------------- #
+def frames_markdown() -> str:
+    """Frame and signal tables (embedded verbatim in docs/can-frames.md)."""
+    lines = []
+    for frame in FRAMES:
+        cycle = f"every {frame.cycle_time_ms} ms" if frame.cycle_time_ms is not None else "on event"
+        lines += [
+            f"### {frame.name} — 0x{frame.frame_id:03X} ({frame.frame_id}), {frame.sender} → "
+            f"{frame.receiver}, DLC {frame.dlc}, {cycle}, E2E data ID 0x{frame.data_id:04X}",
+            "",
+            frame.comment,
+            "",
+            "| Signal | Start bit | Bits | Signed | Factor | Range | Unit | Meaning |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for s in frame.signals:
+            meaning = s.comment
+            if s.choices:
+                meaning += " Values: " + ", ".join(f"{raw} = {label}" for raw, label in s.choices) + "."
+            lines.append(
+                f"| {s.name} | {s.start_bit} | {s.length} | {'yes' if s.signed else 'no'} "
+                f"| {_num(s.factor)} | {_num(s.minimum)} … {_num(s.maximum)} | {s.unit} | {meaning} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+
+def _num(value: float) -> str:
+    """Plain decimal, no exponent (DBC readers differ on '1e-06')."""
+    text = f"{value:.9f}".rstrip("0").rstrip(".")
+    return "0" if text in ("", "-0") else text
+
+
+def dbc_text() -> str:
+    """The DBC file describing every frame; config/adxl-gateway.dbc is this text."""
+    out = [
+        'VERSION ""',
+        "",
+        "",
+        "NS_ :",
+        "\tCM_",
+        "\tBA_DEF_",
+        "\tBA_",
+        "\tVAL_",
+        "\tBA_DEF_DEF_",
+        "",
+        "BS_:",
+        "",
+        f"BU_: {GATEWAY_NODE} {PLC_NODE}",
+        "",
+    ]
+    for frame in FRAMES:
+        out.append("")
+        out.append(f"BO_ {frame.frame_id} {frame.name}: {frame.dlc} {frame.sender}")
+        for s in frame.signals:
+            sign = "-" if s.signed else "+"
+            out.append(
+                f" SG_ {s.name} : {s.start_bit}|{s.length}@1{sign} ({_num(s.factor)},0) "
+                f'[{_num(s.minimum)}|{_num(s.maximum)}] "{s.unit}" {frame.receiver}'
+            )
+    out.append("")
+    out.append("")
+    out.append(
+        'CM_ "ADXL202 gateway (adxl-gateway). Generated from drivers/can_frames.py; '
+        'every frame carries an AUTOSAR E2E profile 1 CRC (byte 0) and alive counter '
+        '(byte 1 bits 0-3), data ID = CAN identifier.";'
+    )
+    out.append(f'CM_ BU_ {GATEWAY_NODE} "The adxl-gateway daemon.";')
+    out.append(f'CM_ BU_ {PLC_NODE} "Controller consuming position, sending commands.";')
+    for frame in FRAMES:
+        out.append(f'CM_ BO_ {frame.frame_id} "{frame.comment}";')
+        for s in frame.signals:
+            out.append(f'CM_ SG_ {frame.frame_id} {s.name} "{s.comment}";')
+    out.append('BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;')
+    out.append('BA_DEF_DEF_ "GenMsgCycleTime" 0;')
+    for frame in FRAMES:
+        if frame.cycle_time_ms is not None:
+            out.append(f'BA_ "GenMsgCycleTime" BO_ {frame.frame_id} {frame.cycle_time_ms};')
+    for frame in FRAMES:
+        for s in frame.signals:
+            if s.choices:
+                pairs = " ".join(f'{raw} "{label}"' for raw, label in s.choices)
+                out.append(f"VAL_ {frame.frame_id} {s.name} {pairs} ;")
+    return "\n".join(out) + "\n"

@@ -1,0 +1,136 @@
+"""What the gateway puts on the wires: one immutable snapshot per publish cycle.
+
+The daemon builds a `PublishedValues` from the estimator and the board driver and
+hands it to every publisher (`ModbusServer.update`, `CanPublisher.update`). The
+publishers only encode it; they never invent values. Units are SI and in the names.
+
+Missing numbers are NaN (floats) or None where stated; each publisher documents how it
+encodes them (NaN in float32 registers, a sentinel in scaled integers).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+
+class StatusBits(enum.IntFlag):
+    """Quality and state of the published values, one bit each (16 bits on the wire).
+
+    The bit positions are part of the Modbus map and the DBC file: never renumber,
+    only add. A PLC should gate every use of position/velocity on VALID.
+    """
+
+    #: Position, velocity and acceleration are live, trustworthy estimates: the board
+    #: delivers fresh samples and the estimator is healthy. Clear whenever any of
+    #: STALE, BOARD_LOST, ESTIMATOR_FAULT, HOLDING or AXIS_INVALID is set.
+    VALID = 1 << 0
+    #: The estimator detects standstill (velocity held at zero, bias may be learnt).
+    STANDSTILL = 1 << 1
+    #: The newest sample is older than the configured stale limit (samples late or
+    #: missing for a short time); the numbers are the last ones computed.
+    STALE = 1 << 2
+    #: No frames from the board for longer than the board timeout, or the serial port
+    #: is gone. The daemon keeps reconnecting; values are not live.
+    BOARD_LOST = 1 << 3
+    #: The sensor reading is at the ADXL202 range limit (about ±2 g) or the board
+    #: flagged a capture timeout/overflow: acceleration is clipped, position suspect.
+    SATURATED = 1 << 4
+    #: No tare since the daemon started (or since a board reset): position counts from
+    #: wherever the axis stood at start-up, not from a reference.
+    NOT_REFERENCED = 1 << 5
+    #: The estimator failed a consistency check (diverging covariance, innovation far
+    #: outside its expected size) and was re-initialised; values are not trustworthy.
+    ESTIMATOR_FAULT = 1 << 6
+    #: Outputs are frozen at their last value on purpose (e.g. while the estimator
+    #: re-initialises or the bias is being re-estimated); they are not live.
+    HOLDING = 1 << 7
+    #: The configured axis cannot be computed (calibration missing or invalid, axis
+    #: capture flagged on every sample).
+    AXIS_INVALID = 1 << 8
+    #: The configuration was reloaded recently (the daemon sets this for a while after
+    #: a reload so a PLC can notice a change of scaling or limits).
+    CONFIG_RELOADED = 1 << 9
+    #: The board reset recently (HELLO seen): continuity was lost, counters restarted.
+    BOARD_RESET = 1 << 10
+    #: Samples were lost on the serial line recently (sequence gap).
+    SAMPLES_LOST = 1 << 11
+    #: A bias re-estimation is in progress (commanded or automatic).
+    BIAS_ESTIMATING = 1 << 12
+    #: Set by a publisher, never by the daemon: at least one scaled integer on this
+    #: wire (int32 µm, µm/s, µm/s²; CAN int16) was clamped at its range limit. The
+    #: float32 registers carry the unclamped value.
+    SCALED_CLAMPED = 1 << 13
+
+
+#: Bits that say "do not use the numbers"; VALID must be clear when any is set.
+NOT_USABLE_BITS = (
+    StatusBits.STALE
+    | StatusBits.BOARD_LOST
+    | StatusBits.ESTIMATOR_FAULT
+    | StatusBits.HOLDING
+    | StatusBits.AXIS_INVALID
+)
+
+
+class Command(enum.IntEnum):
+    """Commands a PLC can send; the values are the CAN command codes too."""
+
+    #: Set the position to zero here (position := 0) and clear NOT_REFERENCED.
+    TARE = 1
+    #: Re-estimate the accelerometer bias; the daemon accepts it only at standstill.
+    REESTIMATE_BIAS = 2
+
+
+#: Signature of the daemon's command callback. `source` names the wire and peer, e.g.
+#: "modbus-tcp:192.168.0.7:50312" or "can:can0". Return True when the command was
+#: carried out, False when the daemon declined it (e.g. not at standstill). It is
+#: called in the event loop thread and must return quickly (no blocking I/O).
+CommandCallback = Callable[[Command, str], bool]
+
+
+@dataclass(frozen=True, slots=True)
+class PublishedValues:
+    """One snapshot of everything the Modbus registers and CAN frames carry."""
+
+    position_m: float = math.nan
+    velocity_mps: float = math.nan
+    acceleration_mps2: float = math.nan
+    status: StatusBits = StatusBits.BOARD_LOST | StatusBits.NOT_REFERENCED
+    #: Incremented by the daemon once per publish cycle; a PLC sees it change as long
+    #: as the daemon's loop runs (wraps at 16 bits on the wire).
+    heartbeat: int = 0
+    #: Number of board samples processed since start (wraps at 32 bits on the wire).
+    sample_counter: int = 0
+    #: Age of the newest sample when these values were built; None = no sample yet.
+    last_sample_age_ms: float | None = None
+    #: The estimator's current accelerometer bias (what it subtracts).
+    bias_estimate_mps2: float = math.nan
+    #: 1-sigma uncertainty of the position estimate.
+    position_std_m: float = math.nan
+    #: Board temperature; None when the board has no sensor (or no STATUS yet).
+    board_temp_c: float | None = None
+    #: Samples missing on the serial line (sequence gaps), since start.
+    lost_samples: int = 0
+    #: Board frames dropped for a CRC mismatch, since start.
+    crc_errors: int = 0
+    #: Board resets seen (HELLO frames after the first), since start.
+    board_resets: int = 0
+    #: CAN sends that failed (copied by the daemon from CanPublisher.counters), so a
+    #: Modbus client can see the health of the CAN side.
+    can_send_errors: int = 0
+
+    def with_status(self, status: StatusBits) -> PublishedValues:
+        """The same snapshot with another status (publishers add SCALED_CLAMPED)."""
+        return replace(self, status=status)
+
+    @property
+    def usable(self) -> bool:
+        """True when a consumer may act on position/velocity (VALID and nothing against)."""
+        return bool(self.status & StatusBits.VALID) and not (self.status & NOT_USABLE_BITS)
+
+
+#: What publishers serve before the daemon's first update: nothing measured yet.
+NOTHING_PUBLISHED = PublishedValues()

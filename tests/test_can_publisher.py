@@ -1,0 +1,390 @@
+"""The CAN publisher on python-can's virtual bus: cyclic frames, commands, failures."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import re
+import subprocess
+import sys
+import time
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+
+import can
+import cantools
+import pytest
+from can.interfaces import virtual
+
+from drivers.can_frames import (
+    ACK_FRAME,
+    COMMAND_FRAME,
+    COUNTER_MAX,
+    POSITION_FRAME,
+    VELOCITY_FRAME,
+    AckResult,
+    e2e_p01_crc,
+    encode_command,
+)
+from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError
+from drivers.published_values import Command, PublishedValues, StatusBits
+
+DBC_PATH = Path(__file__).resolve().parent.parent / "config" / "adxl-gateway.dbc"
+DB = cantools.database.load_file(str(DBC_PATH))
+_channel_numbers = itertools.count()
+
+VALUES = PublishedValues(
+    position_m=0.731234,
+    velocity_mps=-0.412345,
+    acceleration_mps2=3.5,
+    status=StatusBits.VALID | StatusBits.NOT_REFERENCED,
+)
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_virtual_channels():
+    """Like python-can's own conftest: every test must shut its buses down."""
+    before = set(virtual.channels)
+    yield
+    leaked = set(virtual.channels) - before
+    assert not leaked, f"virtual CAN channels left open: {leaked}"
+
+
+@pytest.fixture
+def channel(request) -> str:
+    return f"adxl-{request.node.name}-{next(_channel_numbers)}"
+
+
+def run(coro, timeout_s: float = 30.0):
+    return asyncio.run(asyncio.wait_for(coro, timeout_s))
+
+
+class Recorder:
+    def __init__(self, answer: bool | Exception = True) -> None:
+        self.calls: list[tuple[Command, str]] = []
+        self.answer = answer
+
+    def __call__(self, command: Command, source: str) -> bool:
+        self.calls.append((command, source))
+        if isinstance(self.answer, Exception):
+            raise self.answer
+        return self.answer
+
+
+class Peer:
+    """The PLC's side of the bus: a second virtual bus on the same channel."""
+
+    def __init__(self, channel: str) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.reader = can.AsyncBufferedReader()
+        self.notifier = can.Notifier(self.bus, [self.reader], timeout=0.05, loop=asyncio.get_running_loop())
+
+    async def frames(self, count: int, frame_id: int | None = None, timeout_s: float = 5.0) -> list[can.Message]:
+        found: list[can.Message] = []
+        deadline = time.monotonic() + timeout_s
+        while len(found) < count:
+            remaining = deadline - time.monotonic()
+            assert remaining > 0, f"got {len(found)} of {count} frames"
+            message = await asyncio.wait_for(self.reader.get_message(), remaining)
+            if frame_id is None or message.arbitration_id == frame_id:
+                found.append(message)
+        return found
+
+    def send(self, frame_id: int, payload: bytes, extended: bool = False) -> None:
+        self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=extended))
+
+    async def close(self) -> None:
+        await asyncio.get_running_loop().run_in_executor(None, self.notifier.stop, 1.0)
+        self.bus.shutdown()
+
+
+@contextlib.asynccontextmanager
+async def publishing(
+    config: CanPublisherConfig,
+    on_command: Callable | None = None,
+    values: PublishedValues = VALUES,
+    bus_factory: Callable = can.Bus,
+) -> AsyncIterator[tuple[CanPublisher, Peer]]:
+    peer = Peer(config.channel)  # listening before the first frame goes out
+    publisher = CanPublisher(config, on_command, bus_factory=bus_factory)
+    publisher.update(values)
+    try:
+        await publisher.start()
+        yield publisher, peer
+    finally:
+        await publisher.stop()
+        await peer.close()
+
+
+def virtual_config(channel: str, **overrides) -> CanPublisherConfig:
+    return CanPublisherConfig(**{"interface": "virtual", "channel": channel, **overrides})
+
+
+# --------------------------------------------------------------------------- #
+# Cyclic frames
+# --------------------------------------------------------------------------- #
+def test_cyclic_frames_carry_the_values_with_counter_and_crc(channel: str) -> None:
+    async def scenario() -> tuple[list[can.Message], CanPublisher]:
+        async with publishing(virtual_config(channel)) as (publisher, peer):
+            return await peer.frames(2 * 20), publisher
+
+    messages, publisher = run(scenario())
+    by_id: dict[int, list[can.Message]] = {}
+    for message in messages:
+        by_id.setdefault(message.arbitration_id, []).append(message)
+    assert set(by_id) == {POSITION_FRAME.frame_id, VELOCITY_FRAME.frame_id}
+    for frame_id, frames in by_id.items():
+        prefix = "Pos" if frame_id == POSITION_FRAME.frame_id else "Vel"
+        counters = []
+        for message in frames:
+            assert not message.is_extended_id and message.dlc == 8
+            decoded = DB.decode_message(frame_id, message.data)
+            counters.append(decoded[f"{prefix}_Counter"])
+            assert decoded[f"{prefix}_CRC"] == e2e_p01_crc(frame_id, bytes(message.data))
+            assert decoded[f"{prefix}_Valid"] == 1 and decoded[f"{prefix}_BoardLost"] == 0
+            if prefix == "Pos":
+                assert decoded["Pos_Position"] == pytest.approx(VALUES.position_m, abs=0.5e-6)
+                assert decoded["Pos_Status"] == int(VALUES.status)
+            else:
+                assert decoded["Vel_Velocity"] == pytest.approx(VALUES.velocity_mps, abs=0.5e-6)
+                assert decoded["Vel_Acceleration"] == pytest.approx(VALUES.acceleration_mps2, abs=0.5e-3)
+        # alive counter: starts at 0, +1 per frame, 0..14 (E2E profile 1)
+        assert counters[0] == 0
+        assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+        assert max(counters) == COUNTER_MAX
+    assert publisher.counters.frames_sent >= 40 and publisher.counters.send_errors == 0
+
+
+def test_new_values_appear_in_the_next_cycles(channel: str) -> None:
+    async def scenario() -> None:
+        async with publishing(virtual_config(channel)) as (publisher, peer):
+            await peer.frames(2, POSITION_FRAME.frame_id)
+            publisher.update(PublishedValues(position_m=-12.5, status=StatusBits.STALE))
+            deadline = time.monotonic() + 5
+            while True:
+                (message,) = await peer.frames(1, POSITION_FRAME.frame_id)
+                decoded = DB.decode_message(message.arbitration_id, message.data)
+                if decoded["Pos_Position"] == pytest.approx(-12.5):
+                    assert decoded["Pos_Stale"] == 1 and decoded["Pos_Valid"] == 0
+                    return
+                assert time.monotonic() < deadline
+
+    run(scenario())
+
+
+def test_the_period_is_kept_and_a_stalled_loop_resynchronises(channel: str) -> None:
+    async def scenario() -> None:
+        async with publishing(virtual_config(channel, period_ms=10)) as (publisher, peer):
+            await peer.frames(1, POSITION_FRAME.frame_id)
+            started = time.monotonic()
+            await peer.frames(10, POSITION_FRAME.frame_id)
+            elapsed = time.monotonic() - started
+            # 10 cycles of 10 ms: not faster than the schedule allows (no burst), and
+            # not grossly slower (generous bound: the machine is shared)
+            assert 0.08 < elapsed < 1.0, elapsed
+            late_before = publisher.counters.cycles_late
+            time.sleep(0.1)  # block the event loop for ten periods
+            await peer.frames(2, POSITION_FRAME.frame_id)
+            assert publisher.counters.cycles_late - late_before >= 5
+
+    run(scenario())
+
+
+def test_candump_of_real_frames_decodes_with_the_cantools_cli(channel: str) -> None:
+    async def scenario() -> list[can.Message]:
+        async with publishing(virtual_config(channel)) as (_, peer):
+            return await peer.frames(4)
+
+    messages = run(scenario())
+    lines = [
+        f"  vcan0  {m.arbitration_id:03X}   [{m.dlc}]  " + " ".join(f"{b:02X}" for b in m.data) for m in messages
+    ]
+    result = subprocess.run(
+        [sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
+        input="\n".join(lines) + "\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    out = result.stdout.splitlines()
+    assert len(out) == 4
+    positions = [float(v) for line in out for v in re.findall(r"Pos_Position: (\S+) m,", line)]
+    velocities = [float(v) for line in out for v in re.findall(r"Vel_Velocity: (\S+) m/s,", line)]
+    assert positions == pytest.approx([VALUES.position_m] * 2, abs=0.5e-6)
+    assert velocities == pytest.approx([VALUES.velocity_mps] * 2, abs=0.5e-6)
+
+
+def test_update_can_send_at_once_when_min_interval_is_set(channel: str) -> None:
+    async def scenario() -> None:
+        config = virtual_config(channel, period_ms=2000, min_interval_ms=0)
+        async with publishing(config) as (publisher, peer):
+            await peer.frames(1, POSITION_FRAME.frame_id)  # the cycle's first transmission
+            sent_at = time.monotonic()
+            publisher.update(PublishedValues(position_m=2.0, status=StatusBits.VALID))
+            (message,) = await peer.frames(1, POSITION_FRAME.frame_id, timeout_s=1.0)
+            # long before the next 2 s cycle
+            assert time.monotonic() - sent_at < 1.0
+            assert DB.decode_message(message.arbitration_id, message.data)["Pos_Position"] == 2.0
+
+    run(scenario())
+
+
+# --------------------------------------------------------------------------- #
+# Send failures
+# --------------------------------------------------------------------------- #
+class FlakyBus(virtual.VirtualBus):
+    """A virtual bus whose send fails for a while (buffer full, bus off …)."""
+
+    failures: list[Exception] = []
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.failures:
+            raise self.failures.pop(0)
+        super().send(msg, timeout)
+
+
+def test_failing_sends_are_counted_and_the_cycle_goes_on(channel: str, caplog) -> None:
+    failures = [can.CanOperationError("Transmit buffer full")] * 6 + [OSError("network is down")]
+
+    def factory(**kwargs) -> can.BusABC:
+        kwargs.pop("interface")
+        bus = FlakyBus(**kwargs)
+        bus.failures = list(failures)
+        return bus
+
+    async def scenario() -> CanPublisher:
+        config = virtual_config(channel, send_error_log_interval_s=60)
+        async with publishing(config, bus_factory=factory) as (publisher, peer):
+            frames = await peer.frames(6)
+            assert publisher.running
+            counters = [DB.decode_message(m.arbitration_id, m.data) for m in frames]
+            # frames that failed still advanced the counter: receivers see the gap
+            first_position = next(c for c in counters if "Pos_Counter" in c)
+            assert first_position["Pos_Counter"] >= 3
+            return publisher
+
+    caplog.set_level("WARNING", logger="drivers.can_publisher")
+    publisher = run(scenario())
+    assert publisher.counters.send_errors == len(failures)
+    assert publisher.counters.frames_sent >= 6
+    # rate-limited: one report for the burst, not one per failure
+    reports = [r for r in caplog.records if "CAN send failed" in r.getMessage()]
+    assert len(reports) == 1
+
+
+def test_unknown_interface_raises_can_publisher_error(channel: str) -> None:
+    async def scenario() -> None:
+        publisher = CanPublisher(CanPublisherConfig(interface="no-such-interface", channel=channel))
+        with pytest.raises(CanPublisherError):
+            await publisher.start()
+        assert not publisher.running
+
+    run(scenario())
+
+
+@pytest.mark.parametrize("overrides", [{"period_ms": 0}, {"period_ms": 10, "min_interval_ms": 20}])
+def test_config_validation(overrides: dict) -> None:
+    with pytest.raises(CanPublisherError):
+        CanPublisherConfig(**overrides)
+
+
+def test_stop_is_quick_and_releases_the_channel(channel: str) -> None:
+    async def scenario() -> None:
+        publisher = CanPublisher(virtual_config(channel))
+        await publisher.start()
+        assert channel in virtual.channels
+        await asyncio.sleep(0.05)
+        started = time.monotonic()
+        await publisher.stop()
+        assert time.monotonic() - started < 2.0
+        assert channel not in virtual.channels
+        assert not publisher.running
+
+    run(scenario())
+
+
+# --------------------------------------------------------------------------- #
+# Commands
+# --------------------------------------------------------------------------- #
+async def exchange(peer: Peer, payload: bytes) -> dict:
+    peer.send(COMMAND_FRAME.frame_id, payload)
+    (ack,) = await peer.frames(1, ACK_FRAME.frame_id)
+    decoded = DB.decode_message(ack.arbitration_id, ack.data, decode_choices=False)
+    assert decoded["Ack_CRC"] == e2e_p01_crc(ACK_FRAME.frame_id, bytes(ack.data))
+    return decoded
+
+
+def test_tare_over_can_when_enabled(channel: str) -> None:
+    recorder = Recorder()
+
+    async def scenario() -> CanPublisher:
+        async with publishing(virtual_config(channel, commands_enabled=True), recorder) as (publisher, peer):
+            ack = await exchange(peer, encode_command(Command.TARE, 5))
+            assert (ack["Ack_Result"], ack["Ack_Code"], ack["Ack_CommandCounter"]) == (AckResult.DONE, 1, 5)
+            ack = await exchange(peer, encode_command(Command.REESTIMATE_BIAS, 6))
+            assert ack["Ack_Result"] == AckResult.DONE
+            assert ack["Ack_Counter"] == 1  # the acknowledgement has its own alive counter
+            return publisher
+
+    publisher = run(scenario())
+    assert recorder.calls == [(Command.TARE, f"can:{channel}"), (Command.REESTIMATE_BIAS, f"can:{channel}")]
+    assert publisher.counters.commands_accepted == 2 and publisher.counters.commands_rejected == 0
+
+
+def test_commands_are_refused_when_disabled(channel: str) -> None:
+    recorder = Recorder()
+
+    async def scenario() -> CanPublisher:
+        async with publishing(virtual_config(channel, commands_enabled=False), recorder) as (publisher, peer):
+            ack = await exchange(peer, encode_command(Command.TARE, 0))
+            assert ack["Ack_Result"] == AckResult.DISABLED
+            return publisher
+
+    publisher = run(scenario())
+    assert recorder.calls == []
+    assert publisher.counters.commands_rejected == 1
+
+
+def test_corrupt_repeated_and_foreign_command_frames_are_refused(channel: str) -> None:
+    recorder = Recorder()
+
+    async def scenario() -> CanPublisher:
+        async with publishing(virtual_config(channel, commands_enabled=True), recorder) as (publisher, peer):
+            good = encode_command(Command.TARE, 9)
+            corrupted = bytearray(good)
+            corrupted[2] ^= 0x02  # TARE becomes code 3 on the wire, CRC unchanged
+            assert (await exchange(peer, bytes(corrupted)))["Ack_Result"] == AckResult.CRC_ERROR
+            assert (await exchange(peer, good[:4]))["Ack_Result"] == AckResult.BAD_LENGTH
+            assert (await exchange(peer, encode_command(7, 1)))["Ack_Result"] == AckResult.UNKNOWN_COMMAND
+            assert (await exchange(peer, good))["Ack_Result"] == AckResult.DONE
+            assert (await exchange(peer, good))["Ack_Result"] == AckResult.COUNTER_ERROR  # replayed
+            # the right bytes on another identifier or as an extended frame: not a command
+            peer.send(0x131, encode_command(Command.TARE, 10))
+            peer.send(COMMAND_FRAME.frame_id, encode_command(Command.TARE, 10), extended=True)
+            # a later valid command is still served (and proves the two above were ignored)
+            ack = await exchange(peer, encode_command(Command.TARE, 11))
+            assert (ack["Ack_Result"], ack["Ack_CommandCounter"]) == (AckResult.DONE, 11)
+            return publisher
+
+    publisher = run(scenario())
+    assert [c for c, _ in recorder.calls] == [Command.TARE, Command.TARE]
+    assert publisher.counters.commands_rejected == 4
+    assert publisher.counters.commands_accepted == 2
+
+
+@pytest.mark.parametrize("answer, expected", [(False, AckResult.DECLINED), (RuntimeError("bug"), AckResult.FAILED)])
+def test_declined_or_failing_callback_is_acknowledged_and_survived(channel: str, answer, expected) -> None:
+    recorder = Recorder(answer)
+
+    async def scenario() -> CanPublisher:
+        async with publishing(virtual_config(channel, commands_enabled=True), recorder) as (publisher, peer):
+            assert (await exchange(peer, encode_command(Command.REESTIMATE_BIAS, 0)))["Ack_Result"] == expected
+            await peer.frames(2, POSITION_FRAME.frame_id)  # still cycling
+            assert publisher.running
+            return publisher
+
+    publisher = run(scenario())
+    assert publisher.counters.commands_declined == 1
+    assert len(recorder.calls) == 1

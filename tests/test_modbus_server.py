@@ -1,0 +1,619 @@
+"""The Modbus server against real clients: pymodbus, raw sockets, mbpoll, and RTU over a pty pair."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import random
+import shutil
+import socket
+import struct
+import subprocess
+import time
+from collections.abc import AsyncIterator, Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from drivers.modbus_map import BY_NAME, INPUT_REGISTERS, INPUT_SIZE, MAP_VERSION, RegType, WordOrder
+from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
+from drivers.published_values import Command, PublishedValues, StatusBits
+
+DT = AsyncModbusTcpClient.DATATYPE
+PYMODBUS_ORDER = {WordOrder.ABCD: "big", WordOrder.CDAB: "little"}
+CLIENT_TYPE = {
+    RegType.FLOAT32: DT.FLOAT32,
+    RegType.INT32: DT.INT32,
+    RegType.UINT32: DT.UINT32,
+    RegType.UINT16: DT.UINT16,
+    RegType.INT16: DT.INT16,
+    RegType.BITFIELD: DT.UINT16,
+}
+
+SAMPLE = PublishedValues(
+    position_m=0.123456,
+    velocity_mps=-0.75,
+    acceleration_mps2=9.80665,
+    status=StatusBits.VALID | StatusBits.STANDSTILL | StatusBits.NOT_REFERENCED,
+    heartbeat=70000,  # wraps to 4464 on the wire
+    sample_counter=123456789,
+    last_sample_age_ms=3.4,
+    bias_estimate_mps2=-0.0123,
+    position_std_m=0.0015,
+    board_temp_c=31.27,
+    lost_samples=5,
+    crc_errors=2,
+    board_resets=1,
+    can_send_errors=9,
+)
+
+
+def run(coro, timeout_s: float = 30.0):
+    return asyncio.run(asyncio.wait_for(coro, timeout_s))
+
+
+def tcp_config(**overrides) -> ModbusServerConfig:
+    return ModbusServerConfig(**{"host": "127.0.0.1", "port": 0, **overrides})
+
+
+@contextlib.asynccontextmanager
+async def serving(
+    config: ModbusServerConfig, on_command: Callable | None = None, values: PublishedValues = SAMPLE
+) -> AsyncIterator[ModbusServer]:
+    server = ModbusServer(config, on_command)
+    await server.start()
+    server.update(values)
+    try:
+        yield server
+    finally:
+        await server.stop()
+
+
+@contextlib.asynccontextmanager
+async def tcp_client(port: int, source_ip: str | None = None) -> AsyncIterator[AsyncModbusTcpClient]:
+    client = AsyncModbusTcpClient(
+        "127.0.0.1",
+        port=port,
+        source_address=(source_ip, 0) if source_ip else None,
+        timeout=2,
+        retries=0,
+        reconnect_delay=0,
+    )
+    assert await client.connect()
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def expected_raw(name: str, values: PublishedValues) -> float | int:
+    """What a client must read, from the published values and the table's scale."""
+    row = BY_NAME[name]
+    value = {"MAP_VERSION": MAP_VERSION, "STATUS": int(values.status)}.get(name)
+    if value is None:
+        value = getattr(values, row.source)
+    if row.type is RegType.FLOAT32:
+        return float(np.float32(value))
+    if row.wraps:
+        return int(value) % 2 ** (16 * row.words)
+    return round(value / row.scale)
+
+
+async def read_table(client: AsyncModbusTcpClient | AsyncModbusSerialClient, device_id: int = 1) -> list[int]:
+    response = await client.read_input_registers(0, count=INPUT_SIZE, device_id=device_id)
+    assert not response.isError(), response
+    return list(response.registers)
+
+
+def decode(client, words: list[int], name: str, order: WordOrder) -> float | int:
+    row = BY_NAME[name]
+    regs = words[row.address : row.address + row.words]
+    return client.convert_from_registers(regs, CLIENT_TYPE[row.type], word_order=PYMODBUS_ORDER[order])
+
+
+# --------------------------------------------------------------------------- #
+# Reading
+# --------------------------------------------------------------------------- #
+@pytest.mark.parametrize("order", [WordOrder.ABCD, WordOrder.CDAB])
+def test_every_input_register_reads_back_the_published_values(order: WordOrder) -> None:
+    async def scenario() -> None:
+        async with serving(tcp_config(word_order=order)) as server:
+            assert server.tcp_port and server.tcp_port > 0
+            async with tcp_client(server.tcp_port) as client:
+                words = await read_table(client)
+                server_rows = {r.name for r in INPUT_REGISTERS if r.source.startswith("server.")}
+                for row in INPUT_REGISTERS:
+                    if row.name in server_rows:
+                        continue
+                    assert decode(client, words, row.name, order) == expected_raw(row.name, SAMPLE), row.name
+                # the server's own rows: this is the first request of the first client
+                assert decode(client, words, "MODBUS_REQUESTS", order) == 1
+                assert decode(client, words, "MODBUS_CLIENTS", order) == 1
+                assert decode(client, words, "MODBUS_EXCEPTIONS", order) == 0
+                assert decode(client, words, "LAST_COMMAND_RESULT", order) == 0
+                # scaled values mean what the table says they mean
+                um = decode(client, words, "POSITION_UM", order)
+                assert um * BY_NAME["POSITION_UM"].scale == pytest.approx(SAMPLE.position_m, abs=1e-6)
+                holding = await client.read_holding_registers(0, count=2, device_id=1)
+                assert holding.registers == [0, 0]
+
+    run(scenario())
+
+
+def test_a_register_pair_never_mixes_two_snapshots() -> None:
+    a = PublishedValues(position_m=1.0, velocity_mps=-3.0, status=StatusBits.VALID)
+    b = PublishedValues(position_m=-2.5e3, velocity_mps=7.0e2, status=StatusBits.STALE)
+
+    async def scenario() -> None:
+        async with serving(tcp_config(), values=a) as server:
+
+            async def flip() -> None:
+                while True:
+                    server.update(a)
+                    await asyncio.sleep(0)
+                    server.update(b)
+                    await asyncio.sleep(0)
+
+            flipper = asyncio.create_task(flip())
+            seen = set()
+            try:
+                async with tcp_client(server.tcp_port) as client:
+                    for _ in range(300):
+                        response = await client.read_input_registers(0, count=16, device_id=1)
+                        words = list(response.registers)
+                        snapshot = (
+                            decode(client, words, "POSITION", WordOrder.ABCD),
+                            decode(client, words, "VELOCITY", WordOrder.ABCD),
+                            decode(client, words, "POSITION_UM", WordOrder.ABCD),
+                            words[BY_NAME["STATUS"].address],
+                        )
+                        assert snapshot in {
+                            (1.0, -3.0, 1_000_000, int(StatusBits.VALID)),
+                            # -2500 m is beyond int32 µm: clamped, and flagged in the same image
+                            (-2500.0, 700.0, -(2**31 - 1), int(StatusBits.STALE | StatusBits.SCALED_CLAMPED)),
+                        }, snapshot
+                        seen.add(snapshot[0])
+            finally:
+                flipper.cancel()
+            assert seen == {1.0, -2500.0}, "the test did not exercise both snapshots"
+
+    run(scenario())
+
+
+# --------------------------------------------------------------------------- #
+# Commands
+# --------------------------------------------------------------------------- #
+class Recorder:
+    def __init__(self, answer: bool | Exception = True) -> None:
+        self.calls: list[tuple[Command, str]] = []
+        self.answer = answer
+
+    def __call__(self, command: Command, source: str) -> bool:
+        self.calls.append((command, source))
+        if isinstance(self.answer, Exception):
+            raise self.answer
+        return self.answer
+
+
+def test_tare_is_executed_echoed_and_auto_cleared() -> None:
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True), recorder) as server:
+            async with tcp_client(server.tcp_port) as client:
+                response = await client.write_register(0, 1, device_id=1)
+                assert not response.isError(), response
+                assert response.registers == [1]  # FC06 echoes the request
+                assert (await client.read_holding_registers(0, count=2, device_id=1)).registers == [0, 0]
+                words = await read_table(client)
+                assert decode(client, words, "COMMAND_COUNTER", WordOrder.ABCD) == 1
+                assert decode(client, words, "LAST_COMMAND_RESULT", WordOrder.ABCD) == 1
+                zero = await client.write_register(1, 0, device_id=1)  # 0 = nothing to do
+                assert not zero.isError()
+            assert server.counters.commands_done == 1
+
+    run(scenario())
+    assert len(recorder.calls) == 1
+    command, source = recorder.calls[0]
+    assert command is Command.TARE
+    assert source.startswith("modbus-tcp:127.0.0.1:")
+
+
+def test_write_multiple_runs_commands_in_address_order() -> None:
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True), recorder) as server:
+            async with tcp_client(server.tcp_port) as client:
+                response = await client.write_registers(0, [1, 1], device_id=1)
+                assert not response.isError(), response
+
+    run(scenario())
+    assert [c for c, _ in recorder.calls] == [Command.TARE, Command.REESTIMATE_BIAS]
+
+
+def test_writes_are_refused_when_disabled() -> None:
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=False), recorder) as server:
+            async with tcp_client(server.tcp_port) as client:
+                for request in (client.write_register(0, 1, device_id=1), client.write_registers(0, [1, 1], device_id=1)):
+                    response = await request
+                    assert response.isError() and response.exception_code == 1
+                words = await read_table(client)
+                assert decode(client, words, "MODBUS_REJECTED_WRITES", WordOrder.ABCD) == 2
+                assert decode(client, words, "MODBUS_EXCEPTIONS", WordOrder.ABCD) == 2
+                assert decode(client, words, "COMMAND_COUNTER", WordOrder.ABCD) == 0
+            assert server.counters.rejected_writes == 2
+
+    run(scenario())
+    assert recorder.calls == []
+
+
+@pytest.mark.parametrize("allow_entry", ["127.0.0.2", "127.0.0.2/32", "127.0.0.0/31"])
+def test_write_allow_list_admits_only_listed_clients(allow_entry: str) -> None:
+    recorder = Recorder()
+    admitted_ip = "127.0.0.1" if allow_entry == "127.0.0.0/31" else "127.0.0.2"
+    refused_ip = "127.0.0.2" if allow_entry == "127.0.0.0/31" else "127.0.0.1"
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True, write_allow=(allow_entry,)), recorder) as server:
+            async with tcp_client(server.tcp_port, source_ip=refused_ip) as outsider:
+                response = await outsider.write_register(0, 1, device_id=1)
+                assert response.isError() and response.exception_code == 1
+                # reading is still fine for everybody
+                assert not (await outsider.read_input_registers(0, count=2, device_id=1)).isError()
+            assert recorder.calls == []
+            async with tcp_client(server.tcp_port, source_ip=admitted_ip) as insider:
+                response = await insider.write_register(0, 1, device_id=1)
+                assert not response.isError(), response
+            assert server.counters.rejected_writes == 1
+
+    run(scenario())
+    assert len(recorder.calls) == 1
+    assert recorder.calls[0][1].startswith(f"modbus-tcp:{admitted_ip}:")
+
+
+def test_an_empty_allow_list_admits_nobody() -> None:
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True, write_allow=()), recorder) as server:
+            async with tcp_client(server.tcp_port) as client:
+                response = await client.write_register(0, 1, device_id=1)
+                assert response.isError() and response.exception_code == 1
+
+    run(scenario())
+    assert recorder.calls == []
+
+
+@pytest.mark.parametrize(
+    "answer, result_code, counter_name",
+    [(False, 2, "commands_declined"), (RuntimeError("daemon bug"), 3, "commands_failed")],
+)
+def test_declined_or_failing_command_answers_04(answer, result_code: int, counter_name: str) -> None:
+    recorder = Recorder(answer)
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True), recorder) as server:
+            async with tcp_client(server.tcp_port) as client:
+                response = await client.write_register(1, 1, device_id=1)
+                assert response.isError() and response.exception_code == 4
+                words = await read_table(client)
+                assert decode(client, words, "LAST_COMMAND_RESULT", WordOrder.ABCD) == result_code
+                assert decode(client, words, "COMMAND_COUNTER", WordOrder.ABCD) == 1
+                # the server survived the daemon's exception
+                assert (await client.read_holding_registers(0, count=2, device_id=1)).registers == [0, 0]
+            assert getattr(server.counters, counter_name) == 1
+
+    run(scenario())
+    assert [c for c, _ in recorder.calls] == [Command.REESTIMATE_BIAS]
+
+
+def test_illegal_values_addresses_and_functions() -> None:
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True), recorder) as server:
+            async with tcp_client(server.tcp_port) as client:
+                cases = [
+                    (client.write_register(0, 2, device_id=1), 3),
+                    (client.write_registers(0, [1, 7], device_id=1), 3),
+                    (client.write_register(2, 1, device_id=1), 2),
+                    (client.read_input_registers(INPUT_SIZE, count=1, device_id=1), 2),
+                    (client.read_input_registers(INPUT_SIZE - 1, count=2, device_id=1), 2),
+                    (client.read_holding_registers(0, count=3, device_id=1), 2),
+                    (client.read_coils(0, count=1, device_id=1), 1),
+                    (client.write_coil(0, True, device_id=1), 1),
+                    (client.read_discrete_inputs(0, count=1, device_id=1), 1),
+                ]
+                for request, code in cases:
+                    response = await request
+                    assert response.isError() and response.exception_code == code, response
+                # the last valid register is readable
+                assert not (await client.read_input_registers(INPUT_SIZE - 1, count=1, device_id=1)).isError()
+            assert server.counters.exceptions == len(cases)
+
+    run(scenario())
+    assert recorder.calls == []
+
+
+# --------------------------------------------------------------------------- #
+# Robustness
+# --------------------------------------------------------------------------- #
+def mbap(transaction: int, pdu: bytes, unit: int = 1, protocol: int = 0) -> bytes:
+    return struct.pack(">HHHB", transaction, protocol, len(pdu) + 1, unit) + pdu
+
+
+async def raw_exchange(port: int, data: bytes, wait_s: float = 0.3) -> bytes:
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(data)
+        await writer.drain()
+        try:
+            return await asyncio.wait_for(reader.read(1024), wait_s)
+        except asyncio.TimeoutError:
+            return b""
+    finally:
+        writer.close()
+
+
+def test_malformed_requests_do_not_disturb_other_clients() -> None:
+    rng = random.Random(20240611)
+
+    async def scenario() -> None:
+        async with serving(tcp_config()) as server:
+            port = server.tcp_port
+            async with tcp_client(port) as bystander:
+                before = await read_table(bystander)
+                # answered with the request's own function code and the proper exception
+                assert await raw_exchange(port, mbap(1, b"\x41\x00\x00")) == mbap(1, b"\xc1\x01")  # unknown function
+                assert await raw_exchange(port, mbap(2, b"\x04\x00\x00\x00\x00")) == mbap(2, b"\x84\x03")  # count 0
+                assert await raw_exchange(port, mbap(3, b"\x04\x00\x00\x00\xc8")) == mbap(3, b"\x84\x03")  # count 200
+                assert await raw_exchange(port, mbap(4, b"\x04\x00")) == mbap(4, b"\x84\x03")  # truncated
+                assert await raw_exchange(port, mbap(5, b"\x03\x00\x00\x00\x01\x09")) != b""  # extra byte: still one answer
+                # not Modbus at all: no answer, no crash
+                assert await raw_exchange(port, mbap(6, b"\x04\x00\x00\x00\x01", protocol=5)) == b""
+                assert await raw_exchange(port, struct.pack(">HHHB", 7, 0, 60000, 1) + b"\x04") == b""
+                for _ in range(20):
+                    blob = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 600)))
+                    await raw_exchange(port, blob, wait_s=0.02)
+                # two requests in one TCP segment: two answers, in order
+                both = await raw_exchange(port, mbap(10, b"\x04\x00\x00\x00\x01") + mbap(11, b"\x04\x00\x00\x00\x01"))
+                version = struct.pack(">H", MAP_VERSION)
+                assert both == mbap(10, b"\x04\x02" + version) + mbap(11, b"\x04\x02" + version)
+                # the client that was connected all along still works, and so does a new one
+                after = await read_table(bystander)
+                assert after[: BY_NAME["MODBUS_REQUESTS"].address] == before[: BY_NAME["MODBUS_REQUESTS"].address]
+            async with tcp_client(port) as newcomer:
+                assert decode(newcomer, await read_table(newcomer), "POSITION", WordOrder.ABCD) == float(
+                    np.float32(SAMPLE.position_m)
+                )
+            assert server.counters.exceptions >= 4
+
+    run(scenario())
+
+
+def test_clients_that_connect_and_drop_leave_no_trace() -> None:
+    async def scenario() -> None:
+        async with serving(tcp_config()) as server:
+            port = server.tcp_port
+            for i in range(30):
+                sock = socket.create_connection(("127.0.0.1", port))
+                if i % 3 == 0:  # reset instead of a clean close
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+                if i % 3 == 1:  # half a request, then gone
+                    sock.sendall(mbap(i, b"\x04\x00\x00\x00\x02")[:5])
+                await asyncio.sleep(0.005)
+                sock.close()
+            deadline = time.monotonic() + 5
+            while server.counters.clients_connected and time.monotonic() < deadline:
+                await asyncio.sleep(0.02)
+            assert server.counters.clients_connected == 0
+            assert server.counters.connections_total == 30
+            async with tcp_client(port) as client:
+                words = await read_table(client)
+                assert decode(client, words, "MODBUS_CLIENTS", WordOrder.ABCD) == 1
+
+    run(scenario())
+
+
+def test_stop_is_quick_with_clients_connected_and_the_port_is_free_again() -> None:
+    async def scenario() -> None:
+        server = ModbusServer(tcp_config())
+        await server.start()
+        port = server.tcp_port
+        clients = [AsyncModbusTcpClient("127.0.0.1", port=port, retries=0, reconnect_delay=0) for _ in range(5)]
+        for client in clients:
+            assert await client.connect()
+            assert not (await client.read_input_registers(0, count=1, device_id=1)).isError()
+        started = time.monotonic()
+        await server.stop()
+        assert time.monotonic() - started < 2.0
+        for client in clients:
+            client.close()
+        # the same port can be served again at once
+        again = ModbusServer(tcp_config(port=port))
+        await again.start()
+        assert again.tcp_port == port
+        await again.stop()
+
+    run(scenario())
+
+
+def test_start_on_a_busy_port_raises_modbus_server_error() -> None:
+    async def scenario() -> None:
+        async with serving(tcp_config()) as first:
+            second = ModbusServer(tcp_config(port=first.tcp_port))
+            with pytest.raises(ModbusServerError):
+                await second.start()
+
+    run(scenario())
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [{"port": 70000}, {"unit_id": 248}, {"rtu_enabled": True, "unit_id": 0}, {"rtu_parity": "X"},
+     {"word_order": "BADC"}, {"write_allow": ("not-an-address",)}],
+)
+def test_config_validation(overrides: dict) -> None:
+    with pytest.raises(ModbusServerError):
+        ModbusServerConfig(**overrides)
+
+
+# --------------------------------------------------------------------------- #
+# mbpoll, a Modbus master written by other people
+# --------------------------------------------------------------------------- #
+MBPOLL = shutil.which("mbpoll")
+
+
+async def mbpoll(port: int, *args: str) -> dict[int, str]:
+    process = await asyncio.create_subprocess_exec(
+        MBPOLL, "-m", "tcp", "-a", "1", "-1", "-o", "2", "-p", str(port), *args, "127.0.0.1",
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    )
+    out, err = await asyncio.wait_for(process.communicate(), 15)
+    assert process.returncode == 0, err.decode()
+    values = {}
+    for line in out.decode().splitlines():
+        if line.startswith("[") and "]:" in line:
+            ref, value = line.split("]:", 1)
+            values[int(ref.strip("["))] = value.strip()
+    return values
+
+
+@pytest.mark.skipif(MBPOLL is None, reason="mbpoll not installed (Debian package mbpoll)")
+def test_mbpoll_reads_the_documented_plc_references() -> None:
+    async def scenario() -> None:
+        async with serving(tcp_config()) as server:
+            port = server.tcp_port
+            # -r is 1-based: reference 1 is address 0 (MAP_VERSION), i.e. PLC 30001
+            head = await mbpoll(port, "-r", "1", "-c", "3", "-t", "3")
+            assert head == {1: str(MAP_VERSION), 2: str(int(SAMPLE.status)), 3: str(SAMPLE.heartbeat % 65536)}
+            position_ref = BY_NAME["POSITION"].plc_reference - 30000
+            floats = await mbpoll(port, "-r", str(position_ref), "-c", "1", "-t", "3:float", "-B")
+            assert float(floats[position_ref]) == pytest.approx(SAMPLE.position_m, rel=1e-6)
+            um_ref = BY_NAME["POSITION_UM"].plc_reference - 30000
+            ints = await mbpoll(port, "-r", str(um_ref), "-c", "1", "-t", "3:int", "-B")
+            assert int(ints[um_ref]) == round(SAMPLE.position_m * 1e6)
+            temp_ref = BY_NAME["BOARD_TEMPERATURE"].plc_reference - 30000
+            temp = await mbpoll(port, "-r", str(temp_ref), "-c", "1", "-t", "3")
+            assert int(temp[temp_ref]) == round(SAMPLE.board_temp_c * 100)
+
+        # mbpoll's default 32-bit order is low word first: our CDAB
+        async with serving(tcp_config(word_order=WordOrder.CDAB)) as server:
+            position_ref = BY_NAME["VELOCITY"].plc_reference - 30000
+            floats = await mbpoll(server.tcp_port, "-r", str(position_ref), "-c", "1", "-t", "3:float")
+            assert float(floats[position_ref]) == SAMPLE.velocity_mps
+
+    run(scenario())
+
+
+# --------------------------------------------------------------------------- #
+# RTU over a pty pair made by socat
+# --------------------------------------------------------------------------- #
+SOCAT = shutil.which("socat")
+
+
+@pytest.fixture
+def pty_pair(tmp_path: Path):
+    if SOCAT is None:
+        pytest.skip("socat not installed (Debian package socat)")
+    server_end, client_end = tmp_path / "server", tmp_path / "client"
+    process = subprocess.Popen(
+        [SOCAT, "-d", "-d", f"pty,raw,echo=0,link={server_end}", f"pty,raw,echo=0,link={client_end}"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.monotonic() + 5
+    while not (server_end.exists() and client_end.exists()):
+        assert process.poll() is None, process.stderr.read().decode()
+        assert time.monotonic() < deadline, "socat did not create the pty pair"
+        time.sleep(0.01)
+    try:
+        yield str(server_end), str(client_end)
+    finally:
+        process.terminate()
+        process.wait(5)
+        process.stderr.close()
+
+
+def rtu_config(port: str, **overrides) -> ModbusServerConfig:
+    return ModbusServerConfig(
+        # a pty rejects parity settings (EINVAL); real RS-485 lines use the E default
+        **{"tcp_enabled": False, "rtu_enabled": True, "rtu_port": port, "unit_id": 7, "rtu_parity": "N", **overrides}
+    )
+
+
+@contextlib.asynccontextmanager
+async def rtu_client(port: str, timeout_s: float = 1.0) -> AsyncIterator[AsyncModbusSerialClient]:
+    client = AsyncModbusSerialClient(port, baudrate=19200, parity="N", timeout=timeout_s, retries=0, reconnect_delay=0)
+    assert await client.connect()
+    try:
+        yield client
+    finally:
+        client.close()
+
+
+def test_rtu_serves_the_same_registers_and_only_its_unit_id(pty_pair) -> None:
+    server_end, client_end = pty_pair
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(rtu_config(server_end, writes_enabled=True), recorder) as server:
+            assert server.tcp_port is None
+            async with rtu_client(client_end) as client:
+                words = await read_table(client, device_id=7)
+                for name in ("POSITION", "VELOCITY_UM_S", "SAMPLE_COUNTER", "BOARD_TEMPERATURE", "STATUS"):
+                    assert decode(client, words, name, WordOrder.ABCD) == expected_raw(name, SAMPLE), name
+                # writes need rtu_writes_enabled on top of writes_enabled
+                refused = await client.write_register(0, 1, device_id=7)
+                assert refused.isError() and refused.exception_code == 1
+            async with rtu_client(client_end, timeout_s=0.3) as client:
+                # another device's unit id: silence, so a real device 3 could answer
+                with pytest.raises(ModbusException):
+                    await client.read_input_registers(0, count=1, device_id=3)
+            async with rtu_client(client_end) as client:
+                assert not (await client.read_input_registers(0, count=1, device_id=7)).isError()
+            assert server.counters.rejected_writes == 1
+
+    run(scenario())
+    assert recorder.calls == []
+
+
+def test_rtu_writes_when_enabled_name_the_serial_port(pty_pair) -> None:
+    server_end, client_end = pty_pair
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        config = rtu_config(server_end, writes_enabled=True, rtu_writes_enabled=True)
+        async with serving(config, recorder):
+            async with rtu_client(client_end) as client:
+                response = await client.write_register(0, 1, device_id=7)
+                assert not response.isError(), response
+
+    run(scenario())
+    assert recorder.calls == [(Command.TARE, f"modbus-rtu:{server_end}:unit7")]
+
+
+def test_tcp_and_rtu_share_one_image(pty_pair) -> None:
+    server_end, client_end = pty_pair
+
+    async def scenario() -> None:
+        config = tcp_config(rtu_enabled=True, rtu_port=server_end, unit_id=7, rtu_parity="N")
+        async with serving(config) as server:
+            server.update(PublishedValues(position_m=-4.5, status=StatusBits.VALID))
+            async with tcp_client(server.tcp_port) as tcp, rtu_client(client_end) as rtu:
+                for client, device_id in ((tcp, 1), (rtu, 7)):
+                    words = await read_table(client, device_id=device_id)
+                    assert decode(client, words, "POSITION", WordOrder.ABCD) == -4.5
+                    assert math.isnan(decode(client, words, "VELOCITY", WordOrder.ABCD))
+                # both wires count into the same counters
+                assert server.counters.requests == 2
+
+    run(scenario())
