@@ -103,6 +103,9 @@ SCHEMA: tuple[Key, ...] = (
     Key("can", "channel", "adxlgw", str, "CAN channel (vcan0, can0, or a virtual bus name).", _nonempty),
     Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).", _range(10_000, 1_000_000)),
     Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames.", _range(1, 10_000)),
+    Key("can", "min_interval_ms", -1, int,
+        "Also send at once when new values arrive, at most this often (ms); -1: purely cyclic. "
+        "Lowers latency at the cost of bus load.", _range(-1, 10_000)),
     Key("can", "commands_enabled", False, bool, "Accept the tare command frame."),
     # --- state and service -------------------------------------------------
     Key("state", "path", "/var/lib/adxl-gateway/state.json", str,
@@ -139,6 +142,9 @@ class _Section:
     def __init__(self, name: str, keys: dict[str, Any]):
         self._name = name
         self.__dict__.update(keys)
+
+    def as_tuple(self) -> tuple:
+        return tuple(sorted((k, repr(v)) for k, v in self.__dict__.items() if not k.startswith("_")))
 
     def __repr__(self) -> str:
         items = ", ".join(f"{k}={v!r}" for k, v in self.__dict__.items() if not k.startswith("_"))
@@ -181,6 +187,8 @@ def validate(data: dict[str, Any], source: str) -> Config:
             if complaint:
                 raise ConfigError(f"{source}: {key.dotted} = {value!r} {complaint}")
             values[section][name] = value
+    if values["can"]["min_interval_ms"] > values["can"]["period_ms"]:
+        raise ConfigError(f"{source}: can.min_interval_ms must not exceed can.period_ms")
     if values["serial"]["reconnect_min_s"] > values["serial"]["reconnect_max_s"]:
         raise ConfigError(f"{source}: serial.reconnect_min_s must not exceed serial.reconnect_max_s")
     return Config(values, source)

@@ -21,6 +21,9 @@ class PersistentState:
     tare_offset_m: float = 0.0
     # the board's last known bias estimate, m/s²: a warm start, never trusted as a reference
     bias_estimate_mps2: float | None = None
+    # the last published position: after a restart the gateway starts from it, flagged
+    # NOT_REFERENCED (the axis may have moved while the gateway was down)
+    last_position_m: float | None = None
     saved_at_unix_s: float | None = None
 
 

@@ -1,0 +1,53 @@
+"""The built-in emulated board as a child process: `adxlgw emulate --loop` on a pty.
+
+Used when the config says serial.port = "emulated" (the demo, and tests that want the
+whole chain). The child is the same program a user would run by hand.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from gateway.errors import DeviceError
+
+log = logging.getLogger(__name__)
+
+
+class EmulatedBoard:
+    def __init__(self, seed: int = 0, extra_args: tuple[str, ...] = ()):
+        self.seed = seed
+        self.extra_args = extra_args
+        self.proc: asyncio.subprocess.Process | None = None
+        self._dir = tempfile.TemporaryDirectory(prefix="adxlgw-board-")
+        self.link = Path(self._dir.name) / "board"
+
+    async def start(self) -> str:
+        cmd = [sys.executable, "-m", "gateway.cli", "emulate", "--loop", "--seed", str(self.seed),
+               "--link", str(self.link), *self.extra_args]
+        self.proc = await asyncio.create_subprocess_exec(
+            *cmd, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        try:
+            line = await asyncio.wait_for(self.proc.stdout.readline(), timeout=30)
+        except asyncio.TimeoutError:
+            line = b""
+        if not line:
+            await self.stop()
+            raise DeviceError("the emulated board did not start")
+        log.info("emulated board on %s (%s)", self.link, line.decode().strip())
+        return str(self.link)
+
+    async def stop(self) -> None:
+        if self.proc and self.proc.returncode is None:
+            self.proc.terminate()
+            try:
+                await asyncio.wait_for(self.proc.wait(), timeout=2)
+            except asyncio.TimeoutError:
+                self.proc.kill()
+                await self.proc.wait()
+        self._dir.cleanup()

@@ -1,0 +1,73 @@
+"""Which status bits the gateway publishes, from what it knows — a pure function.
+
+Kept apart from the supervisor so every rule is tested on its own.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drivers.published_values import StatusBits
+
+# Events (a board reset, lost samples, a config reload) stay visible this long, so a
+# PLC polling once a second cannot miss them.
+EVENT_HOLD_S = 10.0
+
+
+@dataclass(frozen=True)
+class GatewayCondition:
+    now_s: float
+    have_estimate: bool
+    port_open: bool
+    last_sample_s: float | None  # monotonic time the newest sample arrived
+    last_byte_s: float | None
+    stale_after_s: float
+    lost_after_s: float
+    referenced: bool
+    standstill: bool = False
+    estimator_fault: bool = False
+    holding: bool = False
+    axis_invalid: bool = False
+    saturated_until_s: float = -1.0
+    board_reset_at_s: float | None = None
+    samples_lost_at_s: float | None = None
+    config_reloaded_at_s: float | None = None
+    bias_estimating: bool = False
+
+
+def _recent(at_s: float | None, now_s: float) -> bool:
+    return at_s is not None and now_s - at_s < EVENT_HOLD_S
+
+
+def status_bits(c: GatewayCondition) -> StatusBits:
+    bits = StatusBits(0)
+    byte_age = None if c.last_byte_s is None else c.now_s - c.last_byte_s
+    if not c.port_open or byte_age is None or byte_age > c.lost_after_s:
+        bits |= StatusBits.BOARD_LOST
+    sample_age = None if c.last_sample_s is None else c.now_s - c.last_sample_s
+    if sample_age is None or sample_age > c.stale_after_s:
+        bits |= StatusBits.STALE
+    if not c.referenced:
+        bits |= StatusBits.NOT_REFERENCED
+    if c.standstill:
+        bits |= StatusBits.STANDSTILL
+    if c.estimator_fault:
+        bits |= StatusBits.ESTIMATOR_FAULT
+    if c.holding:
+        bits |= StatusBits.HOLDING
+    if c.axis_invalid:
+        bits |= StatusBits.AXIS_INVALID
+    if c.now_s < c.saturated_until_s:
+        bits |= StatusBits.SATURATED
+    if _recent(c.board_reset_at_s, c.now_s):
+        bits |= StatusBits.BOARD_RESET
+    if _recent(c.samples_lost_at_s, c.now_s):
+        bits |= StatusBits.SAMPLES_LOST
+    if _recent(c.config_reloaded_at_s, c.now_s):
+        bits |= StatusBits.CONFIG_RELOADED
+    if c.bias_estimating:
+        bits |= StatusBits.BIAS_ESTIMATING
+    unusable = (StatusBits.STALE | StatusBits.BOARD_LOST | StatusBits.ESTIMATOR_FAULT
+                | StatusBits.HOLDING | StatusBits.AXIS_INVALID)
+    if c.have_estimate and not bits & unusable:
+        bits |= StatusBits.VALID
+    return bits
