@@ -76,3 +76,18 @@ def test_cli_config_default_and_check(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 2
     assert r.stderr.strip() == f"adxlgw config: error: {path}: unknown key can.chanel"
+
+
+def test_cli_regmap_json_and_dbc_match_the_shipped_files():
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "gateway.cli", "regmap", "--json"], capture_output=True, text=True)
+    assert r.returncode == 0
+    rows = json.loads(r.stdout)
+    names = {row["name"]: row for row in rows}
+    assert names["POSITION"]["address"] == 4 and names["POSITION"]["table"] == "input"
+    r = subprocess.run([sys.executable, "-m", "gateway.cli", "dbc"], capture_output=True, text=True)
+    assert r.returncode == 0
+    assert r.stdout == (root / "config" / "adxl-gateway.dbc").read_text()
