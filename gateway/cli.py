@@ -20,6 +20,8 @@ COMMAND_MODULES = (
     "record",
     "import_csv",
     "config_cmd",
+    "regmap",
+    "dbc",
 )
 
 
