@@ -78,6 +78,13 @@ def test_any_single_bit_error_in_a_command_frame_is_caught(code: int, counter: i
     assert check_command(bytes(good), None).problem in (None, AckResult.UNKNOWN_COMMAND)
 
 
+@settings(derandomize=True, deadline=None, max_examples=300)
+@given(payload=st.binary(max_size=64), last=st.one_of(st.none(), st.integers(0, 15)))
+def test_command_check_never_raises_on_any_bytes(payload: bytes, last: int | None) -> None:
+    check = check_command(payload, last)
+    assert (check.problem is None) == (check.command is not None)
+
+
 def test_counter_runs_0_to_14_and_15_is_refused() -> None:
     sequence = [0]
     for _ in range(31):

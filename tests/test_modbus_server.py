@@ -399,6 +399,27 @@ def test_malformed_requests_do_not_disturb_other_clients() -> None:
     run(scenario())
 
 
+@pytest.mark.parametrize(
+    "pdu",
+    [
+        b"\x10\x00\x00\x00\x02\x09\x00\x01\x00\x01",  # FC16 byte count says 9, 4 follow
+        b"\x10\x00\x00\x00\x02\x04\x00\x01",  # FC16 two registers announced, one sent
+        b"\x10\x00\x00\x00\x00\x00",  # FC16 quantity 0
+        b"\x06\x00\x00",  # FC06 without a value
+    ],
+)
+def test_malformed_writes_get_03_and_execute_nothing(pdu: bytes) -> None:
+    recorder = Recorder()
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True), recorder) as server:
+            answer = await raw_exchange(server.tcp_port, mbap(9, pdu))
+            assert answer == mbap(9, bytes([pdu[0] | 0x80, 3]))
+
+    run(scenario())
+    assert recorder.calls == []
+
+
 def test_clients_that_connect_and_drop_leave_no_trace() -> None:
     async def scenario() -> None:
         async with serving(tcp_config()) as server:
