@@ -22,6 +22,7 @@ import os
 import shlex
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -100,8 +101,6 @@ def pytest_argv(*args: str) -> list[str]:
 
     The cache provider is off because its cache would be lost with the VM.
     """
-    import sys
-
     return [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *args]
 
 
@@ -248,7 +247,11 @@ def _collect_out_files(out_dir: Path) -> dict[str, bytes]:
 
 
 def _wait_for_ready(
-    process: subprocess.Popen[bytes], console_path: Path, stderr_path: Path, started: float, boot_timeout_s: float
+    process: subprocess.Popen[bytes],
+    console_path: Path,
+    stderr_path: Path,
+    started: float,
+    boot_timeout_s: float,
 ) -> float:
     """Poll the console until /init says it is about to run the job."""
     while True:
@@ -260,9 +263,11 @@ def _wait_for_ready(
             console = _read(console_path)
             if _READY_MARKER in console:
                 return time.monotonic() - started
-            raise _boot_failure(console, _read(stderr_path), f"qemu exited with status {process.returncode} before the guest was ready")
+            what = f"qemu exited with status {process.returncode} before the guest was ready"
+            raise _boot_failure(console, _read(stderr_path), what)
         if time.monotonic() - started > boot_timeout_s:
-            raise _boot_failure(console, _read(stderr_path), f"guest not ready after {boot_timeout_s:.0f} s (boot timeout)")
+            what = f"guest not ready after {boot_timeout_s:.0f} s (boot timeout)"
+            raise _boot_failure(console, _read(stderr_path), what)
         time.sleep(_POLL_INTERVAL_S)
 
 
