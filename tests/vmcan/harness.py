@@ -25,7 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -79,11 +79,11 @@ class VmSettings:
 class VmResult:
     returncode: int
     output: str  # the job's stdout and stderr, interleaved
-    console: str  # the guest's serial console (kernel messages, /init markers)
+    console: str = field(repr=False)  # the guest's serial console (kernel messages, /init markers)
     boot_s: float  # host time from starting qemu to the guest reporting ready
     total_s: float  # host time from starting qemu to qemu exiting
     guest_uptime_at_job_start_s: float | None  # guest /proc/uptime just before the job
-    out_files: dict[str, bytes]  # files the job left in $ADXLGW_VM_OUT_DIR, by name
+    out_files: dict[str, bytes] = field(repr=False)  # files the job left in $ADXLGW_VM_OUT_DIR, by name
 
 
 def default_guest_env() -> dict[str, str]:
@@ -96,12 +96,19 @@ def default_guest_env() -> dict[str, str]:
     return env
 
 
-def pytest_argv(*args: str) -> list[str]:
+def pytest_argv(*args: str, hypothesis_plugin: bool = False) -> list[str]:
     """argv for running pytest inside the VM with the host's interpreter.
 
     The cache provider is off because its cache would be lost with the VM.
+    Hypothesis's pytest plugin is off unless asked for: at session end it
+    imports all of hypothesis, which pytest then assertion-rewrites (a plugin
+    distribution's modules are rewritten, and with no writable bytecode cache
+    that is redone every run); under emulation that costs ~9 s per pytest run
+    on this machine. @given tests work without the plugin; it only adds the
+    --hypothesis-* options and statistics.
     """
-    return [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *args]
+    plugin_args = [] if hypothesis_plugin else ["-p", "no:hypothesispytest"]
+    return [sys.executable, "-m", "pytest", "-p", "no:cacheprovider", *plugin_args, *args]
 
 
 def check_vm_available(settings: VmSettings = VmSettings()) -> tuple[Path, Path, str]:
@@ -198,10 +205,14 @@ def run_in_can_vm(
     non-zero returncode.
     """
     kernel, initramfs, qemu = check_vm_available(settings)
+    guest_cwd = Path(cwd).resolve()
+    if not guest_cwd.is_dir():
+        # The guest sees the host's tree, so this would fail there too, after a boot.
+        raise NotADirectoryError(f"cwd {guest_cwd} is not a directory on the host")
     job_env = default_guest_env() if env is None else dict(env)
     job_dir = Path(tempfile.mkdtemp(prefix="vmcan-"))
     try:
-        (job_dir / "job.sh").write_text(_job_script(list(argv), os.fspath(Path(cwd).resolve()), job_env))
+        (job_dir / "job.sh").write_text(_job_script(list(argv), os.fspath(guest_cwd), job_env))
         console_path = job_dir / "console.log"
         stderr_path = job_dir / "qemu-stderr.log"
         started = time.monotonic()
