@@ -172,6 +172,7 @@ class ModbusServer:
         self._command_counter = 0
         self._command_result = CommandResult.NONE
         self._image: list[int] = encode_input_registers(NOTHING_PUBLISHED, word_order=config.word_order)
+        self._pending: PublishedValues | None = None
         self._servers: list[_TcpServer | _SerialServer] = []
         self._tcp: _TcpServer | None = None
         self._handlers: set[_GatewayRequestHandler] = set()
@@ -179,9 +180,11 @@ class ModbusServer:
     # ---------------------------------------------------------------- API --
     def update(self, values: PublishedValues) -> None:
         """Publish a new snapshot; the next read of any client sees all of it."""
-        # Encode first, then swap the reference: a read in between sees the old image
-        # complete, never a mix.
-        self._image = encode_input_registers(values, word_order=self.config.word_order)
+        # Encoding is deferred to the next read: the daemon updates 500 times a second,
+        # clients read far less often (or never), and an image nobody reads costs CPU.
+        # Reads and updates run in the same event loop thread, so a read encodes the
+        # newest snapshot as a whole, never a mix.
+        self._pending = values
 
     @property
     def counters(self) -> ModbusCounters:
@@ -310,6 +313,9 @@ class ModbusServer:
         if function_code == READ_INPUT:
             # One slice assignment from the current image, then the live server rows;
             # no await until pymodbus slices the answer out of this list.
+            if self._pending is not None:
+                self._image = encode_input_registers(self._pending, word_order=self.config.word_order)
+                self._pending = None
             current_registers[0:INPUT_SIZE] = self._image
             encode_rows(
                 SERVER_ROWS, current_registers, NOTHING_PUBLISHED, self._diagnostics(), self.config.word_order

@@ -1,0 +1,330 @@
+"""Daemon benchmark: sample latency to Modbus and CAN, CPU use, Modbus client load.
+
+    .venv/bin/python benchmarks/daemon_benchmark.py [--seconds 20] [--clients 0,10,25,50,75]
+
+A writer process plays the board on a real pty: SAMPLE frames at 500 samples/s (the
+paper's strokes), timestamping the moment the last byte of each frame is written
+(CLOCK_MONOTONIC, shared by all processes; taken just before the write). The gateway runs as its own process.
+
+- Modbus latency: a raw-socket Modbus TCP client polls SAMPLE_COUNTER back to back;
+  sample k is "showing" when the counter first reads ≥ k+1. The poll round trip is
+  part of the number (it is what a PLC sees) and is printed beside it.
+- CAN latency: the gateway process is instrumented (benchmark only, never in the
+  product): each CAN frame sent records its time, and a sample's latency is the first
+  ADXL_Position frame sent after the gateway processed it, i.e. the first frame that
+  carries it. Cyclic mode (10 ms, the default) and send-on-update mode are measured.
+- CPU: utime+stime of the gateway process from /proc over the run, % of one core.
+- Clients: N further Modbus TCP clients, each polling all input registers at 100 Hz
+  (from 2 load processes), while the Modbus latency is measured again.
+
+The machine is small and shared (2 cores); the load generator competes with the
+gateway for them, so the client numbers are a lower bound for a dedicated host.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime
+import json
+import multiprocessing as mp
+import os
+import platform
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from drivers.board_protocol import encode_hello, encode_sample_records, encode_status  # noqa: E402
+from drivers.modbus_map import INPUT_SIZE, REGISTERS  # noqa: E402
+from drivers.pty_port import PtyPort  # noqa: E402
+from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
+from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
+from gateway.core.simulator import simulate  # noqa: E402
+
+SAMPLE_COUNTER_ADDR = next(r.address for r in REGISTERS if r.name == "SAMPLE_COUNTER")
+RATE_HZ = 500.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# --------------------------------------------------------------------------- board
+def board_frames(seconds: float) -> list[bytes]:
+    strokes = max(2, int(seconds / 1.4) + 2)
+    run = simulate(build_profile(ScenarioSettings(strokes=StrokeSettings(strokes=strokes))), seed=0)
+    records = encode_sample_records(run.seq, run.t1x, run.t1y, run.t2, run.flags)
+    return [records[k].tobytes() for k in range(min(len(run), int(seconds * RATE_HZ)))]
+
+
+def writer(master_fd: int, frames: list[bytes], start_at_ns: int, conn) -> None:
+    """Plays the board: HELLO, then one SAMPLE every 2 ms, STATUS each second."""
+    report = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
+    os.write(master_fd, encode_hello(uptime_s=0, **report))
+    while time.monotonic_ns() < start_at_ns:
+        time.sleep(0.001)
+    written = np.zeros(len(frames), dtype=np.int64)
+    period_ns = int(1e9 / RATE_HZ)
+    for k, frame in enumerate(frames):
+        due = start_at_ns + k * period_ns
+        while True:
+            now = time.monotonic_ns()
+            if now >= due:
+                break
+            if due - now > 300_000:
+                time.sleep((due - now - 200_000) / 1e9)
+        # taken just before the write: the last byte is on the pty no earlier than this,
+        # so latencies are never under-stated (a timestamp after os.write returns can
+        # come after the gateway already answered, if the writer is preempted)
+        written[k] = time.monotonic_ns()
+        os.write(master_fd, frame)
+        if k % 500 == 499:
+            os.write(master_fd, encode_status(seq=k, uptime_s=k // 500, **report))
+    conn.send(written)
+
+
+# --------------------------------------------------------------------------- Modbus polling
+def _read_request(tid: int, address: int, count: int) -> bytes:
+    return struct.pack(">HHHBBHH", tid & 0xFFFF, 0, 6, 1, 4, address, count)
+
+
+def poll_sample_counter(port: int, until_ns: int, conn) -> None:
+    """Back-to-back reads of SAMPLE_COUNTER: (time seen, counter) whenever it changes."""
+    s = socket.create_connection(("127.0.0.1", port))
+    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    seen, rtts = [], []
+    last = -1
+    tid = 0
+    while time.monotonic_ns() < until_ns:
+        tid += 1
+        t0 = time.monotonic_ns()
+        s.sendall(_read_request(tid, SAMPLE_COUNTER_ADDR, 2))
+        reply = b""
+        while len(reply) < 13:
+            reply += s.recv(64)
+        t1 = time.monotonic_ns()
+        rtts.append(t1 - t0)
+        counter = struct.unpack(">I", reply[9:13])[0]
+        if counter != last:
+            seen.append((t1, counter))
+            last = counter
+    s.close()
+    conn.send((seen, rtts))
+
+
+async def _client_load(port: int, clients: int, rate_hz: float, until: float, results: list) -> None:
+    async def one(i: int) -> None:
+        reader, writer_ = await asyncio.open_connection("127.0.0.1", port)
+        n = 0
+        next_t = time.monotonic() + (i / clients) / rate_hz
+        while time.monotonic() < until:
+            await asyncio.sleep(max(0.0, next_t - time.monotonic()))
+            next_t += 1.0 / rate_hz
+            writer_.write(_read_request(n, 0, INPUT_SIZE))
+            await reader.readexactly(9 + 2 * INPUT_SIZE)
+            n += 1
+        writer_.close()
+        results.append(n)
+
+    await asyncio.gather(*(one(i) for i in range(clients)))
+
+
+def client_load(port: int, clients: int, rate_hz: float, until_monotonic: float, conn) -> None:
+    results: list[int] = []
+    try:
+        asyncio.run(_client_load(port, clients, rate_hz, until_monotonic, results))
+        conn.send(("ok", sum(results)))
+    except Exception as err:  # the report says how many requests got through
+        conn.send((f"{type(err).__name__}: {err}", sum(results)))
+
+
+# --------------------------------------------------------------------------- gateway child
+CHILD = r"""
+import asyncio, json, sys, time
+sys.path.insert(0, {root!r})
+from gateway.config import load_config
+from gateway.daemon import Gateway
+
+cfg = load_config({config!r})
+sends = []
+
+async def main():
+    gw = Gateway(cfg)
+    task = asyncio.create_task(gw.run())
+    while gw.can is None or gw.can._bus is None:
+        await asyncio.sleep(0.01)
+    bus = gw.can._bus
+    send = bus.send
+    def timed_send(msg, timeout=None):
+        send(msg, timeout)
+        if msg.arbitration_id == 0x120:
+            # the frame carries the values of every sample processed so far
+            sends.append((time.monotonic_ns(), gw.counters.samples))
+    bus.send = timed_send
+    await task
+
+try:
+    asyncio.run(main())
+finally:
+    with open({trace!r}, "w") as fh:
+        json.dump({{"sends": sends}}, fh)
+"""
+
+
+def start_gateway(tmp: Path, link: str, port: int, min_interval_ms: int, instrumented: bool):
+    config = tmp / "gw.toml"
+    config.write_text(
+        f'[serial]\nport = "{link}"\n[modbus]\nport = {port}\n'
+        f'[can]\ninterface = "virtual"\nchannel = "bench"\nmin_interval_ms = {min_interval_ms}\n'
+        f'[state]\npath = "{tmp / "state.json"}"\n[service]\nlog_level = "warning"\n'
+    )
+    trace = tmp / "trace.json"
+    if instrumented:
+        code = CHILD.format(root=str(ROOT), config=str(config), trace=str(trace))
+        argv = [sys.executable, "-c", code]
+    else:
+        argv = [sys.executable, "-m", "gateway.cli", "run", "--config", str(config)]
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return proc, trace
+        except OSError:
+            time.sleep(0.1)
+    proc.kill()
+    raise SystemExit(f"gateway did not start: {proc.stderr.read()}")
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def pct(values, q) -> float:
+    return float(np.percentile(values, q)) if len(values) else float("nan")
+
+
+def one_run(seconds: float, min_interval_ms: int, instrumented: bool, clients: int = 0, poll: bool = True):
+    """Returns latencies (ms) to Modbus and CAN, CPU %, RTT, and client stats."""
+    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-bench-"))
+    pty = PtyPort(tmp / "board")
+    port = free_port()
+    gw, trace = start_gateway(tmp, str(pty.link), port, min_interval_ms, instrumented)
+    if not pty.wait_for_reader(30):
+        raise SystemExit("gateway never opened the board port")
+    frames = board_frames(seconds)
+    warmup_s = 2.0
+    start_ns = time.monotonic_ns() + int(warmup_s * 1e9)
+    end_ns = start_ns + int(len(frames) / RATE_HZ * 1e9) + int(0.3e9)
+    ctx = mp.get_context("fork")
+    w_recv, w_send = ctx.Pipe(False)
+    p_recv, p_send = ctx.Pipe(False)
+    wproc = ctx.Process(target=writer, args=(pty.master_fd, frames, start_ns, w_send))
+    pproc = ctx.Process(target=poll_sample_counter, args=(port, end_ns if poll else 0, p_send))
+    loaders = []
+    for i in range(2 if clients else 0):
+        share = clients // 2 + (clients % 2 if i == 0 else 0)
+        r, s = ctx.Pipe(False)
+        proc = ctx.Process(target=client_load, args=(port, share, 100.0, start_ns / 1e9 + len(frames) / RATE_HZ, s))
+        loaders.append((proc, r))
+    wproc.start()
+    pproc.start()
+    for proc, _ in loaders:
+        proc.start()
+    while time.monotonic_ns() < start_ns:
+        time.sleep(0.01)
+    cpu0, wall0 = cpu_seconds(gw.pid), time.monotonic()
+    written = w_recv.recv()
+    cpu1, wall1 = cpu_seconds(gw.pid), time.monotonic()
+    seen, rtts = p_recv.recv()
+    load = [r.recv() for _, r in loaders]
+    for proc in (wproc, pproc, *(p for p, _ in loaders)):
+        proc.join()
+    gw.send_signal(signal.SIGTERM)
+    gw.wait(timeout=10)
+    pty.close(remove_link=True)
+
+    # sample k (0-based in this run) is counted once the gateway has processed it; the
+    # HELLO-less STATUS frames do not count, and the counter starts at 0
+    seen_t = np.array([t for t, _ in seen], dtype=np.int64)
+    seen_c = np.array([c for _, c in seen], dtype=np.int64)
+    modbus_ms = []
+    for k, w in enumerate(written):
+        idx = np.searchsorted(seen_c, k + 1)
+        if idx < len(seen_c):
+            modbus_ms.append((seen_t[idx] - w) / 1e6)
+    can_ms = []
+    if instrumented:
+        data = json.loads(trace.read_text())
+        send_t = np.array([t for t, _ in data["sends"]], dtype=np.int64)
+        send_count = np.maximum.accumulate(np.array([c for _, c in data["sends"]], dtype=np.int64))
+        for k, w in enumerate(written):
+            i = np.searchsorted(send_count, k + 1)  # the first frame carrying sample k
+            if i < len(send_t):
+                can_ms.append((send_t[i] - w) / 1e6)
+    return {
+        "modbus_ms": modbus_ms,
+        "can_ms": can_ms,
+        "cpu_pct": 100.0 * (cpu1 - cpu0) / (wall1 - wall0),
+        "rtt_ms": [r / 1e6 for r in rtts],
+        "samples": len(written),
+        "client_requests": sum(n for _, n in load),
+        "client_errors": [e for e, _ in load if e != "ok"],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seconds", type=float, default=20.0, help="board time per run")
+    ap.add_argument("--clients", default="0,10,25,50,75", help="client counts for the load table")
+    args = ap.parse_args()
+    clients = [int(c) for c in args.clients.split(",")]
+    print(f"command: .venv/bin/python benchmarks/daemon_benchmark.py --seconds {args.seconds:g} "
+          f"--clients {args.clients}")
+    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
+    print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
+    print()
+    print("latency from the last byte of a SAMPLE on the pty (500 samples/s):")
+    print(f"{'path':44} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'n':>7}")
+    plain = one_run(args.seconds, -1, instrumented=False)
+    quiet = one_run(args.seconds, -1, instrumented=False, poll=False)
+    cyclic = one_run(args.seconds, -1, instrumented=True)
+    eager = one_run(args.seconds, 0, instrumented=True)
+    rows = [
+        ("Modbus register (TCP poll, incl. round trip)", plain["modbus_ms"]),
+        ("CAN frame, cyclic 10 ms (default)", cyclic["can_ms"]),
+        ("CAN frame, send on update (min_interval_ms=0)", eager["can_ms"]),
+    ]
+    for name, values in rows:
+        print(f"{name:44} {pct(values, 50):8.2f} {pct(values, 99):8.2f} {max(values, default=float('nan')):8.2f} "
+              f"{len(values):7d}")
+    print(f"  Modbus poll round trip: p50 {pct(plain['rtt_ms'], 50):.2f} ms, p99 {pct(plain['rtt_ms'], 99):.2f} ms")
+    print()
+    print(f"CPU of the gateway at 500 samples/s, CAN cyclic 10 ms, no Modbus client: {quiet['cpu_pct']:.1f} % "
+          f"of one core")
+    print(f"  (with the back-to-back latency poller, {len(plain['rtt_ms']) / (plain['samples'] / RATE_HZ):.0f} "
+          f"requests/s: {plain['cpu_pct']:.1f} %)")
+    print()
+    print("Modbus TCP clients polling all input registers at 100 Hz each:")
+    print(f"{'clients':>7} {'req/s':>8} {'p50 ms':>8} {'p99 ms':>8} {'cpu %':>7}  errors")
+    for n in clients:
+        r = one_run(args.seconds, -1, instrumented=False, clients=n)
+        rate = r["client_requests"] / (r["samples"] / RATE_HZ)
+        print(f"{n:7d} {rate:8.0f} {pct(r['modbus_ms'], 50):8.2f} {pct(r['modbus_ms'], 99):8.2f} "
+              f"{r['cpu_pct']:7.1f}  {'; '.join(r['client_errors']) or '-'}")
+
+
+if __name__ == "__main__":
+    main()
