@@ -55,4 +55,5 @@ def test_noise_free_samples_integrate_to_the_reference_motion():
     for start, end in profile.standstill_intervals():
         settled |= (t > start + 0.05) & (t < end)
     assert np.max(np.abs(vel - ref_vel)[settled]) < 1e-7  # e^(−0.05 s/τ) of the lag is left
-    assert np.max(np.abs(pos - ref_pos)[settled]) < 1e-7
+    # position: within a period the mean hides the shape: O(Δa·Ts²) per step, sub-µm
+    assert np.max(np.abs(pos - ref_pos)[settled]) < 1e-6
