@@ -17,6 +17,8 @@ COMMAND_MODULES = (
     "demo",
     "simulate",
     "import_csv",
+    "fit_drift",
+    "estimate",
 )
 
 

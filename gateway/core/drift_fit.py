@@ -67,6 +67,38 @@ class NoiseTerms:
 
 
 @dataclass(frozen=True)
+class FittedDrift:
+    """What the estimator takes from a drift fit (adxlgw fit-drift --model-out writes it)."""
+
+    model: DriftModel
+    white_density_g_per_rthz: float | None
+    random_walk_g_per_rts: float  # the resolved rate random walk, else the record's bound
+    random_walk_resolved: bool
+
+    def to_dict(self) -> dict:
+        return {
+            "c1_g": self.model.c1_g,
+            "c2_g": self.model.c2_g,
+            "time_constant_s": self.model.time_constant_s,
+            "white_density_g_per_rthz": self.white_density_g_per_rthz,
+            "random_walk_g_per_rts": self.random_walk_g_per_rts,
+            "random_walk_resolved": self.random_walk_resolved,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FittedDrift":
+        """Raises KeyError/TypeError/ValueError on a malformed dict (the caller names the file)."""
+        white = d.get("white_density_g_per_rthz")
+        return cls(
+            model=DriftModel(c1_g=float(d["c1_g"]), c2_g=float(d["c2_g"]),
+                             time_constant_s=float(d["time_constant_s"])),
+            white_density_g_per_rthz=None if white is None else float(white),
+            random_walk_g_per_rts=float(d["random_walk_g_per_rts"]),
+            random_walk_resolved=bool(d.get("random_walk_resolved", False)),
+        )
+
+
+@dataclass(frozen=True)
 class DriftFit:
     model: DriftModel
     c1_std_g: float
@@ -83,6 +115,15 @@ class DriftFit:
     acf: np.ndarray  # block residual autocorrelation, lags 0..whiteness.lags
     allan: AllanDeviation
     noise: NoiseTerms
+
+    def fitted(self) -> FittedDrift:
+        rrw = self.noise.rate_random_walk_per_rts
+        return FittedDrift(
+            model=self.model,
+            white_density_g_per_rthz=self.noise.white_density_per_rthz,
+            random_walk_g_per_rts=rrw if rrw is not None else self.noise.random_walk_bound_per_rts,
+            random_walk_resolved=rrw is not None,
+        )
 
 
 def autocorrelation(x, max_lag: int) -> np.ndarray:
@@ -132,7 +173,7 @@ def allan_deviation(x, period_s: float, m=None) -> AllanDeviation:
     return AllanDeviation(tau_s=m * period_s, adev=out)
 
 
-def noise_terms(allan: AllanDeviation, min_tau_s: float = 0.0) -> NoiseTerms:
+def noise_terms(allan: AllanDeviation, min_tau_s: float = 0.0, record_s: float | None = None) -> NoiseTerms:
     """Read N, B, K off the slopes −1/2, 0, +1/2 of log σ_A against log τ.
 
     Each term's value is the median over the points whose local slope (mean of the
@@ -140,6 +181,10 @@ def noise_terms(allan: AllanDeviation, min_tau_s: float = 0.0) -> NoiseTerms:
     min_tau_s (where the sensor's anti-alias filter flattens the curve) are ignored.
     """
     keep = (allan.tau_s >= min_tau_s) & (allan.adev > 0)
+    if record_s is not None:
+        # a slope is read only where ≥ 16 clusters fit in the record (σ_A to ~20 %); the
+        # last octaves of a white record wobble enough to fake a flat minimum
+        keep &= allan.tau_s <= record_s / 16.0
     tau, adev = allan.tau_s[keep], allan.adev[keep]
     if tau.size < 2:
         raise ValueError("too few Allan points to read noise terms from")
@@ -161,7 +206,10 @@ def noise_terms(allan: AllanDeviation, min_tau_s: float = 0.0) -> NoiseTerms:
         b, b_tau = None, None
     rising = near(0.5) & (np.arange(tau.size) > i_min)
     k = float(np.median(adev[rising] * np.sqrt(3.0 / tau[rising]))) if rising.any() else None
-    bound = float(np.max(adev[i_min:] * np.sqrt(3.0 / tau[i_min:])))
+    # the bound uses every point past the minimum, the wobbly long-τ ones included
+    all_tau = allan.tau_s[(allan.tau_s >= tau[i_min]) & (allan.adev > 0)]
+    all_adev = allan.adev[(allan.tau_s >= tau[i_min]) & (allan.adev > 0)]
+    bound = float(np.max(all_adev * np.sqrt(3.0 / all_tau)))
     return NoiseTerms(
         white_density_per_rthz=n_white,
         bias_instability=b,
@@ -223,7 +271,7 @@ def fit_drift(t_s, acc_g, period_s: float | None = None, block_s: float = 1.0) -
     residual = np.where(good, a - drift_g(t - t[0], model), 0.0)
     allan = allan_deviation(residual, period)
     # below ~10 periods the anti-alias filter and the quantiser shape the curve, not N
-    terms = noise_terms(allan, min_tau_s=10.0 * period)
+    terms = noise_terms(allan, min_tau_s=10.0 * period, record_s=float(t[-1] - t[0]))
     return DriftFit(
         model=model,
         c1_std_g=float(std[0]),

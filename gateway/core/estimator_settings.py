@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import chi2
 
-from gateway.core.drift_fit import DriftFit, allan_deviation, autocorrelation, noise_terms
+from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation, noise_terms
 from gateway.core.sensor_model import SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
@@ -189,7 +189,7 @@ def default_bias_random_walk(white_density: float, record_s: float = 4 * 3600.0)
     return white_density / math.sqrt(2.0 * tau) * math.sqrt(3.0 / tau)
 
 
-def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: DriftFit | None = None,
+def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: FittedDrift | None = None,
                       axis: str = "x", **overrides) -> EstimatorSettings:
     """Settings for the ADXL202 on the 8051 board.
 
@@ -197,8 +197,8 @@ def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: DriftFit
       from a drift fit, the white-noise term of its Allan deviation instead (it sees both).
     - per-sample σ and autocorrelation: the CX filter makes the sensor noise AR(1) with
       a = e^(−2π f Ts) and variance N²·π/2·f (sensor_model.noise_rms_g); plus quantisation.
-    - K: the drift fit's rate random walk, or its bound when the record shows none;
-      without a fit, default_bias_random_walk.
+    - K: the drift fit's rate random walk, or its bound when the record shows none
+      (FittedDrift.random_walk_g_per_rts); without a fit, default_bias_random_walk.
     - drift: the fit's C1, T; without a fit, the sensor model's (the paper's assumed) drift.
     """
     period = sensor.t2_s
@@ -213,9 +213,9 @@ def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: DriftFit
     source = "sensor model (data sheet + timer quantisation)"
     if drift_fit is not None:
         drift_model = drift_fit.model
-        if drift_fit.noise.white_density_per_rthz is not None:
-            density_g = drift_fit.noise.white_density_per_rthz
-        k_g = drift_fit.noise.rate_random_walk_per_rts or drift_fit.noise.random_walk_bound_per_rts
+        if drift_fit.white_density_g_per_rthz is not None:
+            density_g = drift_fit.white_density_g_per_rthz
+        k_g = drift_fit.random_walk_g_per_rts
         source = "sensor model + fitted drift"
     else:
         k_g = default_bias_random_walk(density_g)
@@ -254,7 +254,7 @@ def from_rest(acc_rest_mps2, period_s: float, **overrides) -> EstimatorSettings:
     if not usable.any():
         usable = np.ones_like(usable)
     density = float(np.median(allan.adev[usable] * np.sqrt(2.0 * allan.tau_s[usable])))
-    terms = noise_terms(allan, min_tau_s=5 * period_s)
+    terms = noise_terms(allan, min_tau_s=5 * period_s, record_s=rest.size * period_s)
     acf = autocorrelation(rest, ACF_LAGS)[1:]
     values = dict(
         sample_period_s=period_s,
