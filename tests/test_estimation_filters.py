@@ -19,7 +19,7 @@ from gateway.core.kalman_paper import (
     run_paper_filter,
     transition,
 )
-from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
+from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 from gateway.core.smoother import run_backward
@@ -76,19 +76,24 @@ def _van_loan(dt, qv, qb):
     return phi, phi @ E[:3, 3:]
 
 
-def _recording(seed, strokes=2, bad=True):
+def _recording(seed, bad=True):
+    """A gentle move (0.3 m/s²: found late, so the filter rolls back), a stop, a sharp
+    stroke of the paper's kind, a stop; with an invalid sample in motion and at rest and a
+    gap of 7 samples in motion."""
     sensor = SensorParams()
-    run = simulate(reciprocating_strokes(StrokeSettings(strokes=strokes, rest_start_s=1.0)), sensor, seed=seed)
+    profile = PiecewiseConstantAcceleration(
+        [Segment(1.0, 0.0), Segment(0.5, 0.3), Segment(0.5, -0.3), Segment(0.6, 0.0)]
+        + [Segment(0.1, 10.0), Segment(0.1, 0.0), Segment(0.1, -10.0), Segment(0.8, 0.0)]
+    )
+    run = simulate(profile, sensor, seed=seed)
     t = sample_times_s(run.t2, run.tick_hz)
     z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
     ok = np.ones(t.size, bool)
     lost = np.zeros(t.size, np.int64)
     if bad:
-        # one invalid sample in motion, one at standstill, a gap of 7 samples in motion
-        i_move = np.searchsorted(t, 1.15)
-        ok[i_move] = False
-        ok[np.searchsorted(t, 1.8)] = False
-        gap = np.searchsorted(t, 2.2)
+        ok[np.searchsorted(t, 1.3)] = False
+        ok[np.searchsorted(t, 2.4)] = False
+        gap = np.searchsorted(t, 2.75)
         keep = np.ones(t.size, bool)
         keep[gap:gap + 7] = False
         t, z, ok = t[keep], z[keep], ok[keep]
@@ -100,13 +105,13 @@ def _recording(seed, strokes=2, bad=True):
 def _forward_with_records(settings, t, z, ok, lost):
     prm = settings.kernel_params()
     n = t.size
-    x, P, m, rz, rok, gain, out = K.new_state(prm)
+    x, P, m, rz, rok, snap, gain, out = K.new_state(prm)
     cols = [np.empty(n) for _ in range(10)]
     flags = np.empty(n, np.int32)
     st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
     st_trans, st_zaru = np.empty(n, np.int8), np.empty((n, 2))
     zi, zd = np.empty(n, np.int64), np.empty((n, 5))
-    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, x, P, m, rz, rok, gain, out, *cols, flags,
+    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, x, P, m, rz, rok, snap, gain, out, *cols, flags,
                        True, st_x, st_p, st_trans, st_zaru, zi, zd)
     return prm, st_x.copy(), st_p.copy(), st_trans, st_zaru, zi[:nz], zd[:nz], flags
 
@@ -172,6 +177,7 @@ def test_the_run_exercises_every_kind_of_step(filtered):
     assert kinds == {K.T_NONE, K.T_MOTION, K.T_STANDSTILL, K.T_RESET}
     assert filtered["zi"].size >= 2  # stops entered with a ZUPT
     assert np.any(filtered["flags"] & K.F_INPUT_INVALID) and np.any(filtered["flags"] & K.F_GAP)
+    assert np.any(filtered["flags"] & K.F_ROLLBACK)
 
 
 def test_kernel_matches_filterpy_with_van_loan_discretisation(filtered):
@@ -252,14 +258,14 @@ def test_realtime_class_reproduces_the_offline_track():
 
 @pytest.mark.skipif(not JIT_ENABLED, reason="numba is not installed: there is no compiled loop to compare")
 def test_compiled_loop_equals_the_plain_python_step():
-    sensor, t, z, ok, lost = _recording(seed=106, strokes=1)
+    sensor, t, z, ok, lost = _recording(seed=106)
     settings = from_sensor_model(sensor)
     compiled = estimate_series(t, z, ok, method="realtime", settings=settings, lost_before=lost)
     prm = settings.kernel_params()
-    x, P, m, rz, rok, gain, out = K.new_state(prm)
+    x, P, m, rz, rok, snap, gain, out = K.new_state(prm)
     py_step = K.step.py_func
     pos = np.empty(t.size)
     for k in range(t.size):
-        py_step(x, P, m, rz, rok, prm, gain, t[k], z[k] if ok[k] else 0.0, bool(ok[k]), int(lost[k]), out)
+        py_step(x, P, m, rz, rok, snap, prm, gain, t[k], z[k] if ok[k] else 0.0, bool(ok[k]), int(lost[k]), out)
         pos[k] = out[K.O_POS]
     np.testing.assert_allclose(pos, compiled.pos_m, rtol=0, atol=1e-12)

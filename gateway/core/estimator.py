@@ -76,12 +76,13 @@ class RealtimeEstimator:
         self.reset()
 
     def reset(self) -> None:
-        self._x, self._P, self._m, self._ring_z, self._ring_ok, self._gain, self._out = K.new_state(self._prm)
+        (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._gain,
+         self._out) = K.new_state(self._prm)
 
     def step(self, t_s: float, acc_mps2: float | None, lost_before: int = 0) -> Estimate:
         valid = acc_mps2 is not None
         z = float(acc_mps2) if valid else 0.0
-        K.step(self._x, self._P, self._m, self._ring_z, self._ring_ok, self._prm, self._gain,
+        K.step(self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._prm, self._gain,
                float(t_s), z, valid, int(lost_before), self._out)
         o = self._out
         return Estimate(
@@ -217,7 +218,7 @@ def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
 def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
     prm = settings.kernel_params()
     n = t.size
-    x, P, m, ring_z, ring_ok, gain, out = K.new_state(prm)
+    x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
     cols = {name: np.empty(n) for name in ("pos", "vel", "acc", "bias", "pos_var", "vel_var", "bias_var",
                                            "innov", "nis", "zupt")}
     flags = np.empty(n, dtype=np.int32)
@@ -234,14 +235,14 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
         capacity = 1
     for _attempt in range(2):
         zupt_index, zupt_data = np.empty(capacity, dtype=np.int64), np.empty((capacity, 5))
-        n_zupt = K.run_forward(prm, t, z, ok, lost, x, P, m, ring_z, ring_ok, gain, out,
+        n_zupt = K.run_forward(prm, t, z, ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
                                cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
                                cols["vel_var"], cols["bias_var"], cols["innov"], cols["nis"], cols["zupt"],
                                flags, smooth, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data)
         if not smooth or n_zupt <= capacity:
             break
         capacity = n_zupt  # rare: more stops than expected; run again with room for all
-        x, P, m, ring_z, ring_ok, gain, out = K.new_state(prm)
+        x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
     method = "realtime"
     if smooth:
         method = "smoothed"

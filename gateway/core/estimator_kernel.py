@@ -58,7 +58,13 @@ M_ZUPT_INNOV = 5  # velocity innovation at the last standstill entry (m/s)
 M_ZUPT_NIS = 6
 M_RING_POS = 7
 M_RING_FILL = 8
-N_MISC = 9
+M_COUNT = 9  # samples processed
+M_STILL_START = 10  # sample number where the current standstill began
+N_MISC = 11
+
+# snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
+# and the sample's input: z, valid, lost_before
+N_SNAP = 13
 
 UNINITIALISED = 0
 MOTION = 1
@@ -91,7 +97,8 @@ O_ZUPT_S = 16  # 0 when no ZUPT at this sample
 O_ZUPT_K0 = 17
 O_ZUPT_K1 = 18
 O_ZUPT_K2 = 19
-N_OUT = 20
+O_ROLLBACK_FROM = 20  # −1, or the sample whose state the filter returned to (see step 3b)
+N_OUT = 21
 
 # ---- health flags ---------------------------------------------------------------------
 F_STANDSTILL = 1
@@ -101,6 +108,7 @@ F_GAP = 8  # samples were lost before this one
 F_ENTRY = 16  # a standstill began at this sample (ZUPT applied)
 F_UNDECIDED = 32  # too few valid samples in the window to judge: the previous regime is held
 F_TIME_ERROR = 64  # the sample time did not increase: not propagated
+F_ROLLBACK = 128  # a standstill ended: the zero-acceleration updates of the last window were undone
 
 
 @jit
@@ -196,9 +204,11 @@ def scalar_update(x, P, i, y, R, gain):
 
 
 @jit
-def step(x, P, m, ring_z, ring_ok, prm, gain, t_s, z, z_valid, lost_before, out):
+def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before, out):
     """One sample in, the estimate at t_s out (written to `out`, layout O_*)."""
     flags = 0
+    count = int(m[M_COUNT])
+    rollback_from = -1
     transition = T_NONE
     regime_prev = int(m[M_REGIME])
     # 1. propagate from the previous sample's time to this one
@@ -255,6 +265,87 @@ def step(x, P, m, ring_z, ring_ok, prm, gain, t_s, z, z_valid, lost_before, out)
     else:
         flags |= F_UNDECIDED
 
+    # 3b. Leaving a standstill: the motion began somewhere in the window that just failed.
+    # A sharp start fails the tests on its first sample; a gentle one is seen late, after
+    # the zero-acceleration updates took part of it for bias and the position hold lost
+    # it. The onset is the change point of the window's mean: the sample i maximising
+    # |Σ_(i..k) (z − b)|/√n (the likelihood ratio of a mean shift at i), b the bias before
+    # the window. If it is earlier than this sample, return to the state just before it
+    # and run the samples since again as motion; their snapshots become motion states.
+    if decided and regime == MOTION and regime_prev == STANDSTILL:
+        first = max(count - w, int(m[M_STILL_START])) + 1
+        b_ref = snap[(first - 1) % w, 2]
+        onset = count
+        best = abs(z - b_ref)
+        acc_sum = 0.0
+        n_sum = 0
+        for i in range(count, first - 1, -1):
+            if i == count:
+                acc_sum += z - b_ref
+                n_sum += 1
+            elif snap[i % w, 11] > 0.0:
+                acc_sum += snap[i % w, 10] - b_ref
+                n_sum += 1
+            score = abs(acc_sum) / math.sqrt(n_sum)
+            if score > best:
+                best = score
+                onset = i
+        s = onset - 1
+        if onset < count:
+            j = s % w
+            x[0] = snap[j, 0]
+            x[1] = snap[j, 1]
+            x[2] = snap[j, 2]
+            P[0, 0] = snap[j, 3]
+            P[0, 1] = snap[j, 4]
+            P[1, 0] = snap[j, 4]
+            P[0, 2] = snap[j, 5]
+            P[2, 0] = snap[j, 5]
+            P[1, 1] = snap[j, 6]
+            P[1, 2] = snap[j, 7]
+            P[2, 1] = snap[j, 7]
+            P[2, 2] = snap[j, 8]
+            t_before = snap[j, 9]
+            u = snap[j, 10]
+            u_stale = snap[j, 11] == 0.0
+            for i in range(s + 1, count + 1):
+                ji = i % w
+                if i < count:
+                    t_i = snap[ji, 9]
+                    lost_i = int(snap[ji, 12])
+                else:
+                    t_i = t_s
+                    lost_i = lost_before
+                dt_i = t_i - t_before
+                if dt_i > 0.0:
+                    if u_stale:
+                        missing_dt = dt_i
+                    elif lost_i > 0:
+                        missing_dt = dt_i * lost_i / (lost_i + 1.0)
+                    else:
+                        missing_dt = 0.0
+                    propagate_motion(x, P, dt_i, u, drift_at(t_i, prm) - drift_at(t_before, prm), prm[P_QV],
+                                     prm[P_QB], prm[P_MISSING_VAR], missing_dt)
+                    t_before = t_i
+                if i < count:
+                    snap[ji, 0] = x[0]
+                    snap[ji, 1] = x[1]
+                    snap[ji, 2] = x[2]
+                    snap[ji, 3] = P[0, 0]
+                    snap[ji, 4] = P[0, 1]
+                    snap[ji, 5] = P[0, 2]
+                    snap[ji, 6] = P[1, 1]
+                    snap[ji, 7] = P[1, 2]
+                    snap[ji, 8] = P[2, 2]
+                    if snap[ji, 11] > 0.0:
+                        u = snap[ji, 10]
+                        u_stale = False
+                    else:
+                        u_stale = True
+            transition = T_MOTION
+            rollback_from = s
+            flags |= F_ROLLBACK
+
     # 3. updates
     innov = 0.0
     nis = 0.0
@@ -292,6 +383,25 @@ def step(x, P, m, ring_z, ring_ok, prm, gain, t_s, z, z_valid, lost_before, out)
         zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
         innov = zaru_y
         nis = zaru_y * zaru_y / zaru_s
+        if regime_prev != STANDSTILL:
+            m[M_STILL_START] = count
+
+    # the state after this sample, for a later rollback
+    j = count % w
+    snap[j, 0] = x[0]
+    snap[j, 1] = x[1]
+    snap[j, 2] = x[2]
+    snap[j, 3] = P[0, 0]
+    snap[j, 4] = P[0, 1]
+    snap[j, 5] = P[0, 2]
+    snap[j, 6] = P[1, 1]
+    snap[j, 7] = P[1, 2]
+    snap[j, 8] = P[2, 2]
+    snap[j, 9] = m[M_T_PREV]
+    snap[j, 10] = z if ok else 0.0
+    snap[j, 11] = 1.0 if ok else 0.0
+    snap[j, 12] = lost_before
+    m[M_COUNT] = count + 1
 
     # 4. the input for the next period (keep the previous one for the lag correction)
     u_before = m[M_U_PREV]
@@ -343,30 +453,33 @@ def step(x, P, m, ring_z, ring_ok, prm, gain, t_s, z, z_valid, lost_before, out)
     out[O_ZUPT_K0] = k0
     out[O_ZUPT_K1] = k1
     out[O_ZUPT_K2] = k2
+    out[O_ROLLBACK_FROM] = rollback_from
 
 
 def new_state(prm: np.ndarray):
-    """Fresh filter memory: (x, P, misc, ring_z, ring_ok, gain, out)."""
+    """Fresh filter memory: (x, P, misc, ring_z, ring_ok, snap, gain, out)."""
     w = int(prm[P_WINDOW])
     x = np.zeros(3)
     P = np.zeros((3, 3))
     P[2, 2] = prm[P_BIAS0_VAR]
     m = np.zeros(N_MISC)
     m[M_REGIME] = UNINITIALISED
-    return x, P, m, np.zeros(w), np.zeros(w), np.zeros(3), np.zeros(N_OUT)
+    return x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT)
 
 
 @jit
-def run_forward(prm, t_s, z, z_ok, lost, x, P, m, ring_z, ring_ok, gain, out,
+def run_forward(prm, t_s, z, z_ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
                 pos, vel, acc, bias, pos_var, vel_var, bias_var, innov, nis, zupt_innov, flags,
                 store, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data):
     """The step over whole arrays. With store, keeps what the smoother needs:
     filtered x (N×3) and P (N×6: 00 01 02 11 12 22), the transition into each sample,
     ZARU (y, S) per sample, and the sparse ZUPT records (index; y, S, K0, K1, K2).
+    After a rollback the records of the samples run again are rewritten (motion, no
+    update), so the smoother sees the sequence the filter state now stands on.
     Returns the number of ZUPT records (more than zupt_index holds: run again with room)."""
     n_zupt = 0
     for k in range(t_s.size):
-        step(x, P, m, ring_z, ring_ok, prm, gain, t_s[k], z[k], z_ok[k], lost[k], out)
+        step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s[k], z[k], z_ok[k], lost[k], out)
         pos[k] = out[O_POS]
         vel[k] = out[O_VEL]
         acc[k] = out[O_ACC]
@@ -379,6 +492,19 @@ def run_forward(prm, t_s, z, z_ok, lost, x, P, m, ring_z, ring_ok, gain, out,
         zupt_innov[k] = out[O_ZUPT_INNOV]
         flags[k] = int(out[O_FLAGS])
         if store:
+            s = int(out[O_ROLLBACK_FROM])
+            if s >= 0:
+                w = int(prm[P_WINDOW])
+                for j in range(s + 1, k):
+                    row = j % w
+                    for c in range(3):
+                        st_x[j, c] = snap[row, c]
+                    for c in range(6):
+                        st_p[j, c] = snap[row, 3 + c]
+                    st_trans[j] = T_MOTION
+                    st_zaru[j, 0] = 0.0
+                    st_zaru[j, 1] = 0.0
+                    flags[j] = (flags[j] & ~F_STANDSTILL) | F_ROLLBACK
             st_x[k, 0] = x[0]
             st_x[k, 1] = x[1]
             st_x[k, 2] = x[2]
