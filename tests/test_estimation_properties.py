@@ -38,9 +38,11 @@ def _check(est: RealtimeEstimator, e, prev) -> None:
     eig = np.linalg.eigvalsh(P)
     assert eig.min() >= -1e-12 * max(1.0, eig.max())
     assert np.all(np.diag(P) >= 0.0)
-    if e.initialised and not e.standstill and prev is not None and prev.initialised and not prev.standstill:
+    clock_ok = not (e.flags & K.F_TIME_ERROR) and prev is not None and not (prev.flags & K.F_TIME_ERROR)
+    if e.initialised and not e.standstill and clock_ok and prev.initialised and not prev.standstill:
         # in motion the velocity is uncertain (on the first motion sample it is still the
-        # rest's exact 0: the motion starts with that sample's period)
+        # rest's exact 0: the motion starts with that sample's period; and without time
+        # passing nothing is propagated)
         assert P[1, 1] > 0.0
     assert P[2, 2] > 0.0  # the bias is never known exactly (random walk, prior)
     for value in (e.pos_m, e.vel_mps, e.acc_mps2, e.bias_mps2, e.pos_std_m, e.vel_std_mps, e.innovation_mps2,
