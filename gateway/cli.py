@@ -19,6 +19,8 @@ COMMAND_MODULES = (
     "emulate",
     "record",
     "import_csv",
+    "fit_drift",
+    "estimate",
     "config_cmd",
     "regmap",
     "dbc",

@@ -1,8 +1,9 @@
 """The paper's experiment in numbers: motion → ADXL202 → 8051 timer counts → host.
 
 Pipeline, per axis (values in g until the duty cycle):
-    truth (motion profile, at each period's start)
-    → sensor low-pass (CX/CY, one pole)         → + white noise (same filter)
+    truth (motion profile)
+    → sensor low-pass (CX/CY, one pole, continuous time), mean over each period
+                                                → + white noise (same filter)
     → + zero-g offset + exponential zero drift → extra error terms (hook)
     → sensitivity → clipping at ±range         → duty cycle
     → 8051 timer: edges counted in ticks (T1 and T2 quantised)
@@ -104,6 +105,41 @@ def one_pole_lowpass(u: np.ndarray, period_s: float, bandwidth_hz: float) -> np.
     return y
 
 
+def period_mean_lowpass(
+    profile: PiecewiseConstantAcceleration, n: int, period_s: float, bandwidth_hz: float
+) -> np.ndarray:
+    """Mean over each period [k·Ts, (k+1)·Ts] of the true acceleration after the CX/CY filter.
+
+    The filter acts in continuous time, before the duty-cycle modulator, and a duty cycle
+    measures the whole period; so each sample is the period's mean of the filtered
+    signal. Sampling the unfiltered steps at the period start instead moves every step
+    to the next sample: a motion's integral is then wrong by up to a·Ts per step
+    (20 mm/s at 10 m/s², mm of position per stroke) for any estimator.
+
+    Exact for piecewise-constant u: y' = (u − y)/τ gives ∫y = ∫u − τ·Δy per period, and
+    y at the period edges follows y(k+1) = e^(−Ts/τ)·y(k) + the period's share of each step.
+    """
+    tau_s = 1.0 / (2.0 * np.pi * bandwidth_hz)
+    durations = np.array([s.duration_s for s in profile.segments])
+    acc = np.array([s.acc_mps2 for s in profile.segments])
+    seg_start = np.concatenate([[0.0], np.cumsum(durations)[:-1]])
+    vel_start = np.concatenate([[0.0], np.cumsum(acc * durations)[:-1]])
+    edges_s = np.arange(n + 1) * period_s
+    seg = np.maximum(np.searchsorted(seg_start, edges_s, side="right") - 1, 0)
+    # ∫0^t u: the last segment extends past the profile's end, like evaluate() holds it
+    u_integral = vel_start[seg] + acc[seg] * (edges_s - seg_start[seg])
+    a = np.exp(-period_s / tau_s)
+    forcing = acc[seg[:-1]] * (1.0 - a)
+    for j in range(1, acc.size):  # steps inside a period: their exact share
+        k = int(np.searchsorted(edges_s, seg_start[j], side="right")) - 1
+        if 0 <= k < n and seg_start[j] > edges_s[k]:
+            forcing[k] += (acc[j] - acc[j - 1]) * -np.expm1(-(edges_s[k + 1] - seg_start[j]) / tau_s)
+    y = np.empty(n + 1)
+    y[0] = acc[0]  # settled: at rest long before the run
+    y[1:], _ = lfilter([1.0], [1.0, -a], forcing, zi=[a * y[0]])
+    return (np.diff(u_integral) - tau_s * np.diff(y)) / period_s
+
+
 def filtered_white_noise(rng: np.random.Generator, n: int, period_s: float, sensor: SensorParams) -> np.ndarray:
     """White noise of the data sheet's density through the one-pole filter, sampled exactly.
 
@@ -154,12 +190,11 @@ def simulate(
     temp_c = np.full(n, sensor.temperature_c)
     ctx = SignalContext(t_s, pos, vel, acc, temp_c, sensor, seed)
 
-    true_x_g = acc / STANDARD_GRAVITY_MPS2
+    true_x_g = period_mean_lowpass(profile, n, period_s, sensor.bandwidth_hz) / STANDARD_GRAVITY_MPS2
     true_y_g = np.zeros(n)
     axes = []
     for name, true_g, axis in (("x", true_x_g, sensor.x), ("y", true_y_g, sensor.y)):
-        sensed = one_pole_lowpass(true_g, period_s, sensor.bandwidth_hz)
-        sensed = sensed + filtered_white_noise(ctx.rng(f"noise_{name}"), n, period_s, sensor)
+        sensed = true_g + filtered_white_noise(ctx.rng(f"noise_{name}"), n, period_s, sensor)
         sensed = sensed + axis.zero_g_offset_g + drift_g(t_s, axis.drift)
         axes.append(sensed)
     acc_x_g, acc_y_g = axes

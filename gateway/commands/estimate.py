@@ -1,0 +1,169 @@
+"""adxlgw estimate: position and velocity from a recording, by one of four methods."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from gateway.core.drift_fit import FittedDrift
+from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
+from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
+from gateway.core.evaluation import summarise_errors
+from gateway.core.reference_point import NoRestError, find_initial_rest
+from gateway.core.sensor_model import SensorParams
+from gateway.errors import InputError, RecordingError
+from gateway.recording import AccelerationSeries, read_recording, to_acceleration
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "estimate",
+        help="estimate position and velocity from a recording",
+        description="Estimate position, velocity and acceleration for every sample of a recording and "
+                    "write them with the health columns. raw: plain double integration (paper fig. 6); "
+                    "paper: reference-point compensation + the paper's Kalman filter (fig. 7); "
+                    "realtime: the gateway's causal filter (bias state, standstill detection, ZUPT/ZARU); "
+                    "smoothed: the same with a backward pass. Where the recording has reference columns "
+                    "the errors are printed (final, at each stop, RMS).",
+    )
+    p.add_argument("recording", metavar="FILE.csv")
+    p.add_argument("--method", choices=METHODS, default="realtime", help="estimation method (default: realtime)")
+    p.add_argument("--out", required=True, help="output CSV: t_s, pos_m, vel_mps, acc_mps2 and health columns")
+    p.add_argument("--plot", metavar="FILE.png", help="draw the estimate against the reference")
+    p.add_argument("--noise-from", choices=("auto", "sensor", "rest"), default="auto",
+                   help="where the filter's noise settings come from: the ADXL202 sensor model, or the "
+                        "recording's own initial rest (auto: sensor for the raw form, rest for the "
+                        "acceleration form, i.e. another sensor)")
+    p.add_argument("--drift-model", metavar="DRIFT.json",
+                   help="fitted drift and noise (adxlgw fit-drift --model-out) instead of the data-sheet values")
+    p.add_argument("--returns-to-start", action="store_true",
+                   help="the motion ends where it began (net displacement zero): print the final position as its error")
+    p.set_defaults(run=run)
+
+
+def _load_drift(path: str) -> FittedDrift:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return FittedDrift.from_dict(json.load(fh))
+    except OSError as err:
+        raise InputError(f"{path}: cannot read: {err.strerror or err}") from err
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"{path}: not a drift model written by 'adxlgw fit-drift --model-out' ({err})") from err
+
+
+def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: FittedDrift | None) -> EstimatorSettings:
+    """The filter's settings for this recording (see estimator_settings for each source)."""
+    source = noise_from if noise_from != "auto" else ("sensor" if form == "raw" else "rest")
+    if source == "sensor":
+        return from_sensor_model(SensorParams(), drift_fit=drift, axis=series.axis)
+    if drift is not None:
+        raise InputError("--drift-model describes the ADXL202; it cannot be combined with noise from the rest")
+    period = float(np.median(np.diff(series.t_s)))
+    rest = find_initial_rest(series.acc_mps2, series.valid, period)
+    return from_rest(series.acc_mps2[rest.start:rest.stop], period)
+
+
+def write_track(path: str, track: EstimateTrack) -> None:
+    cols = track.columns()
+    names = list(cols)
+    ints = {"standstill", "flags"}
+    fmt = ["%d" if n in ints else "%.10g" for n in names]
+    data = np.column_stack([cols[n] for n in names])
+    try:
+        np.savetxt(path, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    except OSError as err:
+        raise RecordingError(f"{path}: cannot write: {err.strerror or err}") from err
+
+
+def plot_track(path: str, track: EstimateTrack, reference: dict, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = track.t_s
+    has_ref = "ref_pos_m" in reference
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    still = track.standstill
+    for ax in axes:
+        ax.fill_between(t, 0, 1, where=still, transform=ax.get_xaxis_transform(), color="0.9", lw=0,
+                        label="standstill (detected)")
+    axes[0].plot(t, track.pos_m, label=f"estimate ({track.method})")
+    axes[1].plot(t, track.vel_mps, label=f"estimate ({track.method})")
+    if has_ref:
+        axes[0].plot(t, reference["ref_pos_m"], "k--", lw=1, label="reference")
+        if "ref_vel_mps" in reference:
+            axes[1].plot(t, reference["ref_vel_mps"], "k--", lw=1, label="reference")
+        err = track.pos_m - reference["ref_pos_m"]
+        axes[2].plot(t, err * 1e3, label="position error")
+        axes[2].fill_between(t, -2e3 * track.pos_std_m, 2e3 * track.pos_std_m, alpha=0.3, label="±2σ (filter)")
+        axes[2].set_ylabel("error (mm)")
+    else:
+        axes[2].plot(t, track.bias_mps2, label="bias estimate")
+        axes[2].set_ylabel("bias (m/s²)")
+    axes[0].set_ylabel("position (m)")
+    axes[1].set_ylabel("velocity (m/s)")
+    axes[2].set_xlabel("time (s)")
+    for ax in axes:
+        ax.legend(loc="best", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].set_title(title)
+    fig.tight_layout()
+    try:
+        fig.savefig(path, dpi=100)
+    except OSError as err:
+        raise InputError(f"{path}: cannot write the plot: {err.strerror or err}") from err
+    finally:
+        plt.close(fig)
+
+
+def _mm(x: float) -> str:
+    return f"{x * 1e3:+.3f} mm"
+
+
+def run(args: argparse.Namespace) -> int:
+    rec = read_recording(args.recording)
+    series = to_acceleration(rec)
+    if len(series) < 2:
+        raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
+    drift = _load_drift(args.drift_model) if args.drift_model else None
+    settings = None
+    try:
+        if args.method in ("realtime", "smoothed"):
+            settings = settings_for(series, rec.form, args.noise_from, drift)
+        track = estimate_series(
+            series.t_s, series.acc_mps2, series.valid, method=args.method, settings=settings,
+            lost_before=series.lost_before if rec.form == "raw" else None,
+        )
+    except NoRestError as err:
+        raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err
+    for note in track.notes:
+        print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
+    if settings is not None:
+        for line in settings.describe():
+            print(f"settings: {line}")
+    write_track(args.out, track)
+    print(f"wrote {args.out}: {len(track)} samples, method {track.method}")
+    ref = series.reference
+    if "ref_pos_m" in ref and "ref_vel_mps" in ref:
+        summary = summarise_errors(series.t_s, track.pos_m, ref["ref_pos_m"], ref["ref_vel_mps"],
+                                   ref.get("ref_acc_mps2"))
+        print(f"errors against the reference ({summary.travelled_m:.3f} m travelled):")
+        for i, stop in enumerate(summary.stops, start=1):
+            print(f"  stop {i:3d} at {stop.t_s:9.3f} s: {_mm(stop.error_m)}")
+        print(f"  final: {_mm(summary.final_m)}   RMS: {summary.rms_m * 1e3:.3f} mm"
+              + (f"   last stop: {summary.last_stop_percent_of_travel:.3g} % of distance travelled"
+                 if summary.stops else ""))
+    elif "ref_pos_m" in ref:
+        err = track.pos_m - ref["ref_pos_m"]
+        print(f"errors against the reference: final {_mm(err[-1])}   RMS {math.sqrt(np.mean(err ** 2)) * 1e3:.3f} mm")
+    if args.returns_to_start:
+        print(f"final position (the motion returns to its start, so this is the error): {_mm(track.pos_m[-1])}")
+    if args.plot:
+        plot_track(args.plot, track, ref, f"{Path(args.recording).name}: {track.method}")
+        print(f"wrote {args.plot}")
+    return 0

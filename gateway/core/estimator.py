@@ -1,0 +1,319 @@
+"""Distance and velocity from the accelerometer: the estimators behind `adxlgw estimate` and the daemon.
+
+Methods (estimate_series):
+    raw       double integration of the measured acceleration, nothing removed (paper fig. 6)
+    paper     reference-point compensation + the paper's 3-state Kalman filter (fig. 7)
+    realtime  the gateway's filter (estimator_kernel): bias state driven by the drift model,
+              standstill detector, ZUPT/ZARU, position held at rest — causal
+    smoothed  the same filter plus the backward pass (smoother) — for recordings
+
+The daemon uses RealtimeEstimator one sample at a time; it runs the very same step as
+estimate_series(method="realtime").
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from gateway.core import estimator_kernel as K
+from gateway.core.estimator_settings import EstimatorSettings
+from gateway.core.integration import double_integrate, hold_invalid
+from gateway.core.kalman_paper import DEFAULT_JERK_DENSITY, run_paper_filter
+from gateway.core.reference_point import NoRestError, find_initial_rest
+from gateway.core.smoother import run_backward
+
+METHODS = ("raw", "paper", "realtime", "smoothed")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One sample's estimate and the health the daemon publishes."""
+
+    t_s: float
+    pos_m: float
+    vel_mps: float
+    acc_mps2: float
+    bias_mps2: float
+    pos_std_m: float
+    vel_std_mps: float
+    innovation_mps2: float  # z − b at standstill (ZARU), 0 in motion
+    nis: float  # innovation² / its variance (χ², 1 dof, at standstill), 0 in motion
+    zupt_velocity_error_mps: float  # velocity found at the latest stop (ZUPT innovation, held)
+    zupt_nis: float
+    flags: int
+
+    @property
+    def standstill(self) -> bool:
+        return bool(self.flags & K.F_STANDSTILL)
+
+    @property
+    def initialised(self) -> bool:
+        return bool(self.flags & K.F_INITIALISED)
+
+    @property
+    def input_invalid(self) -> bool:
+        """The sample's acceleration was unusable; the estimate holds."""
+        return bool(self.flags & K.F_INPUT_INVALID)
+
+    @property
+    def gap(self) -> bool:
+        return bool(self.flags & K.F_GAP)
+
+
+class RealtimeEstimator:
+    """Causal estimator: one sample in, one estimate out.
+
+    step(t_s, acc) with acc None (or NaN/inf) for an invalid sample, lost_before for
+    samples lost on the line before this one. tare() sets the position to zero;
+    request_bias_reestimate() forgets the bias so the next standstill measures it anew
+    (e.g. after a temperature step); reset() starts over (board reset).
+    """
+
+    def __init__(self, settings: EstimatorSettings):
+        self.settings = settings
+        self._prm = settings.kernel_params()
+        self.reset()
+
+    def reset(self) -> None:
+        (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._gain,
+         self._out) = K.new_state(self._prm)
+
+    def step(self, t_s: float, acc_mps2: float | None, lost_before: int = 0) -> Estimate:
+        valid = acc_mps2 is not None
+        z = float(acc_mps2) if valid else 0.0
+        K.step(self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._prm, self._gain,
+               float(t_s), z, valid, int(lost_before), self._out)
+        o = self._out
+        return Estimate(
+            t_s=float(t_s),
+            pos_m=float(o[K.O_POS]),
+            vel_mps=float(o[K.O_VEL]),
+            acc_mps2=float(o[K.O_ACC]),
+            bias_mps2=float(o[K.O_BIAS]),
+            pos_std_m=float(np.sqrt(o[K.O_POS_VAR])),
+            vel_std_mps=float(np.sqrt(o[K.O_VEL_VAR])),
+            innovation_mps2=float(o[K.O_INNOV]),
+            nis=float(o[K.O_NIS]),
+            zupt_velocity_error_mps=float(o[K.O_ZUPT_INNOV]),
+            zupt_nis=float(o[K.O_ZUPT_NIS]),
+            flags=int(o[K.O_FLAGS]),
+        )
+
+    def tare(self) -> None:
+        """Position := 0 here; it is then exact by definition (no variance, no correlation)."""
+        self._x[0] = 0.0
+        self._P[0, :] = 0.0
+        self._P[:, 0] = 0.0
+
+    def request_bias_reestimate(self) -> None:
+        """Widen the bias variance back to its initial value: the next standstill re-measures it."""
+        self._P[2, 2] = max(self._P[2, 2], self._prm[K.P_BIAS0_VAR])
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Copy of the state covariance of [position, velocity, bias]."""
+        return self._P.copy()
+
+    @property
+    def state(self) -> np.ndarray:
+        return self._x.copy()
+
+
+@dataclass
+class EstimateTrack:
+    """An estimate per sample, as arrays (columns of `adxlgw estimate --out`)."""
+
+    method: str
+    t_s: np.ndarray
+    pos_m: np.ndarray
+    vel_mps: np.ndarray
+    acc_mps2: np.ndarray
+    bias_mps2: np.ndarray
+    pos_std_m: np.ndarray
+    vel_std_mps: np.ndarray
+    innovation_mps2: np.ndarray
+    nis: np.ndarray
+    zupt_velocity_error_mps: np.ndarray
+    flags: np.ndarray
+    notes: list[str] = field(default_factory=list)  # what could not be done, for the command
+
+    def __len__(self) -> int:
+        return self.t_s.size
+
+    @property
+    def standstill(self) -> np.ndarray:
+        return (self.flags & K.F_STANDSTILL) != 0
+
+    @property
+    def initialised(self) -> np.ndarray:
+        return (self.flags & K.F_INITIALISED) != 0
+
+    def columns(self) -> dict[str, np.ndarray]:
+        return {
+            "t_s": self.t_s,
+            "pos_m": self.pos_m,
+            "vel_mps": self.vel_mps,
+            "acc_mps2": self.acc_mps2,
+            "standstill": self.standstill.astype(np.int64),
+            "bias_mps2": self.bias_mps2,
+            "pos_std_m": self.pos_std_m,
+            "vel_std_mps": self.vel_std_mps,
+            "innovation_mps2": self.innovation_mps2,
+            "nis": self.nis,
+            "zupt_velocity_error_mps": self.zupt_velocity_error_mps,
+            "flags": self.flags.astype(np.int64),
+        }
+
+
+def lost_from_times(t_s) -> np.ndarray:
+    """Samples missing before each one, from gaps in the time axis (> 1.5 median periods)."""
+    t = np.asarray(t_s, dtype=float)
+    lost = np.zeros(t.size, dtype=np.int64)
+    if t.size > 2:
+        dt = np.diff(t)
+        period = float(np.median(dt))
+        gap = dt > 1.5 * period
+        lost[1:][gap] = np.rint(dt[gap] / period).astype(np.int64) - 1
+    return lost
+
+
+def _input_flags(valid, lost) -> np.ndarray:
+    flags = np.where(valid, 0, K.F_INPUT_INVALID) | np.where(lost > 0, K.F_GAP, 0)
+    return flags.astype(np.int32)
+
+
+def _track(method, t, pos, vel, acc, bias, pos_var, vel_var, innov, nis, zupt, flags, notes) -> EstimateTrack:
+    return EstimateTrack(
+        method=method, t_s=t, pos_m=pos, vel_mps=vel, acc_mps2=acc, bias_mps2=bias,
+        pos_std_m=np.sqrt(np.maximum(pos_var, 0.0)), vel_std_mps=np.sqrt(np.maximum(vel_var, 0.0)),
+        innovation_mps2=innov, nis=nis, zupt_velocity_error_mps=zupt, flags=flags, notes=notes,
+    )
+
+
+def _raw(t, acc, valid, lost, notes) -> EstimateTrack:
+    pos, vel = double_integrate(t, acc, valid)
+    n = t.size
+    zeros = np.zeros(n)
+    flags = _input_flags(valid, lost) | K.F_INITIALISED
+    return _track("raw", t, pos, vel, hold_invalid(acc, valid), zeros, zeros, zeros, zeros, zeros, zeros,
+                  flags, notes)
+
+
+def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
+    try:
+        rest = find_initial_rest(acc, valid, period)
+    except NoRestError as err:
+        raise NoRestError(f"reference-point compensation needs an initial standstill: {err}") from None
+    compensated = acc - rest.offset_mps2
+    states, pos_var = run_paper_filter(t, compensated, valid, jerk_density, max(rest.sample_std_mps2, 1e-9) ** 2)
+    n = t.size
+    zeros = np.zeros(n)
+    flags = _input_flags(valid, lost) | K.F_INITIALISED
+    notes.append(f"reference point: {rest.samples} samples at rest, offset {rest.offset_mps2:.6g} m/s²")
+    return _track("paper", t, states[:, 0], states[:, 1], states[:, 2], np.full(n, rest.offset_mps2), pos_var,
+                  zeros, zeros, zeros, zeros, flags, notes)
+
+
+def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
+    prm = settings.kernel_params()
+    n = t.size
+    x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
+    cols = {name: np.empty(n) for name in ("pos", "vel", "acc", "bias", "pos_var", "vel_var", "bias_var",
+                                           "innov", "nis", "zupt")}
+    flags = np.empty(n, dtype=np.int32)
+    z = np.where(valid, acc, 0.0)
+    ok = np.asarray(valid, dtype=np.bool_)
+    lost = np.asarray(lost, dtype=np.int64)
+    if smooth:
+        st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
+        st_trans, st_zaru = np.empty(n, dtype=np.int8), np.empty((n, 2))
+        capacity = n // max(1, int(prm[K.P_WINDOW])) * 4 + 16
+    else:
+        st_x, st_p = np.empty((1, 3)), np.empty((1, 6))
+        st_trans, st_zaru = np.empty(1, dtype=np.int8), np.empty((1, 2))
+        capacity = 1
+    for _attempt in range(2):
+        zupt_index, zupt_data = np.empty(capacity, dtype=np.int64), np.empty((capacity, 5))
+        n_zupt = K.run_forward(prm, t, z, ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
+                               cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
+                               cols["vel_var"], cols["bias_var"], cols["innov"], cols["nis"], cols["zupt"],
+                               flags, smooth, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data)
+        if not smooth or n_zupt <= capacity:
+            break
+        capacity = n_zupt  # rare: more stops than expected; run again with room for all
+        x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
+    method = "realtime"
+    if smooth:
+        method = "smoothed"
+        run_backward(t, st_trans, st_x, st_p, st_zaru, prm[K.P_R], zupt_index, zupt_data, n_zupt,
+                     cols["pos_var"], cols["vel_var"], cols["bias_var"])
+        init = (flags & K.F_INITIALISED) != 0
+        still = (flags & K.F_STANDSTILL) != 0
+        cols["pos"] = np.where(init, st_x[:, 0], 0.0)
+        cols["vel"] = np.where(init, st_x[:, 1], 0.0)
+        cols["bias"] = np.where(init, st_x[:, 2], 0.0)
+        held = hold_invalid(acc, valid)
+        cols["acc"] = np.where(init & ~still, held - cols["bias"], 0.0)
+        # undo the sensor filter's lag as the kernel does (estimator_kernel, step 5)
+        lag = prm[K.P_LAG]
+        moving = init & ~still
+        y_edge = np.zeros(n)
+        y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
+        cols["pos"] = cols["pos"] + lag * cols["vel"]
+        cols["vel"] = cols["vel"] + lag * y_edge
+        del st_x, st_p, st_zaru
+    return _track(method, t, cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"], cols["vel_var"],
+                  cols["innov"], cols["nis"], cols["zupt"], flags, notes)
+
+
+def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
+                    settings: EstimatorSettings | None = None, lost_before=None,
+                    known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY) -> EstimateTrack:
+    """Estimate position and velocity for every sample of a recording.
+
+    valid: False where the sample is unusable (NaN/inf are invalid anyway).
+    lost_before: samples lost before each one (from seq gaps); None → from time gaps.
+    known_bias_mps2: the true bias per sample (simulation only) — the noise floor: the
+        realtime/smoothed filter is fed z − b_true and told the bias is exactly zero.
+    Raises NoRestError when nothing can be estimated (no standstill to start from).
+    """
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
+    t = np.ascontiguousarray(t_s, dtype=float)
+    acc = np.ascontiguousarray(acc_mps2, dtype=float)
+    if t.size != acc.size:
+        raise ValueError("t_s and acc_mps2 differ in length")
+    if t.size < 2:
+        raise NoRestError("fewer than two samples")
+    ok = np.isfinite(acc) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(acc))
+    lost = lost_from_times(t) if lost_before is None else np.asarray(lost_before, dtype=np.int64)
+    notes: list[str] = []
+    bad = int(np.count_nonzero(~ok))
+    if bad:
+        notes.append(f"{bad} samples invalid (NaN/inf/flagged): the estimate holds over them")
+    if np.any(lost > 0):
+        notes.append(f"{int(np.count_nonzero(lost))} gaps, {int(lost.sum())} samples lost: "
+                     "propagated with the last acceleration and a wider variance")
+    period = float(np.median(np.diff(t)))
+    if method == "raw":
+        return _raw(t, acc, ok, lost, notes)
+    if method == "paper":
+        return _paper(t, acc, ok, lost, period, jerk_density, notes)
+    if settings is None:
+        raise ValueError("the realtime and smoothed methods need EstimatorSettings")
+    if known_bias_mps2 is not None:
+        acc = acc - np.asarray(known_bias_mps2, dtype=float)
+        settings = settings.with_known_bias()
+    track = _filter(t, acc, ok, lost, settings, method == "smoothed", notes)
+    init = track.initialised
+    if not init.any():
+        raise NoRestError(
+            "no standstill found: the estimator needs a quiet stretch of "
+            f"{settings.window_samples} valid samples ({settings.standstill_window_s:g} s) to measure the bias"
+        )
+    first = int(np.argmax(init))
+    if first > 0:
+        notes.append(f"the first {first} samples ({t[first] - t[0]:.3f} s) came before the first standstill: "
+                     "held at position 0")
+    return track

@@ -1,0 +1,531 @@
+"""The gateway's estimator, one sample at a time: the numbers only (compiled when numba is there).
+
+Model (continuous time, state x = [p, v, b]):
+    the measured acceleration z is the true acceleration plus the bias b plus white
+    noise of density N; it drives the state as an input (strapdown form):
+        ṗ = v,  v̇ = z − b − w,  ḃ = ḋ(t) + w_b
+    d(t) = C1·(1 − e^(−(t + t0)/T)) is the fitted zero drift (deterministic input),
+    w has density N²/2 on v, w_b is the bias random walk K².
+    Motion:     Φ(Δt) = [[1, Δt, −Δt²/2], [0, 1, −Δt], [0, 0, 1]], Q(Δt) in closed form.
+    Standstill: v ≡ 0 and the position is held: Φs = [[1, 0, 0], [0, 0, 0], [0, 0, 1]],
+                only the bias random walk enters; every sample is a zero-acceleration
+                update z = b + n (ZARU, variance N²/(2·Ts)).
+    Entering a standstill: a zero-velocity update v = 0 (ZUPT) — the velocity error the
+                motion piled up corrects position and bias through their correlations.
+
+Sample k's acceleration is its period's mean (the duty cycle measures the whole
+period), so it is integrated over [t_k, t_(k+1)]: step k first propagates the state from
+t_(k−1) to t_k with sample k−1's input, then judges sample k (standstill detector),
+then applies the updates. The estimate is the state at t_k.
+
+The step keeps everything in preallocated arrays (no allocation per sample) so that the
+offline loop compiles with numba; the realtime class calls the same function.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from gateway.core.jit import jit
+from gateway.core.standstill import standstill_tests, window_statistics
+
+# ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
+P_QV = 0  # velocity process noise density N²/2
+P_QB = 1  # bias random walk K²
+P_R = 2  # ZARU variance N²/(2 Ts)
+P_DRIFT_C1 = 3
+P_DRIFT_T = 4
+P_DRIFT_T0 = 5
+P_WINDOW = 6
+P_VAR_MAX = 7
+P_MEAN_SIGMAS = 8
+P_VEL_SIGMAS = 9
+P_SPEED_FLOOR = 10
+P_R_ZUPT = 11
+P_MISSING_VAR = 12
+P_BIAS0_VAR = 13
+P_LAG = 14  # the sensor filter's time constant τ (s): the outputs undo its lag
+N_PARAMS = 15
+
+# ---- misc state layout ----------------------------------------------------------------
+M_T_PREV = 0
+M_HAVE_PREV = 1
+M_U_PREV = 2  # acceleration input held for the next propagation
+M_PREV_INVALID = 3  # the held input is stale (sample k−1 was invalid)
+M_REGIME = 4
+M_ZUPT_INNOV = 5  # velocity innovation at the last standstill entry (m/s)
+M_ZUPT_NIS = 6
+M_RING_POS = 7
+M_RING_FILL = 8
+M_COUNT = 9  # samples processed
+M_STILL_START = 10  # sample number where the current standstill began
+N_MISC = 11
+
+# snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
+# and the sample's input: z, valid, lost_before
+N_SNAP = 13
+
+UNINITIALISED = 0
+MOTION = 1
+STANDSTILL = 2
+
+# transition from sample k−1 to k, as the smoother needs it
+T_NONE = 0  # nothing propagated (before initialisation, or no time step)
+T_MOTION = 1
+T_STANDSTILL = 2
+T_RESET = 3  # the filter (re)initialised at this sample: no information flows back past it
+
+# ---- per-step output layout -----------------------------------------------------------
+O_POS = 0
+O_VEL = 1
+O_ACC = 2
+O_BIAS = 3
+O_POS_VAR = 4
+O_VEL_VAR = 5
+O_BIAS_VAR = 6
+O_INNOV = 7  # ZARU innovation z − b⁻ at standstill (m/s²), 0 when no update
+O_NIS = 8  # its normalised square y²/S
+O_ZUPT_INNOV = 9  # velocity innovation at the latest standstill entry (held)
+O_ZUPT_NIS = 10
+O_FLAGS = 11
+O_TRANSITION = 12
+O_ZARU_Y = 13
+O_ZARU_S = 14  # 0 when no ZARU at this sample
+O_ZUPT_Y = 15
+O_ZUPT_S = 16  # 0 when no ZUPT at this sample
+O_ZUPT_K0 = 17
+O_ZUPT_K1 = 18
+O_ZUPT_K2 = 19
+O_ROLLBACK_FROM = 20  # −1, or the sample whose state the filter returned to (see step 3b)
+N_OUT = 21
+
+# ---- health flags ---------------------------------------------------------------------
+F_STANDSTILL = 1
+F_INITIALISED = 2
+F_INPUT_INVALID = 4  # this sample's acceleration was missing, NaN/inf or flagged: held
+F_GAP = 8  # samples were lost before this one
+F_ENTRY = 16  # a standstill began at this sample (ZUPT applied)
+F_UNDECIDED = 32  # too few valid samples in the window to judge: the previous regime is held
+F_TIME_ERROR = 64  # the sample time did not increase: not propagated
+F_ROLLBACK = 128  # a standstill ended: the zero-acceleration updates of the last window were undone
+
+
+@jit
+def drift_at(t_s, prm):
+    return prm[P_DRIFT_C1] * -math.expm1(-(t_s + prm[P_DRIFT_T0]) / prm[P_DRIFT_T])
+
+
+@jit
+def propagate_motion(x, P, dt, u, ddrift, qv, qb, missing_var, missing_dt):
+    """x, P from t to t + dt with input u (m/s²) held over the period; Φ(dt)·P·Φ(dt)' + Q(dt)."""
+    h = 0.5 * dt * dt
+    a = u - x[2]
+    x[0] += x[1] * dt + h * a
+    x[1] += a * dt
+    x[2] += ddrift
+    # A = Φ P
+    a00 = P[0, 0] + dt * P[1, 0] - h * P[2, 0]
+    a01 = P[0, 1] + dt * P[1, 1] - h * P[2, 1]
+    a02 = P[0, 2] + dt * P[1, 2] - h * P[2, 2]
+    a10 = P[1, 0] - dt * P[2, 0]
+    a11 = P[1, 1] - dt * P[2, 1]
+    a12 = P[1, 2] - dt * P[2, 2]
+    a20 = P[2, 0]
+    a21 = P[2, 1]
+    a22 = P[2, 2]
+    # Φ P Φ' (upper triangle), plus Q of white velocity noise qv and bias random walk qb
+    d2 = dt * dt
+    d3 = d2 * dt
+    p00 = a00 + dt * a01 - h * a02 + qv * d3 / 3.0 + qb * d3 * d2 / 20.0
+    p01 = a01 - dt * a02 + qv * d2 / 2.0 + qb * d2 * d2 / 8.0
+    p02 = a02 - qb * d3 / 6.0
+    p11 = a11 - dt * a12 + qv * dt + qb * d3 / 3.0
+    p12 = a12 - qb * d2 / 2.0
+    p22 = a22 + qb * dt
+    if missing_dt > 0.0:
+        # the input was unknown over missing_dt: an unknown constant acceleration error
+        gp = 0.5 * missing_dt * missing_dt
+        gv = missing_dt
+        p00 += missing_var * gp * gp
+        p01 += missing_var * gp * gv
+        p11 += missing_var * gv * gv
+    P[0, 0] = p00
+    P[0, 1] = p01
+    P[1, 0] = p01
+    P[0, 2] = p02
+    P[2, 0] = p02
+    P[1, 1] = p11
+    P[1, 2] = p12
+    P[2, 1] = p12
+    P[2, 2] = p22
+
+
+@jit
+def propagate_standstill(x, P, dt, ddrift, qb):
+    """At rest: v ≡ 0, position held, only the bias moves (drift + random walk)."""
+    x[1] = 0.0
+    x[2] += ddrift
+    for i in range(3):
+        P[1, i] = 0.0
+        P[i, 1] = 0.0
+    P[2, 2] += qb * dt
+
+
+@jit
+def scalar_update(x, P, i, y, R, gain):
+    """Update with a measurement of component i (innovation y, noise R); gain receives K. Returns S."""
+    S = P[i, i] + R
+    for r in range(3):
+        gain[r] = P[r, i] / S
+    for r in range(3):
+        x[r] += gain[r] * y
+    # P − K S K' = P − P[:, i] P[i, :] / S, kept exactly symmetric
+    c0 = P[0, i]
+    c1 = P[1, i]
+    c2 = P[2, i]
+    P[0, 0] -= c0 * c0 / S
+    P[1, 1] -= c1 * c1 / S
+    P[2, 2] -= c2 * c2 / S
+    v01 = P[0, 1] - c0 * c1 / S
+    v02 = P[0, 2] - c0 * c2 / S
+    v12 = P[1, 2] - c1 * c2 / S
+    P[0, 1] = v01
+    P[1, 0] = v01
+    P[0, 2] = v02
+    P[2, 0] = v02
+    P[1, 2] = v12
+    P[2, 1] = v12
+    # rounding must not leave a negative variance (a state measured exactly has 0)
+    for r in range(3):
+        if P[r, r] < 0.0:
+            P[r, r] = 0.0
+    return S
+
+
+@jit
+def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before, out):
+    """One sample in, the estimate at t_s out (written to `out`, layout O_*)."""
+    flags = 0
+    count = int(m[M_COUNT])
+    rollback_from = -1
+    transition = T_NONE
+    regime_prev = int(m[M_REGIME])
+    # 1. propagate from the previous sample's time to this one
+    if m[M_HAVE_PREV] > 0.0:
+        dt = t_s - m[M_T_PREV]
+        if not (dt > 0.0):  # also NaN
+            flags |= F_TIME_ERROR
+            dt = 0.0
+        if lost_before > 0:
+            flags |= F_GAP
+        if dt > 0.0:
+            t_prev = m[M_T_PREV]
+            ddrift = drift_at(t_s, prm) - drift_at(t_prev, prm)
+            if regime_prev == MOTION:
+                if m[M_PREV_INVALID] > 0.0:
+                    missing_dt = dt
+                elif lost_before > 0:
+                    missing_dt = dt * lost_before / (lost_before + 1.0)
+                else:
+                    missing_dt = 0.0
+                propagate_motion(x, P, dt, m[M_U_PREV], ddrift, prm[P_QV], prm[P_QB],
+                                 prm[P_MISSING_VAR], missing_dt)
+                transition = T_MOTION
+            elif regime_prev == STANDSTILL:
+                propagate_standstill(x, P, dt, ddrift, prm[P_QB])
+                transition = T_STANDSTILL
+            m[M_T_PREV] = t_s
+    else:
+        m[M_T_PREV] = t_s
+        m[M_HAVE_PREV] = 1.0
+
+    # 2. the standstill detector on the window ending with this sample
+    ok = z_valid and math.isfinite(z)
+    if not ok:
+        flags |= F_INPUT_INVALID
+    w = int(prm[P_WINDOW])
+    pos = int(m[M_RING_POS])
+    ring_z[pos] = z if ok else 0.0
+    ring_ok[pos] = 1.0 if ok else 0.0
+    m[M_RING_POS] = (pos + 1) % w
+    fill = min(int(m[M_RING_FILL]) + 1, w)
+    m[M_RING_FILL] = fill
+    n_valid, mean, var = window_statistics(ring_z, ring_ok, fill)
+    decided = ok and fill >= w and n_valid * 10 >= w * 8
+    regime = regime_prev
+    if decided:
+        var_ok, mean_ok, vel_ok = standstill_tests(
+            regime_prev != UNINITIALISED, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
+            prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])
+        if var_ok and mean_ok and vel_ok:
+            regime = STANDSTILL
+        elif regime_prev != UNINITIALISED:
+            regime = MOTION
+    else:
+        flags |= F_UNDECIDED
+
+    # 3b. Leaving a standstill: the motion began somewhere in the window that just failed.
+    # A sharp start fails the tests on its first sample; a gentle one is seen late, after
+    # the zero-acceleration updates took part of it for bias and the position hold lost
+    # it. The onset is the change point of the window's mean: the sample i maximising
+    # |Σ_(i..k) (z − b)|/√n (the likelihood ratio of a mean shift at i), b the bias before
+    # the window. If it is earlier than this sample, return to the state just before it
+    # and run the samples since again as motion; their snapshots become motion states.
+    if decided and regime == MOTION and regime_prev == STANDSTILL:
+        first = max(count - w, int(m[M_STILL_START])) + 1
+        b_ref = snap[(first - 1) % w, 2]
+        onset = count
+        best = abs(z - b_ref)
+        acc_sum = 0.0
+        n_sum = 0
+        for i in range(count, first - 1, -1):
+            if i == count:
+                acc_sum += z - b_ref
+                n_sum += 1
+            elif snap[i % w, 11] > 0.0:
+                acc_sum += snap[i % w, 10] - b_ref
+                n_sum += 1
+            score = abs(acc_sum) / math.sqrt(n_sum)
+            if score > best:
+                best = score
+                onset = i
+        s = onset - 1
+        if onset < count:
+            j = s % w
+            x[0] = snap[j, 0]
+            x[1] = snap[j, 1]
+            x[2] = snap[j, 2]
+            P[0, 0] = snap[j, 3]
+            P[0, 1] = snap[j, 4]
+            P[1, 0] = snap[j, 4]
+            P[0, 2] = snap[j, 5]
+            P[2, 0] = snap[j, 5]
+            P[1, 1] = snap[j, 6]
+            P[1, 2] = snap[j, 7]
+            P[2, 1] = snap[j, 7]
+            P[2, 2] = snap[j, 8]
+            t_before = snap[j, 9]
+            u = snap[j, 10]
+            u_stale = snap[j, 11] == 0.0
+            for i in range(s + 1, count + 1):
+                ji = i % w
+                if i < count:
+                    t_i = snap[ji, 9]
+                    lost_i = int(snap[ji, 12])
+                else:
+                    t_i = t_s
+                    lost_i = lost_before
+                dt_i = t_i - t_before
+                if dt_i > 0.0:
+                    if u_stale:
+                        missing_dt = dt_i
+                    elif lost_i > 0:
+                        missing_dt = dt_i * lost_i / (lost_i + 1.0)
+                    else:
+                        missing_dt = 0.0
+                    propagate_motion(x, P, dt_i, u, drift_at(t_i, prm) - drift_at(t_before, prm), prm[P_QV],
+                                     prm[P_QB], prm[P_MISSING_VAR], missing_dt)
+                    t_before = t_i
+                if i < count:
+                    snap[ji, 0] = x[0]
+                    snap[ji, 1] = x[1]
+                    snap[ji, 2] = x[2]
+                    snap[ji, 3] = P[0, 0]
+                    snap[ji, 4] = P[0, 1]
+                    snap[ji, 5] = P[0, 2]
+                    snap[ji, 6] = P[1, 1]
+                    snap[ji, 7] = P[1, 2]
+                    snap[ji, 8] = P[2, 2]
+                    if snap[ji, 11] > 0.0:
+                        u = snap[ji, 10]
+                        u_stale = False
+                    else:
+                        u_stale = True
+            transition = T_MOTION
+            rollback_from = s
+            flags |= F_ROLLBACK
+
+    # 3. updates
+    innov = 0.0
+    nis = 0.0
+    zaru_y = 0.0
+    zaru_s = 0.0
+    zupt_y = 0.0
+    zupt_s = 0.0
+    gain[0] = 0.0
+    gain[1] = 0.0
+    gain[2] = 0.0
+    k0 = 0.0
+    k1 = 0.0
+    k2 = 0.0
+    if decided and regime == STANDSTILL:
+        if regime_prev == UNINITIALISED:
+            # the reference point: the origin here, at rest, bias unknown
+            x[0] = 0.0
+            x[1] = 0.0
+            x[2] = 0.0
+            for i in range(3):
+                for j in range(3):
+                    P[i, j] = 0.0
+            P[2, 2] = prm[P_BIAS0_VAR]
+            transition = T_RESET
+        elif regime_prev == MOTION:
+            zupt_y = -x[1]
+            zupt_s = scalar_update(x, P, 1, zupt_y, prm[P_R_ZUPT], gain)
+            k0 = gain[0]
+            k1 = gain[1]
+            k2 = gain[2]
+            m[M_ZUPT_INNOV] = zupt_y
+            m[M_ZUPT_NIS] = zupt_y * zupt_y / zupt_s
+            flags |= F_ENTRY
+        zaru_y = z - x[2]
+        zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
+        innov = zaru_y
+        nis = zaru_y * zaru_y / zaru_s
+        if regime_prev != STANDSTILL:
+            m[M_STILL_START] = count
+
+    # the state after this sample, for a later rollback
+    j = count % w
+    snap[j, 0] = x[0]
+    snap[j, 1] = x[1]
+    snap[j, 2] = x[2]
+    snap[j, 3] = P[0, 0]
+    snap[j, 4] = P[0, 1]
+    snap[j, 5] = P[0, 2]
+    snap[j, 6] = P[1, 1]
+    snap[j, 7] = P[1, 2]
+    snap[j, 8] = P[2, 2]
+    snap[j, 9] = m[M_T_PREV]
+    snap[j, 10] = z if ok else 0.0
+    snap[j, 11] = 1.0 if ok else 0.0
+    snap[j, 12] = lost_before
+    m[M_COUNT] = count + 1
+
+    # 4. the input for the next period (keep the previous one for the lag correction)
+    u_before = m[M_U_PREV]
+    if ok:
+        m[M_U_PREV] = z
+        m[M_PREV_INVALID] = 0.0
+    else:
+        m[M_PREV_INVALID] = 1.0
+    m[M_REGIME] = regime
+
+    # 5. the estimate
+    if regime == UNINITIALISED:
+        out[O_POS] = 0.0
+        out[O_VEL] = 0.0
+        out[O_ACC] = 0.0
+        out[O_BIAS] = 0.0
+        out[O_POS_VAR] = 0.0
+        out[O_VEL_VAR] = 0.0
+        out[O_BIAS_VAR] = prm[P_BIAS0_VAR]
+    else:
+        flags |= F_INITIALISED
+        # The sensor's one-pole filter (τ) lags the measured acceleration y behind the true
+        # u: u = y + τ·ẏ, so ∫u = ∫y + τ·y — the true velocity is v + τ·y and the true
+        # position p + τ·v, exactly, with y at t_k = the mean of the two samples around it.
+        lag = prm[P_LAG]
+        if regime == STANDSTILL:
+            flags |= F_STANDSTILL
+            out[O_ACC] = 0.0
+            y_edge = 0.0
+        else:
+            out[O_ACC] = m[M_U_PREV] - x[2]
+            y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
+        out[O_POS] = x[0] + lag * x[1]
+        out[O_VEL] = x[1] + lag * y_edge
+        out[O_BIAS] = x[2]
+        out[O_POS_VAR] = P[0, 0]
+        out[O_VEL_VAR] = P[1, 1]
+        out[O_BIAS_VAR] = P[2, 2]
+    out[O_INNOV] = innov
+    out[O_NIS] = nis
+    out[O_ZUPT_INNOV] = m[M_ZUPT_INNOV]
+    out[O_ZUPT_NIS] = m[M_ZUPT_NIS]
+    out[O_FLAGS] = flags
+    out[O_TRANSITION] = transition
+    out[O_ZARU_Y] = zaru_y
+    out[O_ZARU_S] = zaru_s
+    out[O_ZUPT_Y] = zupt_y
+    out[O_ZUPT_S] = zupt_s
+    out[O_ZUPT_K0] = k0
+    out[O_ZUPT_K1] = k1
+    out[O_ZUPT_K2] = k2
+    out[O_ROLLBACK_FROM] = rollback_from
+
+
+def new_state(prm: np.ndarray):
+    """Fresh filter memory: (x, P, misc, ring_z, ring_ok, snap, gain, out)."""
+    w = int(prm[P_WINDOW])
+    x = np.zeros(3)
+    P = np.zeros((3, 3))
+    P[2, 2] = prm[P_BIAS0_VAR]
+    m = np.zeros(N_MISC)
+    m[M_REGIME] = UNINITIALISED
+    return x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT)
+
+
+@jit
+def run_forward(prm, t_s, z, z_ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
+                pos, vel, acc, bias, pos_var, vel_var, bias_var, innov, nis, zupt_innov, flags,
+                store, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data):
+    """The step over whole arrays. With store, keeps what the smoother needs:
+    filtered x (N×3) and P (N×6: 00 01 02 11 12 22), the transition into each sample,
+    ZARU (y, S) per sample, and the sparse ZUPT records (index; y, S, K0, K1, K2).
+    After a rollback the records of the samples run again are rewritten (motion, no
+    update), so the smoother sees the sequence the filter state now stands on.
+    Returns the number of ZUPT records (more than zupt_index holds: run again with room)."""
+    n_zupt = 0
+    for k in range(t_s.size):
+        step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s[k], z[k], z_ok[k], lost[k], out)
+        pos[k] = out[O_POS]
+        vel[k] = out[O_VEL]
+        acc[k] = out[O_ACC]
+        bias[k] = out[O_BIAS]
+        pos_var[k] = out[O_POS_VAR]
+        vel_var[k] = out[O_VEL_VAR]
+        bias_var[k] = out[O_BIAS_VAR]
+        innov[k] = out[O_INNOV]
+        nis[k] = out[O_NIS]
+        zupt_innov[k] = out[O_ZUPT_INNOV]
+        flags[k] = int(out[O_FLAGS])
+        if store:
+            s = int(out[O_ROLLBACK_FROM])
+            if s >= 0:
+                w = int(prm[P_WINDOW])
+                for j in range(s + 1, k):
+                    row = j % w
+                    for c in range(3):
+                        st_x[j, c] = snap[row, c]
+                    for c in range(6):
+                        st_p[j, c] = snap[row, 3 + c]
+                    st_trans[j] = T_MOTION
+                    st_zaru[j, 0] = 0.0
+                    st_zaru[j, 1] = 0.0
+                    flags[j] = (flags[j] & ~F_STANDSTILL) | F_ROLLBACK
+            st_x[k, 0] = x[0]
+            st_x[k, 1] = x[1]
+            st_x[k, 2] = x[2]
+            st_p[k, 0] = P[0, 0]
+            st_p[k, 1] = P[0, 1]
+            st_p[k, 2] = P[0, 2]
+            st_p[k, 3] = P[1, 1]
+            st_p[k, 4] = P[1, 2]
+            st_p[k, 5] = P[2, 2]
+            st_trans[k] = int(out[O_TRANSITION])
+            st_zaru[k, 0] = out[O_ZARU_Y]
+            st_zaru[k, 1] = out[O_ZARU_S]
+            if out[O_ZUPT_S] > 0.0:
+                if n_zupt >= zupt_index.size:  # caller re-runs with room for all
+                    n_zupt += 1
+                    continue
+                zupt_index[n_zupt] = k
+                zupt_data[n_zupt, 0] = out[O_ZUPT_Y]
+                zupt_data[n_zupt, 1] = out[O_ZUPT_S]
+                zupt_data[n_zupt, 2] = out[O_ZUPT_K0]
+                zupt_data[n_zupt, 3] = out[O_ZUPT_K1]
+                zupt_data[n_zupt, 4] = out[O_ZUPT_K2]
+                n_zupt += 1
+    return n_zupt

@@ -1,0 +1,60 @@
+"""Reference-point compensation (the paper's step 1): the DC offset measured at an initial rest.
+
+The rest is found without a noise model: the first `min_rest_s` are taken as the
+baseline (median, and σ from the median absolute deviation, robust to a stray spike);
+the rest ends `guard_s` before the first valid sample more than `k_sigma`·σ away from
+it. A motion of the paper's kind (10 m/s², σ ≈ 0.02 m/s²) is hundreds of σ.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826  # σ of a normal distribution from its median absolute deviation
+
+
+class NoRestError(ValueError):
+    """The recording does not begin with a standstill long enough to measure the offset."""
+
+
+@dataclass(frozen=True)
+class Rest:
+    start: int
+    stop: int  # exclusive
+    offset_mps2: float  # mean acceleration over the rest: zero-g offset (+ gravity on a tilted axis)
+    sample_std_mps2: float
+
+    @property
+    def samples(self) -> int:
+        return self.stop - self.start
+
+
+def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
+                      k_sigma: float = 8.0, guard_s: float = 0.05) -> Rest:
+    a = np.asarray(acc_mps2, dtype=float)
+    ok = np.asarray(valid, dtype=bool) & np.isfinite(a)
+    n_min = max(8, int(round(min_rest_s / period_s)))
+    first_valid = np.flatnonzero(ok)
+    if first_valid.size < n_min:
+        raise NoRestError(f"only {first_valid.size} valid samples; a rest needs at least {n_min}")
+    start = int(first_valid[0])
+    head = a[start:start + n_min][ok[start:start + n_min]]
+    if head.size < n_min // 2:
+        raise NoRestError("the first samples are mostly invalid: no rest to measure the offset on")
+    centre = float(np.median(head))
+    sigma = MAD_TO_SIGMA * float(np.median(np.abs(head - centre)))
+    if sigma == 0.0:  # a quantised, noise-free signal: fall back to the plain spread
+        sigma = float(np.std(head)) or 1e-12
+    away = ok & (np.abs(a - centre) > k_sigma * sigma)
+    away[:start] = False
+    moving = np.flatnonzero(away)
+    end = int(moving[0]) if moving.size else a.size
+    stop = end - int(round(guard_s / period_s)) if moving.size else end
+    if stop - start < n_min:
+        raise NoRestError(
+            f"the recording moves after {(end - start) * period_s:.3f} s; a rest of at least "
+            f"{min_rest_s:g} s is needed at its start"
+        )
+    rest = a[start:stop][ok[start:stop]]
+    return Rest(start=start, stop=stop, offset_mps2=float(np.mean(rest)), sample_std_mps2=float(np.std(rest)))

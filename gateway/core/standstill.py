@@ -1,0 +1,64 @@
+"""The standstill detector — and why a cruise is not a standstill.
+
+During the constant-velocity part of a stroke the acceleration is zero, exactly as at
+rest: a detector that looks only at a window of acceleration calls the cruise a
+standstill and resets a real 1 m/s to zero. So a sample is a standstill only when all
+three tests pass on the window of the last W samples (standstill_window_s):
+
+1. variance: the window's sample variance is what the sensor noise alone gives —
+   s² ≤ σ²·χ²_ν(1 − p)/ν, with σ the per-sample noise, ν the window's effective
+   degrees of freedom for correlated noise, p the false-"motion" probability. Any
+   vibration or change of acceleration fails it.
+2. mean: the window's mean equals the current bias estimate, |m − b| ≤ n·√(R/W + P_bb)
+   (R/W: the mean's variance for white-equivalent noise of density N). A slow, steady
+   acceleration that passes the variance test fails this one.
+3. velocity: the filter's own velocity is consistent with zero, |v| ≤ max(n·σ_v,
+   v_floor). This is what tells a cruise from a standstill: after a 10 m/s² ramp to
+   1 m/s, v ≈ 1 m/s with σ_v of mm/s. v_floor (an application choice, settings) keeps
+   unmodelled errors (tilt, scale) from blocking every stop.
+
+Before the filter is initialised there is no velocity or bias yet: the first window
+that passes the variance test is the reference point (the filter starts there, at rest,
+at position 0). Test 3 is trivially true while at standstill (v ≡ 0), so leaving a
+standstill is decided by tests 1–2 alone — a 10 m/s² start fails both on its first
+sample. A window with fewer than 80 % valid samples decides nothing: the previous
+regime is held and the health flags say so.
+"""
+from __future__ import annotations
+
+import math
+
+from gateway.core.jit import jit
+
+
+@jit
+def window_statistics(ring_z, ring_ok, count):
+    """(number of valid samples, their mean, their variance) over the ring (two passes)."""
+    n = 0
+    total = 0.0
+    for j in range(count):
+        if ring_ok[j] > 0.0:
+            n += 1
+            total += ring_z[j]
+    if n < 2:
+        return n, 0.0, 0.0
+    mean = total / n
+    ss = 0.0
+    for j in range(count):
+        if ring_ok[j] > 0.0:
+            d = ring_z[j] - mean
+            ss += d * d
+    return n, mean, ss / (n - 1)
+
+
+@jit
+def standstill_tests(initialised, n_valid, mean, var, vel, vel_var, bias, bias_var,
+                     var_max, sample_var_white, mean_sigmas, vel_sigmas, speed_floor):
+    """(variance ok, mean ok, velocity ok) for one window; see the module docstring."""
+    var_ok = var <= var_max
+    if not initialised:
+        return var_ok, True, True
+    mean_ok = abs(mean - bias) <= mean_sigmas * math.sqrt(sample_var_white / n_valid + bias_var)
+    gate = max(vel_sigmas * math.sqrt(max(vel_var, 0.0)), speed_floor)
+    vel_ok = abs(vel) <= gate
+    return var_ok, mean_ok, vel_ok

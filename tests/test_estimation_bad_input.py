@@ -1,0 +1,169 @@
+"""Bad input: NaN/inf, a flagged axis, a gap, a recording too short — the estimator holds,
+flags the health output, never produces NaN; the command says what it could not do."""
+import math
+
+import numpy as np
+import pytest
+
+from gateway.cli import main
+from gateway.core import estimator_kernel as K
+from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
+from gateway.core.estimator import RealtimeEstimator, estimate_series
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.evaluation import summarise_errors
+from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
+from gateway.core.reference_point import NoRestError
+from gateway.core.sensor_model import SensorParams
+from gateway.core.simulator import simulate
+from gateway.recording import write_recording
+
+SETTINGS = from_sensor_model(SensorParams())
+OUTPUTS = ("pos_m", "vel_mps", "acc_mps2", "bias_mps2", "pos_std_m", "vel_std_mps", "innovation_mps2", "nis",
+           "zupt_velocity_error_mps")
+
+
+@pytest.fixture(scope="module")
+def strokes():
+    run = simulate(reciprocating_strokes(StrokeSettings(strokes=4)), SensorParams(), seed=120)
+    t = sample_times_s(run.t2, run.tick_hz)
+    z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
+    return run, t, z
+
+
+def _finite(track):
+    for name in OUTPUTS:
+        assert np.all(np.isfinite(getattr(track, name))), name
+
+
+@pytest.mark.parametrize("method", ["raw", "paper", "realtime", "smoothed"])
+def test_nan_inf_and_flagged_samples_are_held_and_flagged(strokes, method):
+    run, t, z, = strokes
+    z = z.copy()
+    valid = np.ones(t.size, bool)
+    rng = np.random.default_rng(121)
+    bad = rng.choice(np.arange(1200, t.size), size=60, replace=False)
+    z[bad[:20]] = np.nan
+    z[bad[20:40]] = np.inf
+    valid[bad[40:]] = False  # a flagged axis: the value is there but must not be used
+    z[bad[40:]] = 50.0
+    track = estimate_series(t, z, valid, method=method, settings=SETTINGS)
+    _finite(track)
+    assert np.all(track.flags[bad] & K.F_INPUT_INVALID)
+    assert any("60 samples invalid" in note for note in track.notes)
+    if method in ("realtime", "smoothed"):
+        s = summarise_errors(t, track.pos_m, run.ref_pos_m, run.ref_vel_mps, run.ref_acc_mps2)
+        assert abs(s.stops[-1].error_m) < 5e-3  # 60 held samples of 2 ms: still millimetres
+
+
+def test_a_gap_widens_the_position_uncertainty_and_is_flagged(strokes):
+    run, t, z = strokes
+    i = np.searchsorted(t, 2.15)  # in the first stroke's acceleration
+    keep = np.ones(t.size, bool)
+    keep[i:i + 5] = False
+    lost = np.zeros(keep.sum(), np.int64)
+    lost[i] = 5
+    tg, zg = t[keep], z[keep]
+    with_gap = estimate_series(tg, zg, method="realtime", settings=SETTINGS, lost_before=lost)
+    without = estimate_series(t, z, method="realtime", settings=SETTINGS)
+    _finite(with_gap)
+    assert with_gap.flags[i] & K.F_GAP
+    j = np.searchsorted(tg, 2.3)
+    assert with_gap.pos_std_m[j] > 3 * without.pos_std_m[np.searchsorted(t, 2.3)]
+    # from the time axis alone (acceleration-form recordings) the same gap is found
+    assert np.array_equal(estimate_series(tg, zg, method="realtime", settings=SETTINGS).flags, with_gap.flags)
+
+
+@pytest.mark.parametrize("method", ["paper", "realtime", "smoothed"])
+def test_too_short_to_find_a_standstill_raises(method):
+    t = np.arange(30) * SETTINGS.sample_period_s
+    with pytest.raises(NoRestError):
+        estimate_series(t, np.full(t.size, 0.1), method=method, settings=SETTINGS)
+
+
+def test_all_invalid_raises():
+    t = np.arange(3000) * SETTINGS.sample_period_s
+    with pytest.raises(NoRestError):
+        estimate_series(t, np.full(t.size, np.nan), method="realtime", settings=SETTINGS)
+
+
+def test_realtime_class_holds_on_none_nan_inf_and_time_going_back():
+    est = RealtimeEstimator(SETTINGS)
+    dt = SETTINGS.sample_period_s
+    for k in range(200):
+        e = est.step(k * dt, 0.1)
+    assert e.standstill and e.initialised
+    held = e.pos_m
+    for value in (None, math.nan, math.inf, -math.inf):
+        e = est.step(200 * dt, value)
+        assert e.input_invalid and e.standstill
+        assert all(math.isfinite(getattr(e, f)) for f in OUTPUTS)
+        assert e.pos_m == held
+    e = est.step(150 * dt, 0.1)  # the clock went back
+    assert e.flags & K.F_TIME_ERROR
+    assert all(math.isfinite(getattr(e, f)) for f in OUTPUTS)
+
+
+def test_tare_zeroes_position_and_its_uncertainty(strokes):
+    run, t, z = strokes
+    est = RealtimeEstimator(SETTINGS)
+    stop_end = np.searchsorted(t, 3.3)  # inside the first stop
+    for k in range(stop_end):
+        e = est.step(t[k], z[k])
+    assert e.standstill and abs(e.pos_m - 0.3) < 2e-3 and e.pos_std_m > 0
+    est.tare()
+    e = est.step(t[stop_end], z[stop_end])
+    assert e.pos_m == 0.0 and e.pos_std_m == 0.0
+    for k in range(stop_end + 1, t.size):
+        e = est.step(t[k], z[k])
+    # three more strokes: back, out, back — the tared origin was at +0.3 m
+    assert abs(e.pos_m - (run.ref_pos_m[-1] - 0.3)) < 3e-3
+
+
+def test_request_bias_reestimate_widens_the_bias_and_the_next_standstill_measures_it():
+    est = RealtimeEstimator(SETTINGS)
+    dt = SETTINGS.sample_period_s
+    rng = np.random.default_rng(122)
+    k = 0
+    for _ in range(500):
+        est.step(k * dt, 0.1 + rng.normal(0, SETTINGS.sample_noise_std_mps2))
+        k += 1
+    settled = est.covariance[2, 2]
+    est.request_bias_reestimate()
+    assert est.covariance[2, 2] == pytest.approx(SETTINGS.bias_initial_std_mps2**2)
+    for _ in range(500):  # the bias stepped by 0.02 m/s² (a temperature change, say)
+        e = est.step(k * dt, 0.12 + rng.normal(0, SETTINGS.sample_noise_std_mps2))
+        k += 1
+    assert e.bias_mps2 == pytest.approx(0.12, abs=0.003)
+    assert est.covariance[2, 2] < 10 * settled
+
+
+def _write_acc(path, t, acc):
+    write_recording(path, {"source": "test", "axis": "x"}, {"t_s": t, "acc_x_mps2": acc})
+
+
+def test_command_exits_2_with_one_line_when_nothing_can_be_estimated(tmp_path, capsys):
+    path = tmp_path / "short.csv"
+    t = np.arange(20) * 0.002
+    _write_acc(path, t, 0.1 + 0.01 * np.sin(t * 300))
+    code = main(["estimate", str(path), "--method", "realtime", "--noise-from", "sensor", "--out",
+                 str(tmp_path / "o.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and "cannot estimate" in err[0] and "standstill" in err[0]
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_command_warns_about_invalid_samples_and_still_writes(tmp_path, capsys):
+    run = simulate(reciprocating_strokes(StrokeSettings(strokes=2)), SensorParams(), seed=123)
+    t = sample_times_s(run.t2, run.tick_hz)
+    z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
+    z[1500:1510] = np.nan
+    path = tmp_path / "holes.csv"
+    _write_acc(path, t, z)
+    out = tmp_path / "o.csv"
+    code = main(["estimate", str(path), "--method", "smoothed", "--noise-from", "sensor", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert code == 0
+    assert "warning: 10 samples invalid" in captured.err
+    data = np.genfromtxt(out, delimiter=",", names=True)
+    assert data.size == t.size and np.all(np.isfinite(data["pos_m"]))
