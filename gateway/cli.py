@@ -15,6 +15,7 @@ from gateway.errors import GatewayError
 # subcommand modules in the order `adxlgw --help` lists them
 COMMAND_MODULES = (
     "demo",
+    "run",
     "simulate",
     "emulate",
     "record",

@@ -107,6 +107,10 @@ SCHEMA: tuple[Key, ...] = (
         "Also send at once when new values arrive, at most this often (ms); -1: purely cyclic. "
         "Lowers latency at the cost of bus load.", _range(-1, 10_000)),
     Key("can", "commands_enabled", False, bool, "Accept the tare command frame."),
+    # --- estimator ---------------------------------------------------------
+    Key("estimator", "drift_model", "", str,
+        "Zero-drift model of this sensor from 'adxlgw fit-drift --model-out' (JSON); empty: the "
+        "sensor model's defaults."),
     # --- state and service -------------------------------------------------
     Key("state", "path", "/var/lib/adxl-gateway/state.json", str,
         "Where calibration and the tare offset survive a restart (written atomically).", _nonempty),

@@ -38,36 +38,53 @@ def _recent(at_s: float | None, now_s: float) -> bool:
     return at_s is not None and now_s - at_s < EVENT_HOLD_S
 
 
+_VALID = int(StatusBits.VALID)
+_BOARD_LOST = int(StatusBits.BOARD_LOST)
+_STALE = int(StatusBits.STALE)
+_NOT_REFERENCED = int(StatusBits.NOT_REFERENCED)
+_STANDSTILL = int(StatusBits.STANDSTILL)
+_ESTIMATOR_FAULT = int(StatusBits.ESTIMATOR_FAULT)
+_HOLDING = int(StatusBits.HOLDING)
+_AXIS_INVALID = int(StatusBits.AXIS_INVALID)
+_SATURATED = int(StatusBits.SATURATED)
+_BOARD_RESET = int(StatusBits.BOARD_RESET)
+_SAMPLES_LOST = int(StatusBits.SAMPLES_LOST)
+_CONFIG_RELOADED = int(StatusBits.CONFIG_RELOADED)
+_BIAS_ESTIMATING = int(StatusBits.BIAS_ESTIMATING)
+_UNUSABLE = int(StatusBits.STALE | StatusBits.BOARD_LOST | StatusBits.ESTIMATOR_FAULT
+                | StatusBits.HOLDING | StatusBits.AXIS_INVALID)
+
+
 def status_bits(c: GatewayCondition) -> StatusBits:
-    bits = StatusBits(0)
+    # plain ints while composing: IntFlag arithmetic costs µs per operation, and this
+    # runs for every sample
+    bits = 0
     byte_age = None if c.last_byte_s is None else c.now_s - c.last_byte_s
     if not c.port_open or byte_age is None or byte_age > c.lost_after_s:
-        bits |= StatusBits.BOARD_LOST
+        bits |= _BOARD_LOST
     sample_age = None if c.last_sample_s is None else c.now_s - c.last_sample_s
     if sample_age is None or sample_age > c.stale_after_s:
-        bits |= StatusBits.STALE
+        bits |= _STALE
     if not c.referenced:
-        bits |= StatusBits.NOT_REFERENCED
+        bits |= _NOT_REFERENCED
     if c.standstill:
-        bits |= StatusBits.STANDSTILL
+        bits |= _STANDSTILL
     if c.estimator_fault:
-        bits |= StatusBits.ESTIMATOR_FAULT
+        bits |= _ESTIMATOR_FAULT
     if c.holding:
-        bits |= StatusBits.HOLDING
+        bits |= _HOLDING
     if c.axis_invalid:
-        bits |= StatusBits.AXIS_INVALID
+        bits |= _AXIS_INVALID
     if c.now_s < c.saturated_until_s:
-        bits |= StatusBits.SATURATED
+        bits |= _SATURATED
     if _recent(c.board_reset_at_s, c.now_s):
-        bits |= StatusBits.BOARD_RESET
+        bits |= _BOARD_RESET
     if _recent(c.samples_lost_at_s, c.now_s):
-        bits |= StatusBits.SAMPLES_LOST
+        bits |= _SAMPLES_LOST
     if _recent(c.config_reloaded_at_s, c.now_s):
-        bits |= StatusBits.CONFIG_RELOADED
+        bits |= _CONFIG_RELOADED
     if c.bias_estimating:
-        bits |= StatusBits.BIAS_ESTIMATING
-    unusable = (StatusBits.STALE | StatusBits.BOARD_LOST | StatusBits.ESTIMATOR_FAULT
-                | StatusBits.HOLDING | StatusBits.AXIS_INVALID)
-    if c.have_estimate and not bits & unusable:
-        bits |= StatusBits.VALID
-    return bits
+        bits |= _BIAS_ESTIMATING
+    if c.have_estimate and not bits & _UNUSABLE:
+        bits |= _VALID
+    return StatusBits(bits)

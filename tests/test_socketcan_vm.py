@@ -89,3 +89,16 @@ def test_guest_kernel_panic_is_reported(tmp_path):
     (tmp_path / "initramfs.cpio.gz").write_bytes(b"")
     with pytest.raises(VmBootError, match="kernel panic"):
         run_in_can_vm(["true"], cwd=REPO_ROOT, timeout_s=60.0, settings=VmSettings(cache_dir=tmp_path))
+
+
+def test_gateway_daemon_on_real_socketcan():
+    """The daemon on vcan0 inside the VM; its traffic decoded by candump | cantools."""
+    report = "gateway-vcan.xml"
+    run = run_in_can_vm(
+        pytest_argv("-q", "-rA", f"--junitxml={GUEST_OUT_DIR}/{report}", "tests/inside_vm/test_gateway_on_vcan.py"),
+        cwd=REPO_ROOT,
+        timeout_s=420.0,
+    )
+    assert run.returncode == 0, f"inner pytest failed in the VM:\n{run.output}"
+    assert report in run.out_files and b'failures="0"' in run.out_files[report], run.output
+    assert b'tests="1"' in run.out_files[report], run.output

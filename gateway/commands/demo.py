@@ -1,34 +1,37 @@
-"""adxlgw demo: the main job on the built-in emulated board (interim: simulate and summarise)."""
+"""adxlgw demo: the gateway on its built-in emulated board, with a live terminal view."""
 from __future__ import annotations
 
 import argparse
-import tempfile
+import os
 from pathlib import Path
 
-import numpy as np
+from gateway.commands.run import add_run_options, load_with_overrides, overrides_from, serve
 
-from gateway.core.motion_profiles import StrokeSettings
-from gateway.core.scenarios import ScenarioSettings, build_profile
-from gateway.core.simulator import simulate
-from gateway.recording import read_recording, to_acceleration, write_recording
+
+def default_state_path() -> str:
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return str(Path(base) / "adxl-gateway" / "demo-state.json")
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("demo", help="run the gateway's main job on the built-in emulated board")
-    p.add_argument("--strokes", type=int, default=10)
+    p = sub.add_parser(
+        "demo",
+        help="run the gateway on the built-in emulated board (Modbus on 127.0.0.1, CAN on a virtual bus)",
+        description="Start the emulated board (adxlgw emulate on a pty, the paper's strokes, looping), the "
+                    "gateway reading it, Modbus TCP on 127.0.0.1:5020 and CAN on a python-can virtual bus, "
+                    "with a live terminal view. Any Modbus client can poll it, e.g. "
+                    "mbpoll -m tcp -p 5020 -t 3:float -r 1 -c 3 -1 127.0.0.1",
+    )
+    add_run_options(p)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    scenario = ScenarioSettings(strokes=StrokeSettings(strokes=args.strokes))
-    sim = simulate(build_profile(scenario), seed=0)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "demo.csv"
-        write_recording(path, {"tick_hz": f"{sim.tick_hz:g}", "source": "simulation", "axis": "x"},
-                        sim.recording_columns())
-        series = to_acceleration(read_recording(path))
-    dt = np.diff(series.t_s)
-    print(f"samples: {len(series)}  duration: {series.t_s[-1]:.2f} s  rate: {1 / np.median(dt):.1f} samples/s")
-    print(f"acceleration: min {np.nanmin(series.acc_mps2):.2f}  max {np.nanmax(series.acc_mps2):.2f} m/s²")
-    print(f"reference travel: {np.sum(np.abs(np.diff(series.reference['ref_pos_m']))):.3f} m")
-    return 0
+    overrides = {"serial.port": "emulated", "service.view": True, "state.path": default_state_path(),
+                 **overrides_from(args)}
+    cfg = load_with_overrides(args.config, overrides)
+    print(f"adxl-gateway demo: Modbus TCP on {cfg.modbus.host}:{cfg.modbus.port}, "
+          f"CAN {cfg.can.interface}:{cfg.can.channel}; Ctrl-C stops", flush=True)
+    print(f"  poll it: mbpoll -m tcp -p {cfg.modbus.port} -t 3:float -r 1 -c 3 -1 {cfg.modbus.host}", flush=True)
+    reload = lambda: load_with_overrides(args.config, overrides)  # noqa: E731
+    return serve(cfg, reload)

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -15,6 +14,7 @@ from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_s
 from gateway.core.evaluation import summarise_errors
 from gateway.core.reference_point import NoRestError, find_initial_rest
 from gateway.core.sensor_model import SensorParams
+from gateway.drift_model_file import load_drift_model
 from gateway.errors import InputError, RecordingError
 from gateway.recording import AccelerationSeries, read_recording, to_acceleration
 
@@ -43,16 +43,6 @@ def add_parser(sub) -> None:
     p.add_argument("--returns-to-start", action="store_true",
                    help="the motion ends where it began (net displacement zero): print the final position as its error")
     p.set_defaults(run=run)
-
-
-def _load_drift(path: str) -> FittedDrift:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return FittedDrift.from_dict(json.load(fh))
-    except OSError as err:
-        raise InputError(f"{path}: cannot read: {err.strerror or err}") from err
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError(f"{path}: not a drift model written by 'adxlgw fit-drift --model-out' ({err})") from err
 
 
 def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: FittedDrift | None) -> EstimatorSettings:
@@ -130,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     series = to_acceleration(rec)
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
-    drift = _load_drift(args.drift_model) if args.drift_model else None
+    drift = load_drift_model(args.drift_model) if args.drift_model else None
     settings = None
     try:
         if args.method in ("realtime", "smoothed"):

@@ -1,0 +1,60 @@
+"""adxlgw run: the gateway daemon (board → estimator → Modbus and CAN)."""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+
+from gateway.config import Config, load_config
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "run",
+        help="run the gateway daemon",
+        description="Read the board, estimate distance and velocity, serve them over Modbus TCP (and RTU) "
+                    "and CAN. SIGTERM stops, SIGHUP reloads the config. Under systemd: Type=notify.",
+    )
+    add_run_options(p)
+    p.set_defaults(run=run)
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE", help="TOML config (adxlgw config --default prints one)")
+    p.add_argument("--serial", metavar="PORT", help="override serial.port (a device, a pyserial URL, or 'emulated')")
+    p.add_argument("--modbus-host", help="override modbus.host")
+    p.add_argument("--modbus-port", type=int, help="override modbus.port")
+    p.add_argument("--can-interface", help="override can.interface (socketcan, virtual, …)")
+    p.add_argument("--can-channel", help="override can.channel (vcan0, can0, …)")
+    p.add_argument("--view", action="store_true", help="draw a live terminal view")
+
+
+def overrides_from(args: argparse.Namespace) -> dict:
+    pairs = {
+        "serial.port": args.serial,
+        "modbus.host": args.modbus_host,
+        "modbus.port": args.modbus_port,
+        "can.interface": args.can_interface,
+        "can.channel": args.can_channel,
+        "service.view": True if args.view else None,
+    }
+    return {k: v for k, v in pairs.items() if v is not None}
+
+
+def load_with_overrides(path: str | None, overrides: dict) -> Config:
+    cfg = load_config(path)
+    return cfg.replace(overrides) if overrides else cfg
+
+
+def serve(cfg: Config, reload) -> int:
+    from gateway.daemon import Gateway  # the daemon pulls in pymodbus and python-can
+
+    logging.getLogger().setLevel(cfg.service.log_level.upper())
+    return asyncio.run(Gateway(cfg, reload=reload).run())
+
+
+def run(args: argparse.Namespace) -> int:
+    overrides = overrides_from(args)
+    cfg = load_with_overrides(args.config, overrides)
+    reload = (lambda: load_with_overrides(args.config, overrides)) if args.config else None
+    return serve(cfg, reload)

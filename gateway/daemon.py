@@ -1,0 +1,419 @@
+"""The gateway's supervisor: board (serial) → realtime estimator → Modbus and CAN.
+
+One asyncio task tree under one supervisor coroutine. Signals: SIGTERM/SIGINT stop
+(cancel, then gather; well within 2 s), SIGHUP reloads the config. systemd hears
+READY once the board's port is open and the servers listen, WATCHDOG only while
+samples flow, STOPPING at the end.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import signal
+import time
+from dataclasses import dataclass, replace
+from typing import Callable
+
+from drivers.board_protocol import Hello, Sample, Status, StreamDecoder
+from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError
+from drivers.errors import SerialPortError
+from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
+from drivers.published_values import Command, PublishedValues
+from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
+from gateway.board_session import BoardSession
+from gateway.config import Config, load_config
+from gateway.core.conversion import AxisCalibration, Calibration
+from gateway.emulated_board import EmulatedBoard
+from gateway.errors import ConfigError, DeviceError, InputError
+from gateway.drift_model_file import load_drift_model
+from gateway.estimation_link import EstimatorLink
+from gateway.sd_notify import SystemdNotifier
+from gateway.state_store import PersistentState, StateStore
+from gateway.status_flags import GatewayCondition, status_bits
+from gateway.terminal_view import TerminalView
+
+log = logging.getLogger("adxlgw")
+
+PUBLISH_TICK_S = 0.01  # staleness, heartbeat and republishing while no samples come
+SATURATION_HOLD_S = 1.0
+STATE_SAVE_EVERY_S = 60.0
+
+
+def calibration_from(cfg: Config) -> Calibration:
+    c = cfg.calibration
+    return Calibration(AxisCalibration(c.zero_g_duty_x, c.sensitivity_x),
+                       AxisCalibration(c.zero_g_duty_y, c.sensitivity_y))
+
+
+def modbus_config_from(cfg: Config) -> ModbusServerConfig:
+    m = cfg.modbus
+    return ModbusServerConfig(
+        tcp_enabled=m.tcp_enabled, host=m.host, port=m.port, unit_id=m.unit_id, word_order=m.word_order,
+        writes_enabled=m.writes_enabled, write_allow=tuple(m.write_allow), rtu_enabled=m.rtu_enabled,
+        rtu_port=m.rtu_port, rtu_baudrate=m.rtu_baudrate, rtu_parity=m.rtu_parity,
+        rtu_writes_enabled=m.rtu_writes_enabled,
+    )
+
+
+def can_config_from(cfg: Config) -> CanPublisherConfig:
+    c = cfg.can
+    return CanPublisherConfig(
+        interface=c.interface, channel=c.channel,
+        bitrate=None if c.interface == "socketcan" else c.bitrate,
+        period_ms=float(c.period_ms),
+        min_interval_ms=None if c.min_interval_ms < 0 else float(c.min_interval_ms),
+        commands_enabled=c.commands_enabled,
+    )
+
+
+@dataclass
+class Counters:
+    samples: int = 0
+    config_reloads: int = 0
+    config_reload_errors: int = 0
+    can_start_failures: int = 0
+    watchdog_pings: int = 0
+
+
+class Gateway:
+    def __init__(
+        self,
+        cfg: Config,
+        *,
+        reload: Callable[[], Config] | None = None,
+        notifier: SystemdNotifier | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.cfg = cfg
+        self._reload = reload
+        self.notifier = notifier or SystemdNotifier()
+        self.clock = clock
+        self.counters = Counters()
+        self.state_store = StateStore(cfg.state.path)
+        self.saved = self.state_store.load()
+        self.session = BoardSession(calibration_from(cfg), cfg.calibration.axis)
+        drift = None
+        if cfg.estimator.drift_model:
+            try:
+                drift = load_drift_model(cfg.estimator.drift_model)
+            except InputError as err:
+                raise ConfigError(f"{cfg.source}: estimator.drift_model: {err}") from err
+        self.estimator = EstimatorLink(drift=drift, axis=cfg.calibration.axis)
+        self.decoder = StreamDecoder()
+        self.source: SerialSource | None = None
+        self.modbus: ModbusServer | None = None
+        self.can: CanPublisher | None = None
+        self.emulated: EmulatedBoard | None = None
+        self.view = TerminalView() if cfg.service.view else None
+        # position reference: published = estimator position − offset
+        self.reference_offset_m = -self.saved.last_position_m if self.saved.last_position_m else 0.0
+        self.referenced = False  # after a restart, never trust an old reference
+        self.values = PublishedValues()
+        self._estimate = None
+        self._last_sample_s: float | None = None
+        self._saturated_until = -1.0
+        self._board_reset_at: float | None = None
+        self._lost_at: float | None = None
+        self._reloaded_at: float | None = None
+        self._heartbeat = 0
+        self._stop = asyncio.Event()
+        self._ready_sent = False
+        self._serial_path: str | None = None
+        self._tasks: list[asyncio.Task] = []
+        self._last_saved_s = clock()
+        self._state_dirty = False
+
+    # ------------------------------------------------------------- commands --
+    def on_command(self, command: Command, source: str) -> bool:
+        if command == Command.TARE:
+            if self._estimate is None:
+                log.warning("tare from %s declined: no estimate yet", source)
+                return False
+            self.reference_offset_m = self._estimate.pos_m
+            self.referenced = True
+            self._state_dirty = True
+            log.info("tare from %s: position := 0", source)
+            self.publish(self.clock())  # the reply's next read already shows it
+            self._save_state()
+            return True
+        if command == Command.REESTIMATE_BIAS:
+            ok = self.estimator.request_bias_reestimate(bool(self._estimate and self._estimate.standstill))
+            log.info("bias re-estimation from %s: %s", source, "accepted" if ok else "declined (not at standstill)")
+            return ok
+        return False
+
+    # --------------------------------------------------------------- frames --
+    def handle_frames(self, data: bytes) -> None:
+        now = self.clock()
+        for frame in self.decoder.feed(data):
+            if isinstance(frame, Sample):
+                sample = self.session.on_sample(frame)
+                if sample is None:
+                    continue
+                self.counters.samples += 1
+                self._last_sample_s = now
+                if sample.lost_before:
+                    self._lost_at = now
+                if sample.saturated:
+                    self._saturated_until = now + SATURATION_HOLD_S
+                self._estimate = self.estimator.step(sample.t_s, sample.acc_mps2, sample.lost_before)
+                self.publish(now)
+            elif isinstance(frame, (Status, Hello)):
+                if self.session.on_report(frame):
+                    log.warning("board reset: continuity lost, position not referenced until the next tare")
+                    self._board_reset_at = now
+                    self._lose_reference()
+
+    def _lose_reference(self) -> None:
+        if self._estimate is not None:
+            # keep the published position continuous; it is just no longer trusted
+            self.reference_offset_m -= self._estimate.pos_m
+        self.estimator.reset()
+        self._estimate = None
+        self.referenced = False
+
+    # -------------------------------------------------------------- publish --
+    def condition(self, now: float) -> GatewayCondition:
+        est = self._estimate
+        state = self.source.state if self.source else None
+        return GatewayCondition(
+            now_s=now,
+            have_estimate=est is not None,
+            port_open=bool(state and state.is_open),
+            last_sample_s=self._last_sample_s,
+            last_byte_s=None if not state or state.last_data_monotonic_s is None else state.last_data_monotonic_s,
+            stale_after_s=self.cfg.serial.stale_after_ms / 1000,
+            lost_after_s=self.cfg.serial.lost_after_ms / 1000,
+            referenced=self.referenced,
+            standstill=bool(est and est.standstill),
+            estimator_fault=bool(est and est.fault),
+            holding=bool(est and (est.holding or est.initialising)),
+            saturated_until_s=self._saturated_until,
+            board_reset_at_s=self._board_reset_at,
+            samples_lost_at_s=self._lost_at,
+            config_reloaded_at_s=self._reloaded_at,
+            bias_estimating=bool(est and est.bias_estimating),
+        )
+
+    def publish(self, now: float) -> None:
+        est = self._estimate
+        c = self.decoder.counters
+        self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
+        if est is not None:
+            pos = est.pos_m - self.reference_offset_m
+            vel, acc, bias, pos_std = est.vel_mps, est.acc_mps2, est.bias_mps2, est.pos_std_m
+        else:  # nothing estimated since start or reset: last published numbers, flagged
+            pos, vel, acc = self.values.position_m, self.values.velocity_mps, self.values.acceleration_mps2
+            bias, pos_std = self.values.bias_estimate_mps2, self.values.position_std_m
+        self.values = PublishedValues(
+            position_m=pos, velocity_mps=vel, acceleration_mps2=acc,
+            status=status_bits(self.condition(now)),
+            heartbeat=self._heartbeat,
+            sample_counter=self.counters.samples,
+            last_sample_age_ms=None if self._last_sample_s is None else (now - self._last_sample_s) * 1000,
+            bias_estimate_mps2=bias, position_std_m=pos_std,
+            board_temp_c=self.session.temp_c,
+            lost_samples=c.samples_lost, crc_errors=c.crc_errors,
+            board_resets=self.session.counters.resets_announced + self.session.counters.resets_inferred,
+            can_send_errors=self.can.counters.send_errors if self.can else 0,
+        )
+        if self.modbus:
+            self.modbus.update(self.values)
+        if self.can:
+            self.can.update(self.values)
+
+    # ---------------------------------------------------------------- state --
+    def _save_state(self) -> None:
+        est = self._estimate
+        self.saved = PersistentState(
+            tare_offset_m=self.reference_offset_m,
+            bias_estimate_mps2=None if est is None or not math.isfinite(est.bias_mps2) else est.bias_mps2,
+            last_position_m=None if not math.isfinite(self.values.position_m) else self.values.position_m,
+            saved_at_unix_s=time.time(),
+        )
+        self.state_store.save(self.saved)
+        self._last_saved_s = self.clock()
+        self._state_dirty = False
+
+    # ---------------------------------------------------------------- tasks --
+    async def _open_board(self) -> None:
+        port = self.cfg.serial.port
+        if port == "emulated":
+            self.emulated = EmulatedBoard()
+            port = await self.emulated.start()
+        self._serial_path = port
+        s = self.cfg.serial
+        self.source = SerialSource(SerialSettings(port=port, baudrate=s.baudrate,
+                                                  reconnect_initial_s=s.reconnect_min_s,
+                                                  reconnect_max_s=s.reconnect_max_s))
+        delays = reconnect_delays_s(self.source.settings)
+        while True:
+            try:
+                await asyncio.to_thread(self.source.open)
+                log.info("board port %s open", port)
+                return
+            except SerialPortError as err:
+                delay = next(delays)
+                log.warning("%s; retrying in %.1f s", err, delay)
+                await asyncio.sleep(delay)
+
+    async def _board_task(self) -> None:
+        async for chunk in self.source.chunks():
+            self.handle_frames(chunk)
+
+    async def _tick_task(self) -> None:
+        next_view = 0.0
+        while True:
+            await asyncio.sleep(PUBLISH_TICK_S)
+            now = self.clock()
+            self.publish(now)
+            if self.view and now >= next_view:
+                next_view = now + 0.25
+                self.view.draw(self.values, self._view_extra())
+            if self._state_dirty or now - self._last_saved_s >= STATE_SAVE_EVERY_S:
+                self._save_state()
+
+    def _view_extra(self) -> str:
+        parts = [f"board {self._serial_path}"]
+        if self.modbus and self.modbus.tcp_port:
+            parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
+        if self.can:
+            parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} ({self.can.counters.frames_sent} frames)")
+        return "  ".join(parts)
+
+    async def _watchdog_task(self) -> None:
+        interval = self.notifier.watchdog_interval_s
+        if not interval:
+            return
+        while True:
+            await asyncio.sleep(interval / 2)
+            now = self.clock()
+            flowing = self._last_sample_s is not None and now - self._last_sample_s < self.cfg.serial.lost_after_ms / 1000
+            if flowing:  # a hung board must let systemd's watchdog fire
+                self.notifier.watchdog()
+                self.counters.watchdog_pings += 1
+
+    async def _start_servers(self) -> None:
+        self.modbus = ModbusServer(modbus_config_from(self.cfg), on_command=self.on_command)
+        try:
+            await self.modbus.start()
+        except ModbusServerError as err:
+            raise DeviceError(f"Modbus server: {err}") from err
+        if self.cfg.can.enabled:
+            self.can = CanPublisher(can_config_from(self.cfg), on_command=self.on_command)
+            try:
+                await self.can.start()
+            except CanPublisherError as err:
+                # Modbus keeps serving; CAN is retried in the background
+                self.counters.can_start_failures += 1
+                log.error("%s; retrying every 5 s", err)
+                self.can = None
+                self._tasks.append(asyncio.create_task(self._retry_can(), name="can-retry"))
+
+    async def _retry_can(self) -> None:
+        while self.can is None:
+            await asyncio.sleep(5)
+            publisher = CanPublisher(can_config_from(self.cfg), on_command=self.on_command)
+            try:
+                await publisher.start()
+                self.can = publisher
+                log.info("CAN publisher started")
+            except CanPublisherError as err:
+                self.counters.can_start_failures += 1
+                log.debug("%s", err)
+
+    async def _stop_servers(self) -> None:
+        for component in (self.can, self.modbus):
+            if component is not None:
+                with contextlib.suppress(Exception):
+                    await asyncio.wait_for(component.stop(), timeout=1.0)
+        self.can = None
+        self.modbus = None
+
+    async def reload(self) -> None:
+        if self._reload is None:
+            log.warning("SIGHUP: no config file to reload")
+            return
+        self.notifier.reloading()
+        try:
+            new = self._reload()
+        except ConfigError as err:
+            self.counters.config_reload_errors += 1
+            log.error("reload refused, keeping the running config: %s", err)
+            self.notifier.ready()
+            return
+        old, self.cfg = self.cfg, new
+        self.counters.config_reloads += 1
+        self._reloaded_at = self.clock()
+        logging.getLogger().setLevel(new.service.log_level.upper())
+        self.session.set_calibration(calibration_from(new), new.calibration.axis)
+        if old.calibration.axis != new.calibration.axis:
+            self._lose_reference()
+        if old.modbus.as_tuple() != new.modbus.as_tuple() or old.can.as_tuple() != new.can.as_tuple():
+            log.info("reload: restarting Modbus and CAN with the new settings")
+            await self._stop_servers()
+            await self._start_servers()
+        if old.serial.as_tuple() != new.serial.as_tuple():
+            log.info("reload: reopening the board port")
+            self._restart_board = True
+            self._board_runner.cancel()
+        log.info("config reloaded from %s", new.source)
+        self.notifier.ready()
+
+    # ------------------------------------------------------------ supervisor --
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        loop.add_signal_handler(signal.SIGTERM, self._stop.set)
+        loop.add_signal_handler(signal.SIGINT, self._stop.set)
+        loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self.reload())))
+        try:
+            await self._start_servers()
+            self._tasks.append(asyncio.create_task(self._tick_task(), name="tick"))
+            opener = asyncio.create_task(self._open_board(), name="open-board")
+            stopper = asyncio.create_task(self._stop.wait())
+            await asyncio.wait({opener, stopper}, return_when=asyncio.FIRST_COMPLETED)
+            if self._stop.is_set():
+                opener.cancel()
+                return 0
+            stopper.cancel()
+            self._tasks.append(asyncio.create_task(self._watchdog_task(), name="watchdog"))
+            self.notifier.ready(f"board {self._serial_path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
+            self._ready_sent = True
+            log.info("ready: board %s, Modbus TCP %s:%s, CAN %s", self._serial_path, self.cfg.modbus.host,
+                     self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off")
+            while not self._stop.is_set():
+                self._restart_board = False
+                self._board_runner = asyncio.create_task(self._board_task(), name="board")
+                stopper = asyncio.create_task(self._stop.wait())
+                await asyncio.wait({self._board_runner, stopper}, return_when=asyncio.FIRST_COMPLETED)
+                stopper.cancel()
+                if self._board_runner.done() and not self._board_runner.cancelled():
+                    exc = self._board_runner.exception()
+                    if exc is not None:
+                        log.error("board reader failed: %s", exc)
+                if self._restart_board and not self._stop.is_set():
+                    self._board_runner.cancel()
+                    self.source.close()
+                    await self._open_board()
+                elif not self._stop.is_set():
+                    await asyncio.sleep(1.0)  # reader ended unexpectedly: start it again
+            return 0
+        finally:
+            self.notifier.stopping()
+            await self._shutdown()
+
+    async def _shutdown(self) -> None:
+        runner = getattr(self, "_board_runner", None)
+        tasks = [t for t in [*self._tasks, runner] if t is not None]
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if self.source is not None:
+            self.source.close()
+        await self._stop_servers()
+        if self.emulated is not None:
+            await self.emulated.stop()
+        self._save_state()
+        log.info("stopped")

@@ -1,0 +1,155 @@
+"""The gateway daemon in-process against the emulated board on a real pty, a pymodbus
+client on TCP, and a python-can virtual bus decoded with cantools."""
+import asyncio
+import math
+import socket
+
+import can
+import cantools
+import pytest
+from pymodbus.client import AsyncModbusTcpClient
+
+from drivers.can_frames import dbc_text
+from drivers.published_values import StatusBits
+from tests.daemon_helpers import Emulator, gateway_config, read_inputs, running_gateway, wait_for
+
+pytestmark = pytest.mark.slow
+
+
+def run(coro):
+    return asyncio.run(coro)
+
+
+@pytest.fixture
+def board(tmp_path):
+    emu = Emulator(tmp_path, "--strokes", "4", "--seed", "21")
+    yield emu
+    emu.stop()
+
+
+def test_board_to_modbus_and_can(tmp_path, board):
+    cfg = gateway_config(tmp_path, str(board.link))
+    db = cantools.database.load_string(dbc_text(), "dbc")
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
+            await client.connect()
+            await wait_for(lambda: gw.counters.samples > 1000, 20, what="1000 samples")
+            regs = await read_inputs(client)
+            status = StatusBits(regs["STATUS"])
+            assert StatusBits.VALID in status and StatusBits.NOT_REFERENCED in status
+            assert not status & (StatusBits.STALE | StatusBits.BOARD_LOST)
+            assert regs["SAMPLE_COUNTER"] > 1000 and regs["LAST_SAMPLE_AGE"] < 100
+            assert regs["BOARD_TEMPERATURE"] == 2500  # 0.01 °C units
+            assert regs["MAP_VERSION"] == 1 and regs["CRC_ERRORS"] == 0
+            # the emulated robot strokes between 0 and 0.3 m
+            assert -0.02 < regs["POSITION"] < 0.32
+            assert regs["POSITION_UM"] == pytest.approx(regs["POSITION"] * 1e6, abs=2)
+            beat = regs["HEARTBEAT"]
+            await asyncio.sleep(0.1)
+            assert (await read_inputs(client))["HEARTBEAT"] != beat
+
+            # CAN: the cyclic frames decode with the shipped DBC and carry the same state
+            bus = can.Bus(interface="virtual", channel=cfg.can.channel)
+            try:
+                seen = {}
+                for _ in range(50):
+                    msg = await asyncio.to_thread(bus.recv, 1.0)
+                    assert msg is not None
+                    seen[msg.arbitration_id] = db.decode_message(msg.arbitration_id, msg.data)
+                    if len(seen) >= 2:
+                        break
+                pos_msg = db.get_message_by_name("ADXL_Position")
+                decoded = seen[pos_msg.frame_id]
+                assert any("Position" in k for k in decoded)
+            finally:
+                bus.shutdown()
+
+            # tare over Modbus: position := 0 here, reference gained
+            await wait_for(lambda: gw._estimate is not None and gw._estimate.standstill, 20, what="a standstill")
+            wr = await client.write_register(0, 1)
+            assert not wr.isError()
+            regs = await read_inputs(client)
+            assert regs["LAST_COMMAND_RESULT"] == 1
+            assert abs(regs["POSITION"]) < 0.002
+            assert StatusBits.NOT_REFERENCED not in StatusBits(regs["STATUS"])
+            client.close()
+        state = (tmp_path / "state.json").read_text()
+        assert "tare_offset_m" in state
+
+    run(scenario())
+
+
+def test_keeps_serving_through_faults_and_says_what_happened(tmp_path):
+    emu = Emulator(tmp_path, "--strokes", "2", "--garbage-every", "0.3", "--burst-every", "0.7",
+                   "--drop-every", "0.4", "--reset-every", "2.5", "--reopen-every", "3")
+    cfg = gateway_config(tmp_path, str(emu.link))
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            port = gw.modbus.tcp_port
+            client = AsyncModbusTcpClient("127.0.0.1", port=port)
+            await client.connect()
+            await wait_for(lambda: gw.source.state.reconnects >= 1 and gw.counters.samples > 2000, 30,
+                           what="a reconnect after the pty vanished")
+            # clients that connect and drop, and malformed requests, between good reads
+            for junk in (b"\x00\x01\x00\x00\x00\x06\x01\x04\x00", b"\xff" * 40,
+                         b"\x00\x01\x00\x00\x00\x06\x01\x63\x00\x00\x00\x01"):
+                with socket.create_connection(("127.0.0.1", port), timeout=2) as s:
+                    s.sendall(junk)
+            regs = await read_inputs(client)
+            assert regs["LOST_SAMPLES"] > 0
+            assert regs["BOARD_RESETS"] >= 1
+            await wait_for(lambda: gw.decoder.counters.bytes_skipped > 0, 10, what="garbage skipped")
+            status = StatusBits(regs["STATUS"])
+            assert StatusBits.SAMPLES_LOST in status
+            await wait_for(lambda: StatusBits.VALID in gw.values.status, 10, what="VALID again")
+            assert (await read_inputs(client))["SAMPLE_COUNTER"] > regs["SAMPLE_COUNTER"] - 1
+            client.close()
+
+    try:
+        run(scenario())
+    finally:
+        emu.stop()
+
+
+def test_board_lost_is_flagged_and_recovered(tmp_path, board):
+    cfg = gateway_config(tmp_path, str(board.link))
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            await wait_for(lambda: StatusBits.VALID in gw.values.status, 20, what="VALID")
+            board.proc.send_signal(19)  # SIGSTOP: the board falls silent, the port stays
+            try:
+                await wait_for(lambda: StatusBits.STALE in gw.values.status, 5, what="STALE")
+                await wait_for(lambda: StatusBits.BOARD_LOST in gw.values.status, 5, what="BOARD_LOST")
+                assert StatusBits.VALID not in gw.values.status
+            finally:
+                board.proc.send_signal(18)  # SIGCONT
+            await wait_for(lambda: StatusBits.VALID in gw.values.status, 10, what="VALID again")
+
+    run(scenario())
+
+
+def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board, monkeypatch):
+    cfg = gateway_config(tmp_path, str(board.link))
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            await wait_for(lambda: gw.can is not None and gw.can.counters.frames_sent > 5, 20, what="CAN frames")
+
+            def broken_send(msg, timeout=None):
+                raise can.CanOperationError("No buffer space available [Error Code 105]")
+
+            monkeypatch.setattr(gw.can._bus, "send", broken_send)
+            await wait_for(lambda: gw.values.can_send_errors > 10, 5, what="send errors counted")
+            samples = gw.counters.samples
+            await asyncio.sleep(0.3)
+            assert gw.counters.samples > samples  # the board side is unaffected
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
+            await client.connect()
+            assert (await read_inputs(client))["CAN_SEND_ERRORS"] > 10
+            client.close()
+
+    run(scenario())
