@@ -199,7 +199,7 @@ class Gateway:
 
     def publish(self, now: float) -> None:
         est = self._estimate
-        c = self.decoder.counters
+        c = self.decoder.live_counters
         self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
         if est is not None:
             pos = est.pos_m - self.reference_offset_m

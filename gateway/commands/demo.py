@@ -20,7 +20,7 @@ def add_parser(sub) -> None:
         description="Start the emulated board (adxlgw emulate on a pty, the paper's strokes, looping), the "
                     "gateway reading it, Modbus TCP on 127.0.0.1:5020 and CAN on a python-can virtual bus, "
                     "with a live terminal view. Any Modbus client can poll it, e.g. "
-                    "mbpoll -m tcp -p 5020 -t 3:float -r 1 -c 3 -1 127.0.0.1",
+                    "mbpoll -m tcp -p 5020 -0 -B -t 3:float -r 4 -c 3 127.0.0.1",
     )
     add_run_options(p)
     p.set_defaults(run=run)
@@ -32,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_with_overrides(args.config, overrides)
     print(f"adxl-gateway demo: Modbus TCP on {cfg.modbus.host}:{cfg.modbus.port}, "
           f"CAN {cfg.can.interface}:{cfg.can.channel}; Ctrl-C stops", flush=True)
-    print(f"  poll it: mbpoll -m tcp -p {cfg.modbus.port} -t 3:float -r 1 -c 3 -1 {cfg.modbus.host}", flush=True)
+    print(f"  poll it: mbpoll -m tcp -p {cfg.modbus.port} -0 -B -t 3:float -r 4 -c 3 {cfg.modbus.host}"
+          f"   (position m, velocity m/s, acceleration m/s²; adxlgw regmap lists every register)", flush=True)
     reload = lambda: load_with_overrides(args.config, overrides)  # noqa: E731
     return serve(cfg, reload)
