@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import SCENARIOS, ScenarioSettings
@@ -75,3 +76,18 @@ def scenario_from_args(args: argparse.Namespace) -> ScenarioSettings:
         rest_start_s=args.rest_s,
     )
     return ScenarioSettings(name=args.scenario, strokes=strokes, standstill_s=args.standstill_s)
+
+
+class StopOnSignal:
+    """A flag that SIGTERM and SIGINT raise: long-running commands end their loop cleanly."""
+
+    def __init__(self) -> None:
+        self.stop = False
+        signal.signal(signal.SIGTERM, self._raise)
+        signal.signal(signal.SIGINT, self._raise)
+
+    def _raise(self, signum, frame) -> None:
+        self.stop = True
+
+    def __bool__(self) -> bool:
+        return self.stop

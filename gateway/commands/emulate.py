@@ -3,14 +3,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import time
 
 import serial
 
 from drivers.pty_port import PtyPort
-from gateway.commands.common import add_scenario_options, non_negative_float, scenario_from_args
+from gateway.commands.common import StopOnSignal, add_scenario_options, non_negative_float, scenario_from_args
 from gateway.emulator import EmulatorSettings, FaultSettings, Pacer, board_schedule
 from gateway.errors import DeviceError
 
@@ -85,14 +84,7 @@ def run(args: argparse.Namespace) -> int:
     out = _SerialOut(args.port) if args.port else PtyPort(args.link)
     print(out.path, flush=True)
 
-    stop = False
-
-    def on_signal(signum, frame):
-        nonlocal stop
-        stop = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = StopOnSignal()
 
     if not args.no_wait:
         while not stop and not out.wait_for_reader(timeout_s=0.2):

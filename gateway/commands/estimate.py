@@ -15,6 +15,7 @@ from gateway.core.evaluation import summarise_errors
 from gateway.core.reference_point import NoRestError, find_initial_rest
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
+from gateway.figures import save_figure
 from gateway.errors import InputError, RecordingError
 from gateway.recording import AccelerationSeries, read_recording, to_acceleration
 
@@ -103,12 +104,7 @@ def plot_track(path: str, track: EstimateTrack, reference: dict, title: str) -> 
         ax.grid(alpha=0.3)
     axes[0].set_title(title)
     fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=100)
-    except OSError as err:
-        raise InputError(f"{path}: cannot write the plot: {err.strerror or err}") from err
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def _mm(x: float) -> str:

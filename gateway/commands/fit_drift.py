@@ -11,6 +11,7 @@ import numpy as np
 from gateway.commands.common import positive_float
 from gateway.core.drift_fit import DriftFit, fit_drift
 from gateway.core.units import STANDARD_GRAVITY_MPS2
+from gateway.figures import save_figure
 from gateway.errors import InputError, RecordingError
 from gateway.recording import read_recording, to_acceleration
 
@@ -108,12 +109,7 @@ def plot_fit(path: str, fit: DriftFit, t0_s: float, title: str) -> None:
     ax.grid(which="both", alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=100)
-    except OSError as err:
-        raise InputError(f"{path}: cannot write the plot: {err.strerror or err}") from err
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:

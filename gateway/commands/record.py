@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import time
 from pathlib import Path
@@ -11,7 +10,7 @@ from pathlib import Path
 from drivers.board_protocol import Hello, Sample, Status, StreamDecoder
 from drivers.errors import SerialPortError
 from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
-from gateway.commands.common import positive_float
+from gateway.commands.common import StopOnSignal, positive_float
 from gateway.errors import DeviceError
 from gateway.recording import RecordingWriter
 
@@ -93,14 +92,7 @@ def _open_with_retry(source: SerialSource, once: bool, should_stop) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    stop = False
-
-    def on_signal(signum, frame):
-        nonlocal stop
-        stop = True
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    stop = StopOnSignal()
     started = time.monotonic()
 
     def should_stop() -> bool:
