@@ -9,44 +9,31 @@ from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import SCENARIOS, ScenarioSettings
 
 
-def positive_float(text: str) -> float:
+def _checked(text: str, convert, what: str, ok, requirement: str):
+    """Parse a command-line number; argparse turns the error into a usage line, exit 2."""
     try:
-        value = float(text)
+        value = convert(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive number")
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+    if not ok(value):
+        raise argparse.ArgumentTypeError(f"{text!r} must be {requirement}")
     return value
+
+
+def positive_float(text: str) -> float:
+    return _checked(text, float, "a number", lambda v: math.isfinite(v) and v > 0, "a positive number")
 
 
 def non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a number ≥ 0")
-    return value
+    return _checked(text, float, "a number", lambda v: math.isfinite(v) and v >= 0, "a number ≥ 0")
 
 
 def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be at least 1")
-    return value
+    return _checked(text, int, "a whole number", lambda v: v >= 1, "at least 1")
 
 
 def seed_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be ≥ 0")
-    return value
+    return _checked(text, int, "a whole number", lambda v: v >= 0, "≥ 0")
 
 
 def add_scenario_options(p: argparse.ArgumentParser, default_strokes: int = 10) -> None:
