@@ -289,7 +289,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=20.0, help="board time per run")
     ap.add_argument("--clients", default="0,10,25,50,75", help="client counts for the load table")
+    ap.add_argument("--cpu-only", action="store_true", help="only the CPU measurement (quick)")
     args = ap.parse_args()
+    if args.cpu_only:
+        quiet = one_run(args.seconds, -1, instrumented=False, poll=False)
+        print(f"CPU of the gateway at 500 samples/s, CAN cyclic 10 ms, no Modbus client: "
+              f"{quiet['cpu_pct']:.1f} % of one core")
+        return
     clients = [int(c) for c in args.clients.split(",")]
     print(f"command: .venv/bin/python benchmarks/daemon_benchmark.py --seconds {args.seconds:g} "
           f"--clients {args.clients}")

@@ -268,7 +268,10 @@ class Gateway:
         while True:
             await asyncio.sleep(PUBLISH_TICK_S)
             now = self.clock()
-            self.publish(now)
+            # While samples flow each one publishes; the tick only keeps the heartbeat,
+            # the age and the STALE/BOARD_LOST bits moving when they do not.
+            if self._last_sample_s is None or now - self._last_sample_s >= PUBLISH_TICK_S:
+                self.publish(now)
             if self.view and now >= next_view:
                 next_view = now + 0.25
                 self.view.draw(self.values, self._view_extra())
