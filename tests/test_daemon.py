@@ -36,6 +36,8 @@ def test_board_to_modbus_and_can(tmp_path, board):
             client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
             await client.connect()
             await wait_for(lambda: gw.counters.samples > 1000, 20, what="1000 samples")
+            # the estimator holds its outputs until the bias is measured at the first standstill
+            await wait_for(lambda: StatusBits.VALID in gw.values.status, 30, what="VALID")
             regs = await read_inputs(client)
             status = StatusBits(regs["STATUS"])
             assert StatusBits.VALID in status and StatusBits.NOT_REFERENCED in status

@@ -67,6 +67,20 @@ def mbpoll_values(out: str) -> dict[int, str]:
     return {int(a): v for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)", out, re.M)}
 
 
+def wait_for_valid(port: int, timeout_s: float = 30.0) -> int:
+    """Poll the status register until VALID: after a start the estimator holds its
+    outputs (HOLDING, BIAS_ESTIMATING) until it has measured the bias at the first
+    standstill, which on a slow machine ends well after READY and the first watchdog."""
+    deadline = time.monotonic() + timeout_s
+    status = None
+    while time.monotonic() < deadline:
+        status = int(mbpoll_values(mbpoll(port, "-t", "3", "-r", "1", "-c", "1"))[1])
+        if status & StatusBits.VALID:
+            return status
+        time.sleep(0.2)
+    raise AssertionError(f"no VALID within {timeout_s} s; last status {status!r}")
+
+
 def test_ready_watchdog_reload_and_clean_stop(tmp_path):
     assert shutil.which("mbpoll"), "mbpoll missing: run scripts/setup.sh --test"
     emu = Emulator(tmp_path, "--strokes", "2")
@@ -82,6 +96,7 @@ def test_ready_watchdog_reload_and_clean_stop(tmp_path):
         notify.wait_for("WATCHDOG=1", 5)  # samples flow, so the watchdog is fed
 
         # the external Modbus tool reads the running daemon (0-based addresses with -0)
+        wait_for_valid(port)
         out = mbpoll(port, "-t", "3", "-r", "0", "-c", "2")
         values = mbpoll_values(out)
         assert values[0] == "1"  # MAP_VERSION
@@ -94,7 +109,7 @@ def test_ready_watchdog_reload_and_clean_stop(tmp_path):
         cfg.write_text(cfg.read_text() + "\n[modbus]\nbogus = 1\n")
         daemon.send_signal(signal.SIGHUP)
         notify.wait_for("READY=1", 5)
-        assert int(mbpoll_values(mbpoll(port, "-t", "3", "-r", "1", "-c", "1"))[1]) & StatusBits.VALID
+        wait_for_valid(port, 10)
         # SIGHUP with a good file: applied, CONFIG_RELOADED shows it
         write_config(cfg, str(emu.link), port, word_order="CDAB")
         daemon.send_signal(signal.SIGHUP)
