@@ -37,6 +37,9 @@ class SignalContext:
     temp_c: np.ndarray
     sensor: SensorParams
     seed: int
+    # the motion as the sensing element feels it (CX filter, period mean), g, X axis: set
+    # before the error terms run, for terms that act on the motion only (mount, filters)
+    motion_x_g: np.ndarray | None = None
 
     def rng(self, name: str) -> np.random.Generator:
         """An independent, reproducible stream per name: adding a term leaves the others' draws alone."""
@@ -192,6 +195,7 @@ def simulate(
 
     true_x_g = period_mean_lowpass(profile, n, period_s, sensor.bandwidth_hz) / STANDARD_GRAVITY_MPS2
     true_y_g = np.zeros(n)
+    ctx.motion_x_g = true_x_g
     axes = []
     for name, true_g, axis in (("x", true_x_g, sensor.x), ("y", true_y_g, sensor.y)):
         sensed = true_g + filtered_white_noise(ctx.rng(f"noise_{name}"), n, period_s, sensor)

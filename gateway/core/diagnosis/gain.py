@@ -1,0 +1,130 @@
+"""How much an accepted effect improves the distance estimate.
+
+An EstimatePlan is what the gateway's estimator (smoothed, offline) is fed: sample
+times, the measured acceleration as the extended model corrects it, samples to skip,
+setting changes, and — for reference_delay — a shift of the reference the error is
+taken against. The gain of an effect is the error of the plan without it against the
+plan with it: at the stops of a recorded reference (RMS and final), or the final
+position of a motion that returns to its start.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from gateway.core.diagnosis.context import Prepared
+from gateway.core.diagnosis.reading import shifted
+from gateway.core.estimator import EstimateTrack, estimate_series
+from gateway.core.estimator_settings import EstimatorSettings
+from gateway.core.evaluation import summarise_errors
+from gateway.core.reference_point import NoRestError
+
+
+@dataclass
+class EstimatePlan:
+    settings: EstimatorSettings
+    returns_to_start: bool = False
+    t_s: np.ndarray | None = None
+    acc_mps2: np.ndarray | None = None
+    valid: np.ndarray | None = None
+    lost_before: np.ndarray | None = None
+    ref_shift_s: float = 0.0
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def run(self, t_s, acc, valid, lost) -> EstimateTrack:
+        return estimate_series(t_s, acc, valid, method="smoothed", settings=self.settings, lost_before=lost)
+
+    def baseline(self, data) -> "EstimatePlan":
+        return EstimatePlan(self.settings, self.returns_to_start, data.t_s, data.acc_mps2, data.valid.copy(),
+                            data.lost_before)
+
+    def _copy(self, **changes) -> "EstimatePlan":
+        return replace(self, _cache={}, **changes)
+
+    def track(self, prep: Prepared) -> EstimateTrack | None:
+        if "track" not in self._cache:
+            try:
+                self._cache["track"] = self.run(self.t_s, self.acc_mps2, self.valid, self.lost_before)
+            except NoRestError:
+                self._cache["track"] = None
+        return self._cache["track"]
+
+    def with_signal(self, prep: Prepared, fit, effects) -> "EstimatePlan":
+        """The baseline plan corrected by each accepted signal effect, in order of acceptance."""
+        plan = self._base_of_chain(prep)
+        for e in effects:
+            theta, _ = fit.effect_theta(e)
+            pos_est = plan.track(prep).pos_m if plan.track(prep) is not None else np.zeros(len(prep.data))
+            comp = e.compensate(prep, theta, plan.acc_mps2, pos_est)
+            plan = plan.apply(comp)
+        return plan
+
+    def _base_of_chain(self, prep: Prepared) -> "EstimatePlan":
+        d = prep.data
+        return EstimatePlan(self.settings, self.returns_to_start, d.t_s, d.acc_mps2, d.valid.copy(), d.lost_before)
+
+    def apply(self, comp) -> "EstimatePlan":
+        if comp is None:
+            return self
+        acc = self.acc_mps2 if comp.acc_mps2 is None else comp.acc_mps2
+        valid = self.valid if comp.invalid is None else (self.valid & ~comp.invalid)
+        settings = self.settings
+        s = dict(comp.settings)
+        if "scale" in s:
+            acc = acc * s.pop("scale")
+        if "extra_sensor_lag_s" in s:
+            settings = replace(settings, sensor_lag_s=settings.sensor_lag_s + s.pop("extra_sensor_lag_s"))
+        if "bias_random_walk_mps2_per_rts" in s:
+            k = max(settings.bias_random_walk_mps2_per_rts, s.pop("bias_random_walk_mps2_per_rts"))
+            settings = replace(settings, bias_random_walk_mps2_per_rts=k)
+        return self._copy(acc_mps2=acc, valid=valid, settings=settings,
+                          ref_shift_s=self.ref_shift_s + comp.ref_shift_s)
+
+    def with_side(self, prep: Prepared, effect, test) -> "EstimatePlan":
+        return self.apply(test.compensation)
+
+    def as_host_timed(self, prep: Prepared) -> "EstimatePlan":
+        """What trusting the host's arrival times instead of the board's T2 clock gives."""
+        d = prep.data
+        host = d.t_host_s - d.t_host_s[0] + d.t_s[0]
+        host = np.maximum.accumulate(host + np.arange(host.size) * 1e-9)  # strictly increasing
+        return self._copy(t_s=host, lost_before=np.zeros(host.size, dtype=np.int64))
+
+    def as_gapless(self, prep: Prepared) -> "EstimatePlan":
+        """What a model that loses no samples makes of the record: gaps closed up."""
+        d = prep.data
+        t = d.t_s - np.cumsum(d.lost_before) * d.period_s
+        return self._copy(t_s=t, lost_before=np.zeros(t.size, dtype=np.int64))
+
+
+def _errors(prep: Prepared, plan: EstimatePlan) -> dict | None:
+    track = plan.track(prep)
+    if track is None:
+        return None
+    d = prep.data
+    if d.reference == "recorded" and d.ref_pos_m is not None:
+        t = d.t_s
+        ref_pos = shifted(t, d.ref_pos_m, plan.ref_shift_s)
+        ref_vel = shifted(t, d.ref_vel_mps, plan.ref_shift_s)
+        # the plan's time axis may differ (host time, gaps closed): compare sample by sample
+        s = summarise_errors(t, track.pos_m, ref_pos, ref_vel)
+        stops = np.array([st.error_m for st in s.stops])
+        return {"stop_rms_mm": float(np.sqrt(np.mean(stops**2))) * 1e3 if stops.size else float("nan"),
+                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3}
+    if plan.returns_to_start:
+        return {"final_mm": float(track.pos_m[-1]) * 1e3}
+    return None
+
+
+def distance_gain(prep: Prepared, before: EstimatePlan, after: EstimatePlan) -> dict:
+    b, a = _errors(prep, before), _errors(prep, after)
+    if b is None or a is None:
+        why = ("no reference and not known to return to its start (--returns-to-start)"
+               if prep.data.reference != "recorded" and not before.returns_to_start
+               else "the estimator found no standstill to start from")
+        return {"available": False, "why": why}
+    key = "stop_rms_mm" if "stop_rms_mm" in b and math.isfinite(b["stop_rms_mm"]) else "final_mm"
+    return {"available": True, "metric": key, "before": b, "after": a,
+            "improvement_mm": abs(b[key]) - abs(a[key])}

@@ -1,0 +1,96 @@
+"""Looking for what is wrong in a residual: whiteness, spectrum peaks, Allan slopes, and
+its correlation with candidate regressors.
+
+Everything is computed on the *whitened* residual (and regressors whitened by the same
+filter), so a correlation's significance is not inflated by the sensor's own colouring.
+Whiteness is judged on 10 ms block means: the 8051 timer's rounding repeats with the
+fractional part of T2 in ticks — a line near 200 Hz that the baseline itself makes (the
+simulator has it too) and that no motion effect lives at.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import find_peaks, welch
+from scipy.stats import norm
+
+from gateway.core.diagnosis.context import Prepared
+from gateway.core.drift_fit import allan_deviation, ljung_box
+
+WHITENESS_BLOCK_S = 0.01
+
+
+def block_whiteness_p(prep: Prepared, whitened: np.ndarray) -> float:
+    b = max(1, int(round(WHITENESS_BLOCK_S / prep.data.period_s)))
+    m = whitened[: whitened.size // b * b].reshape(-1, b).mean(axis=1)
+    if m.size < 10:
+        return float("nan")
+    return ljung_box(m).p_value
+
+
+def spectrum_peaks(prep: Prepared, whitened: np.ndarray, top: int = 3) -> list[dict]:
+    fs = 1.0 / prep.data.period_s
+    if whitened.size < 64:
+        return []
+    f, pxx = welch(whitened, fs=fs, nperseg=min(1024, whitened.size // 4))
+    floor = float(np.median(pxx))
+    idx, props = find_peaks(pxx, height=6.0 * floor)
+    order = np.argsort(-props["peak_heights"])[:top] if idx.size else []
+    return [{"frequency_hz": float(f[idx[i]]), "power_ratio": float(props["peak_heights"][i] / floor)} for i in order]
+
+
+def allan_slopes(prep: Prepared, residual: np.ndarray) -> list[dict]:
+    r = np.nan_to_num(residual)
+    if r.size < 64:
+        return []
+    a = allan_deviation(r, prep.data.period_s)
+    slopes = np.diff(np.log(a.adev)) / np.diff(np.log(a.tau_s))
+    return [{"tau_s": float(t), "adev_mps2": float(v), "slope": float(s)}
+            for t, v, s in zip(a.tau_s[1:], a.adev[1:], slopes)]
+
+
+def candidate_regressors(prep: Prepared, reading: np.ndarray, pos: np.ndarray | None) -> dict[str, np.ndarray]:
+    d = prep.data
+    out: dict[str, np.ndarray] = {}
+    if d.reference is not None:
+        out["reference acceleration"] = reading
+        out["reference acceleration²"] = reading**2
+        out["jerk"] = np.gradient(reading, d.t_s)
+        if pos is not None:
+            out["position"] = pos
+        if d.ref_vel_mps is not None:
+            out["velocity"] = d.ref_vel_mps
+    if d.other_mps2 is not None:
+        out["other axis"] = d.other_mps2
+    if d.temp_c is not None:
+        out["temperature"] = d.temp_c
+    out["time"] = d.t_s - d.t_s[0]
+    if d.t_host_s is not None:
+        delay = d.t_host_s - d.t_s
+        out["host timestamp irregularity"] = delay - np.nanmedian(delay)
+    out["seq gaps"] = (d.lost_before > 0).astype(float)
+    return out
+
+
+def correlations(prep: Prepared, residual: np.ndarray, regressors: dict[str, np.ndarray]) -> list[dict]:
+    m = prep.fit_mask
+    w = prep.noise.whiten(np.where(m, np.nan_to_num(residual), 0.0))[m]
+    w = w - w.mean()
+    rows = []
+    for name, x in regressors.items():
+        x = np.asarray(x, dtype=float)
+        good = np.isfinite(x)
+        if good.mean() < 0.9:
+            continue
+        x = np.where(good, x, np.nanmean(x))
+        if float(np.std(x[m])) == 0.0:
+            continue
+        wx = prep.noise.whiten(x - x[m].mean())[m]
+        wx = wx - wx.mean()
+        den = math.sqrt(float(np.dot(w, w)) * float(np.dot(wx, wx)))
+        r = float(np.dot(w, wx)) / den if den > 0 else 0.0
+        z = r * math.sqrt(w.size)
+        rows.append({"regressor": name, "correlation": r, "p_value": float(2.0 * norm.sf(abs(z)))})
+    rows.sort(key=lambda row: row["p_value"])
+    return rows

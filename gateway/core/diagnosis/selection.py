@@ -1,0 +1,278 @@
+"""The diagnosis: baseline, look, add effects one at a time, judge, measure the gain.
+
+Selection (signal effects on the measured axis), forward:
+  1. fit the baseline (offset + drift) and the ARMA(1,1) noise model on the rests;
+  2. fit every remaining candidate jointly with those already accepted, starting from
+     its own quick fit on the current residual;
+  3. take the best by BIC; accept it only if ΔBIC ≤ −BIC_MARGIN *and* its
+     likelihood-ratio test has p < ALPHA (Bonferroni over the candidates of the round);
+     otherwise stop.
+Side effects (other axis, host clock, seq gaps, bias wander) are each tested once with
+their own likelihood ratio, the bias wander on the final residual.
+"Unexplained" is set when the final residual is still not white: structure remains that
+no candidate explains — said rather than naming a wrong cause.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.stats import chi2
+
+from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
+from gateway.core.diagnosis.gain import distance_gain, EstimatePlan
+from gateway.core.diagnosis.model_fit import ModelFit, fit_model
+from gateway.core.diagnosis.reading import fit_noise_model
+from gateway.core.diagnosis.screening import (
+    allan_slopes, block_whiteness_p, candidate_regressors, correlations, spectrum_peaks,
+)
+from gateway.core.diagnosis.side_effects import SIDE_EFFECTS, SideEffect, SideTest
+from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, Signal, SignalEffect
+from gateway.core.estimator_settings import EstimatorSettings
+
+BIC_MARGIN = 10.0  # "very strong" evidence on Kass & Raftery's scale
+ALPHA = 1e-3  # per round, split over the candidates tried
+WHITE_ALPHA = 0.01
+
+ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
+
+
+def list_effects() -> list[tuple[str, str]]:
+    return [(e.name, e.summary) for e in ALL_EFFECTS]
+
+
+@dataclass
+class EffectResult:
+    name: str
+    kind: str  # "signal" or "side"
+    params: dict[str, tuple[float, float]]
+    p_value: float
+    delta_bic: float
+    gain: dict
+    detail: str = ""
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "kind": self.kind,
+                "params": {k: [v, s] for k, (v, s) in self.params.items()},
+                "p_value": self.p_value, "delta_bic": self.delta_bic, "gain": self.gain, "detail": self.detail}
+
+
+@dataclass
+class Candidate:
+    name: str
+    status: str  # accepted / rejected / not applicable
+    delta_bic: float = float("nan")
+    p_value: float = float("nan")
+    reason: str = ""
+
+
+@dataclass
+class DiagnosisResult:
+    reference: str | None
+    n_samples: int
+    duration_s: float
+    baseline: dict[str, tuple[float, float]]
+    noise_model: dict[str, float]
+    effects: list[EffectResult]
+    candidates: list[Candidate]
+    whiteness_p_before: float
+    whiteness_p_after: float
+    residual_rms_before: float
+    residual_rms_after: float
+    screening: dict
+    cannot: list[str]
+    # for plots and the report (not in the JSON)
+    t_s: np.ndarray = field(repr=False, default=None)
+    residual_before: np.ndarray = field(repr=False, default=None)
+    residual_after: np.ndarray = field(repr=False, default=None)
+    distance: dict = field(repr=False, default_factory=dict)
+
+    @property
+    def residual_white(self) -> bool:
+        return bool(self.whiteness_p_after > WHITE_ALPHA)
+
+    @property
+    def unexplained(self) -> bool:
+        return not self.residual_white
+
+    def to_dict(self) -> dict:
+        return {
+            "effects": [e.to_dict() for e in self.effects],
+            "residual_white": self.residual_white,
+            "unexplained": self.unexplained,
+            "reference": self.reference,
+            "samples": self.n_samples,
+            "duration_s": self.duration_s,
+            "baseline": {k: [v, s] for k, (v, s) in self.baseline.items()},
+            "noise_model": self.noise_model,
+            "whiteness_p": {"before": self.whiteness_p_before, "after": self.whiteness_p_after},
+            "residual_rms_mps2": {"before": self.residual_rms_before, "after": self.residual_rms_after},
+            "candidates": [c.__dict__ for c in self.candidates],
+            "screening": self.screening,
+            "cannot_analyse": self.cannot,
+        }
+
+
+def _prepare_with_estimate(data: DiagnosisInput, plan: EstimatePlan) -> Prepared:
+    """Without a recorded reference the smoothed estimate stands in for it."""
+    prep = prepare(data)
+    if data.reference == "estimated":
+        track = plan.run(data.t_s, data.acc_mps2, data.valid, data.lost_before)
+        data.ref_pos_m, data.ref_vel_mps = track.pos_m, track.vel_mps
+        prep.reading_mps2 = np.nan_to_num(track.acc_mps2)
+        prep.rest = track.standstill.astype(bool) & data.valid
+    return prep
+
+
+def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start: bool = False,
+             progress: Callable[[str], None] = lambda msg: None) -> DiagnosisResult:
+    plan = EstimatePlan(settings, returns_to_start)
+    cannot: list[str] = []
+    if data.reference is None:
+        data.reference = "estimated"
+    prep = _prepare_with_estimate(data, plan)
+    progress("baseline: offset, drift, noise model")
+    base = fit_model(prep, ())
+    if prep.rest.sum() >= 64:
+        prep.noise = fit_noise_model(base.residual[prep.rest])
+    else:
+        cannot.append("no rest long enough for the noise model: the residual is taken as white")
+    base = fit_model(prep, ())
+    p_white_before = block_whiteness_p(prep, base.whitened)
+
+    candidates: dict[str, Candidate] = {}
+    usable: list[SignalEffect] = []
+    for e in SIGNAL_EFFECTS:
+        why = e.unusable(prep)
+        if why:
+            candidates[e.name] = Candidate(e.name, "not applicable", reason=why)
+        else:
+            usable.append(e)
+
+    current, accepted = base, []
+    history: list[tuple[SignalEffect, ModelFit, ModelFit]] = []
+    start: dict[str, np.ndarray] = {}
+    # whiteness does not end the search: a Ljung–Box test on lags is weak against an effect
+    # tied to a regressor (a 1 % scale error leaves the residual almost white); the rounds
+    # go on until nothing passes the BIC margin and the test, and whiteness gives the verdict
+    while usable:
+        trials = []
+        for e in usable:
+            progress(f"round {len(accepted) + 1}: trying {e.name}")
+            sig = Signal(_current_reading(prep, current), data.ref_pos_m)
+            init = e.initial(prep, np.nan_to_num(current.residual), sig)
+            fit = fit_model(prep, tuple(accepted) + (e,), {**start, e.name: init}, base_start=current.theta[:2])
+            trials.append((fit.bic - current.bic, e, fit))
+        trials.sort(key=lambda row: row[0])
+        alpha = ALPHA / len(trials)
+        for dbic, e, fit in trials:
+            k = fit.n_params - current.n_params
+            p = float(chi2.sf(max(0.0, 2.0 * (fit.loglik - current.loglik)), k))
+            candidates[e.name] = Candidate(e.name, "rejected", dbic, p, "ΔBIC or p not enough")
+        dbic, best, fit = trials[0]
+        k = fit.n_params - current.n_params
+        p = float(chi2.sf(max(0.0, 2.0 * (fit.loglik - current.loglik)), k))
+        if not (dbic <= -BIC_MARGIN and p < alpha):
+            break
+        candidates[best.name] = Candidate(best.name, "accepted", dbic, p, "")
+        history.append((best, current, fit))
+        accepted.append(best)
+        usable.remove(best)
+        for e in accepted:
+            start[e.name] = fit.effect_theta(e)[0]
+        current = fit
+        # the rests were seen through the effect (a tilt shifts each end's level): the
+        # noise model is refitted on the new residual, and the next round compares on it
+        if prep.rest.sum() >= 64:
+            prep.noise = fit_noise_model(current.residual[prep.rest])
+            current = fit_model(prep, tuple(accepted), dict(start), base_start=current.theta[:2])
+
+    effects: list[EffectResult] = []
+    before_plan = plan.baseline(data)
+    for e, before, after in history:
+        theta, std = after.effect_theta(e)
+        step_plan = before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1])
+        progress(f"gain of {e.name}: distance estimate before and after")
+        gain = {
+            "residual_rms_mps2": [before.residual_rms, after.residual_rms],
+            "loglik": [before.loglik, after.loglik],
+            "distance": distance_gain(prep, before_plan, step_plan),
+        }
+        before_plan = step_plan
+        effects.append(EffectResult(e.name, "signal", e.report(theta, std), candidates[e.name].p_value,
+                                    candidates[e.name].delta_bic, gain))
+
+    for s in SIDE_EFFECTS:
+        why = s.unusable(prep)
+        if why:
+            candidates[s.name] = Candidate(s.name, "not applicable", reason=why)
+            continue
+        progress(f"testing {s.name}")
+        test = s.test(prep, current.residual)
+        dbic = -2.0 * (test.loglik_after - test.loglik_before) + test.extra_params * math.log(max(current.n, 2))
+        ok = test.significant(ALPHA / len(SIDE_EFFECTS)) and dbic <= -BIC_MARGIN
+        candidates[s.name] = Candidate(s.name, "accepted" if ok else "rejected", dbic, test.p_value,
+                                       "" if ok else "ΔBIC or p not enough")
+        if ok:
+            progress(f"gain of {s.name}: distance estimate before and after")
+            if test.values.get("host_time"):
+                # the baseline trusts host times as the board's; the extension knows better
+                without, step_plan = before_plan.as_host_timed(prep), before_plan
+            elif test.values.get("lost"):
+                without, step_plan = before_plan.as_gapless(prep), before_plan
+            else:
+                without, step_plan = before_plan, before_plan.with_side(prep, s, test)
+            gain = {"residual_rms": [test.rms_before, test.rms_after],
+                    "loglik": [test.loglik_before, test.loglik_after],
+                    "distance": distance_gain(prep, without, step_plan)}
+            before_plan = step_plan
+            effects.append(EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail))
+
+    regs = candidate_regressors(prep, prep.reading_mps2, data.ref_pos_m)
+    screening = {
+        "before": {"correlations": correlations(prep, base.residual, regs),
+                   "spectrum_peaks": spectrum_peaks(prep, base.whitened),
+                   "allan": allan_slopes(prep, base.residual)},
+        "after": {"correlations": correlations(prep, current.residual, regs),
+                  "spectrum_peaks": spectrum_peaks(prep, current.whitened),
+                  "allan": allan_slopes(prep, current.residual)},
+    }
+    if data.reference == "estimated":
+        cannot.append("no recorded reference: the smoothed estimate stands in for it, so effects that "
+                      "change the motion's reading (scale, nonlinearity, filters, delay) cannot be seen")
+    order = [e.name for e in ALL_EFFECTS]
+    return DiagnosisResult(
+        reference=data.reference,
+        n_samples=len(data),
+        duration_s=data.duration_s,
+        baseline=base.baseline_params(),
+        noise_model={"ar": prep.noise.ar, "ma": prep.noise.ma, "lag1": prep.noise.lag1},
+        effects=effects,
+        candidates=sorted(candidates.values(), key=lambda c: order.index(c.name)),
+        whiteness_p_before=p_white_before,
+        whiteness_p_after=block_whiteness_p(prep, current.whitened),
+        residual_rms_before=base.residual_rms,
+        residual_rms_after=current.residual_rms,
+        screening=screening,
+        cannot=cannot,
+        t_s=data.t_s,
+        residual_before=base.residual,
+        residual_after=current.residual,
+        distance={"before": plan.baseline(data).track(prep), "after": before_plan.track(prep)},
+    )
+
+
+def _current_reading(prep: Prepared, fit: ModelFit) -> np.ndarray:
+    """The motion's reading with the accepted filters and delay applied (what new effects act on)."""
+    from gateway.core.diagnosis.model_fit import BASELINE_PARAMS
+
+    sig = Signal(prep.reading_mps2.copy(), None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
+    i = len(BASELINE_PARAMS)
+    for e in fit.effects:
+        k = len(e.param_names)
+        if e.stage < 2:
+            e.apply(prep, fit.theta[i:i + k], sig)
+        i += k
+    return sig.reading

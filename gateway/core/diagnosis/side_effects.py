@@ -1,0 +1,264 @@
+"""Effects seen beside the measured axis's prediction: the other axis, the host clock,
+the sequence counter, the slow wander of the bias.
+
+Each is a likelihood-ratio test of the baseline's assumption against a fitted
+extension, on the data the effect lives in:
+
+- cross_axis: the other axis at rest by the baseline (it reads noise and its own
+  offset) against other = k·reading (in-plane misalignment and the part's cross-axis
+  sensitivity: one motion direction cannot tell them apart);
+- timing: host arrival delays (t_host − board end of period) as the baseline's host
+  link makes them (UART frame time + exponential latency, clocks in step) against a
+  host clock that runs at another rate plus a uniform hold-back of up to L (a USB
+  adapter's latency timer, bursts);
+- sample_loss: the baseline loses nothing; any sequence gap is the effect;
+- bias_random_walk: block means of the final residual as white noise against white
+  noise plus a random walk of the bias (a local-level model, exact Kalman likelihood).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+from scipy.stats import chi2
+
+from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.diagnosis.reading import fit_noise_model, gaussian_loglik
+from gateway.core.diagnosis.signal_effects import Compensation
+
+# The baseline host link (sensor_model.HostLinkParams): exponential latency, mean 0.2 ms.
+BASELINE_LATENCY_MEAN_S = 0.2e-3
+
+
+@dataclass
+class SideTest:
+    params: dict[str, tuple[float, float]]
+    loglik_before: float
+    loglik_after: float
+    extra_params: int
+    p_value: float
+    rms_before: float
+    rms_after: float
+    detail: str = ""
+    compensation: Compensation | None = None
+    values: dict = field(default_factory=dict)  # for the gain computation
+
+    def significant(self, alpha: float) -> bool:
+        return self.p_value < alpha and self.loglik_after > self.loglik_before
+
+
+class SideEffect:
+    name = ""
+    summary = ""
+
+    def unusable(self, prep: Prepared) -> str | None:
+        return None
+
+    def test(self, prep: Prepared, residual: np.ndarray) -> SideTest:
+        raise NotImplementedError
+
+
+def _lr_p(ll0: float, ll1: float, k: int, boundary: bool = False) -> float:
+    stat = max(0.0, 2.0 * (ll1 - ll0))
+    p = float(chi2.sf(stat, k))
+    # a variance at its boundary (0) under the null: half χ²(0), half χ²(k)
+    return 0.5 * p if boundary else p
+
+
+class CrossAxis(SideEffect):
+    name = "cross_axis"
+    summary = "the motion shows on the other axis: other = k·a (misalignment + cross-axis sensitivity)"
+
+    def unusable(self, prep):
+        d = prep.data
+        if d.reference != "recorded":
+            return "needs the recorded reference motion"
+        if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < 0.9:
+            return "needs the other axis"
+        return None
+
+    def test(self, prep, residual):
+        o = prep.data.other_mps2
+        ok = np.isfinite(o)
+        x = prep.reading_mps2
+        base = np.column_stack([np.ones(o.size), prep.drift_shape])
+        noise = fit_noise_model((o - np.mean(o[ok & prep.rest]))[ok & prep.rest])
+
+        def fit(cols):
+            coef = np.linalg.lstsq(cols[ok], o[ok], rcond=None)[0]
+            r = np.where(ok, o - cols @ coef, 0.0)
+            w = noise.whiten(r)[ok]
+            return coef, r, w
+
+        _, r0, w0 = fit(base)
+        coef, r1, w1 = fit(np.column_stack([base, x]))
+        ll0, ll1 = gaussian_loglik(w0), gaussian_loglik(w1)
+        wx = noise.whiten(np.where(ok, x - x[ok].mean(), 0.0))[ok]
+        k = float(coef[2])
+        k_std = math.sqrt(float(np.dot(w1, w1)) / w1.size / max(float(np.dot(wx, wx)), 1e-300))
+        angle = math.degrees(math.asin(max(-1.0, min(1.0, k))))
+        return SideTest(
+            params={"other_axis_gain": (k, k_std), "misalignment_deg": (angle, math.degrees(k_std))},
+            loglik_before=ll0, loglik_after=ll1, extra_params=1, p_value=_lr_p(ll0, ll1, 1),
+            rms_before=float(np.std(r0[ok])), rms_after=float(np.std(r1[ok])),
+            detail="measured on the other axis",
+            # the axis sees a·cos α of the motion: read the path acceleration as x / cos α
+            compensation=Compensation(acc_mps2=None, settings={"scale": 1.0 / math.sqrt(max(1e-6, 1.0 - k * k))}),
+        )
+
+
+def _exp_loglik(x: np.ndarray, mean: float) -> float:
+    return float(-x.size * math.log(mean) - np.sum(x) / mean)
+
+
+def _uniform_exp_loglik(x: np.ndarray, hold_s: float, mean: float) -> float:
+    """Density of U(0, L) + Exp(μ): (1 − e^(−x/μ))/L below L, (e^(−(x−L)/μ) − e^(−x/μ))/L above."""
+    below = x <= hold_s
+    dens = np.empty_like(x)
+    dens[below] = -np.expm1(-x[below] / mean)
+    xa = x[~below]
+    dens[~below] = np.exp(-(xa - hold_s) / mean) * -np.expm1(-hold_s / mean)
+    return float(np.sum(np.log(np.maximum(dens, 1e-300))) - x.size * math.log(hold_s))
+
+
+class Timing(SideEffect):
+    name = "timing"
+    summary = "host timestamps disagree with the board's T2 clock: clock rate, latency bursts, jitter"
+
+    def unusable(self, prep):
+        if not prep.data.column_ok("t_host_s"):
+            return "needs host arrival times (t_host_s)"
+        return None
+
+    def test(self, prep, residual):
+        d = prep.data
+        ok = np.isfinite(d.t_host_s)
+        t_end = d.t_s[ok] + d.period_s  # the sample is sent when its period ends
+        delay = d.t_host_s[ok] - t_end
+        t = t_end - t_end[0]
+        # baseline: clocks in step, delay = c + frame + Exp(μ); c is the lower edge
+        x0 = delay - delay.min() + 1e-9
+        mu0 = max(float(np.mean(x0)), 1e-7)
+        ll0 = _exp_loglik(x0, mu0)
+        # extended: a clock rate error (lower envelope of the delay), then U(0, L) + Exp(μ)
+        blocks = np.array_split(np.arange(t.size), max(2, min(50, t.size // 50)))
+        bt = np.array([t[b[np.argmin(delay[b])]] for b in blocks])
+        bd = np.array([delay[b].min() for b in blocks])
+        rate = float(np.polyfit(bt, bd, 1)[0]) if bt.size >= 3 else 0.0
+        detrended = delay - rate * t
+        x1 = detrended - detrended.min() + 1e-9
+
+        def nll(p):
+            return -_uniform_exp_loglik(x1, math.exp(p[0]), math.exp(p[1]))
+
+        hold0 = max(float(np.quantile(x1, 0.95)), 2e-6)
+        best = minimize(nll, [math.log(hold0), math.log(max(mu0 / 4, 1e-7))], method="Nelder-Mead",
+                        options={"xatol": 1e-4, "fatol": 1e-3, "maxiter": 400})
+        hold, mu = (math.exp(v) for v in best.x)
+        ll1 = -float(best.fun)
+        # the exponential alone is nested at L → 0; compare with the better of the two
+        ll1 = max(ll1, _exp_loglik(x1, max(float(np.mean(x1)), 1e-7)), ll0)
+        excess0 = x0 - mu0
+        excess1 = x1 - (hold / 2 + mu)
+        spread = float(np.std(np.diff(d.t_host_s[ok])))
+        return SideTest(
+            params={"clock_rate_error_ppm": (rate * 1e6, float("nan")),
+                    "hold_back_ms": (hold * 1e3, float("nan")),
+                    "latency_mean_ms": (mu * 1e3, float("nan")),
+                    "arrival_interval_std_ms": (spread * 1e3, float("nan"))},
+            loglik_before=ll0, loglik_after=ll1, extra_params=2, p_value=_lr_p(ll0, ll1, 2),
+            rms_before=float(np.sqrt(np.mean(excess0**2))), rms_after=float(np.sqrt(np.mean(excess1**2))),
+            detail=f"host delay against the board clock; baseline latency mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms",
+            values={"host_time": True},
+        )
+
+
+class SampleLoss(SideEffect):
+    name = "sample_loss"
+    summary = "samples lost on the serial line (sequence gaps); the baseline loses none"
+
+    def test(self, prep, residual):
+        lost = prep.data.lost_before
+        gaps = int(np.count_nonzero(lost))
+        total = int(lost.sum())
+        n = len(prep.data) + total
+        frac = total / n
+        # the baseline gives a gap probability 0: any gap makes its likelihood 0
+        ll1 = (total * math.log(frac) + (n - total) * math.log1p(-frac)) if total else 0.0
+        ll0 = -math.inf if total else 0.0
+        return SideTest(
+            params={"lost_fraction": (frac, math.sqrt(frac * (1 - frac) / n)),
+                    "gaps": (float(gaps), 0.0),
+                    "mean_gap_samples": ((total / gaps) if gaps else 0.0, 0.0)},
+            loglik_before=ll0, loglik_after=ll1, extra_params=1, p_value=0.0 if total else 1.0,
+            rms_before=0.0, rms_after=0.0, detail=f"{total} samples lost in {gaps} gaps",
+            values={"lost": True},
+        )
+
+
+def local_level_loglik(y: np.ndarray, dt_s: float, k: float, sigma: float) -> float:
+    """Exact log-likelihood of y = level + white(σ), level a random walk with Var step K²·dt.
+
+    Kalman filter with a diffuse start (the first block fixes the level)."""
+    q = k * k * dt_s
+    r = sigma * sigma
+    level, p = float(y[0]), r
+    ll = 0.0
+    for v in y[1:]:
+        p += q
+        s = p + r
+        e = v - level
+        ll += -0.5 * (math.log(2.0 * math.pi * s) + e * e / s)
+        gain = p / s
+        level += gain * e
+        p *= 1.0 - gain
+    return ll
+
+
+class BiasRandomWalk(SideEffect):
+    name = "bias_random_walk"
+    summary = "the bias wanders as a random walk beyond the exponential drift (Allan slope +1/2)"
+    block_s = 0.25
+
+    def test(self, prep, residual):
+        d = prep.data
+        ok = np.isfinite(residual)
+        idx = np.floor((d.t_s - d.t_s[0]) / self.block_s).astype(np.int64)
+        cnt = np.bincount(idx[ok], minlength=idx[-1] + 1)
+        tot = np.bincount(idx[ok], weights=residual[ok], minlength=idx[-1] + 1)
+        full = cnt >= max(3, int(0.5 * self.block_s / d.period_s))
+        y = tot[full] / cnt[full]
+        if y.size < 20:
+            return SideTest({}, 0.0, 0.0, 1, 1.0, 0.0, 0.0, detail="record too short for block means")
+        sigma0 = float(np.std(y))
+        ll0 = float(np.sum(-0.5 * (np.log(2 * math.pi * sigma0**2) + ((y - y.mean()) / sigma0) ** 2)))
+
+        def nll(p):
+            return -local_level_loglik(y, self.block_s, math.exp(p[0]), math.exp(p[1]))
+
+        starts = [(math.log(max(sigma0 * f / math.sqrt(self.block_s), 1e-9)), math.log(sigma0 * g))
+                  for f in (0.05, 0.3, 1.0) for g in (0.5, 1.0)]
+        best = min((minimize(nll, s0, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3})
+                    for s0 in starts), key=lambda r: r.fun)
+        k, sigma = math.exp(best.x[0]), math.exp(best.x[1])
+        ll1 = max(-float(best.fun), ll0)
+        # σ of log K from the curvature of the profile likelihood in log K
+        h = 0.05
+        f0 = nll(best.x)
+        curv = (nll([best.x[0] + h, best.x[1]]) - 2 * f0 + nll([best.x[0] - h, best.x[1]])) / (h * h)
+        k_std = k / math.sqrt(curv) if curv > 0 else float("nan")
+        return SideTest(
+            params={"random_walk_ug_per_rts": (k / G * 1e6, k_std / G * 1e6),
+                    "white_block_mg": (sigma / G * 1e3, float("nan"))},
+            loglik_before=ll0, loglik_after=ll1, extra_params=1,
+            p_value=_lr_p(ll0, ll1, 1, boundary=True),
+            rms_before=sigma0, rms_after=sigma,
+            detail=f"block means of {self.block_s:g} s of the residual",
+            compensation=Compensation(settings={"bias_random_walk_mps2_per_rts": k}),
+            values={"k_mps2_per_rts": k},
+        )
+
+
+SIDE_EFFECTS: tuple[SideEffect, ...] = (CrossAxis(), Timing(), SampleLoss(), BiasRandomWalk())

@@ -1,0 +1,358 @@
+"""Effects on the measured axis that the baseline sensor model lacks, each a small model extension.
+
+A signal effect changes what the model predicts for every sample. The prediction is
+built in stages, in physical order:
+
+    0 reference  the reference itself is off (reference_delay)
+    1 filter     the motion reaches the sensing element changed (vibration, bandwidth)
+    2 sensor     the element reads it with an extra term (scale_factor, nonlinearity,
+                 tilt, temperature_offset)
+    3 output     the electronics limit it (clipping)
+
+Each effect gives starting values from the current residual (a grid or a linear fit:
+the joint non-linear fit then only polishes them), bounds, and how the estimator can
+use it (`compensate`): the measured acceleration corrected, or a setting changed.
+Parameters are fitted in SI units; `report` turns them into the units people quote.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import bilinear, lfilter
+
+from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.diagnosis.reading import sensor_reading, shifted
+
+
+@dataclass
+class Signal:
+    """The model's state between stages."""
+
+    reading: np.ndarray  # the baseline sensor's reading of the motion (m/s²)
+    pos_m: np.ndarray | None
+    out: np.ndarray | None = None  # the predicted measurement, from stage 2 on
+
+
+@dataclass
+class Compensation:
+    """What the estimator does differently when it knows the effect."""
+
+    acc_mps2: np.ndarray | None = None  # corrected measurement
+    invalid: np.ndarray | None = None  # samples to treat as missing
+    settings: dict = field(default_factory=dict)  # EstimatorSettings overrides
+    ref_shift_s: float = 0.0  # the reference is read this much later
+    note: str = ""
+
+
+class SignalEffect:
+    name = ""
+    summary = ""
+    stage = 2
+    param_names: tuple[str, ...] = ()
+
+    def unusable(self, prep: Prepared) -> str | None:
+        """Why this effect cannot be looked for in this recording (None: it can)."""
+        return None if prep.data.reference == "recorded" else "needs the recorded reference motion"
+
+    def initial(self, prep: Prepared, residual: np.ndarray, sig: Signal) -> np.ndarray:
+        raise NotImplementedError
+
+    def bounds(self, prep: Prepared) -> tuple[list[float], list[float]]:
+        n = len(self.param_names)
+        return [-np.inf] * n, [np.inf] * n
+
+    def apply(self, prep: Prepared, theta: np.ndarray, sig: Signal) -> None:
+        raise NotImplementedError
+
+    def report(self, theta: np.ndarray, std: np.ndarray) -> dict[str, tuple[float, float]]:
+        return {n: (float(v), float(s)) for n, v, s in zip(self.param_names, theta, std)}
+
+    def compensate(self, prep: Prepared, theta: np.ndarray, acc: np.ndarray, pos_est: np.ndarray) -> Compensation | None:
+        return None
+
+
+def _ls_coefficient(residual: np.ndarray, regressor: np.ndarray, mask: np.ndarray) -> float:
+    x = regressor[mask] - regressor[mask].mean()
+    y = residual[mask] - residual[mask].mean()
+    den = float(np.dot(x, x))
+    return float(np.dot(x, y)) / den if den > 0 else 0.0
+
+
+def _grid_best(prep: Prepared, residual, sig: Signal, effect, grid):
+    """The grid point whose model change best explains the residual (with a free scale)."""
+    best, best_cost = grid[0], np.inf
+    m = prep.fit_mask
+    for theta in grid:
+        trial = Signal(sig.reading.copy(), sig.pos_m)
+        effect.apply(prep, np.asarray(theta, dtype=float), trial)
+        delta = trial.reading - sig.reading
+        r = residual - delta
+        r = r[m] - r[m].mean()
+        cost = float(np.dot(r, r))
+        if cost < best_cost:
+            best, best_cost = theta, cost
+    return np.asarray(best, dtype=float)
+
+
+class ScaleFactor(SignalEffect):
+    name = "scale_factor"
+    summary = "sensitivity differs from the calibration: reads (1 + s)·a"
+    param_names = ("scale_error_frac",)
+
+    def initial(self, prep, residual, sig):
+        return np.array([_ls_coefficient(residual, sig.reading, prep.fit_mask)])
+
+    def bounds(self, prep):
+        return [-0.5], [0.5]
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * sig.reading
+
+    def compensate(self, prep, theta, acc, pos_est):
+        return Compensation(acc_mps2=acc / (1.0 + theta[0]))
+
+
+class Nonlinearity(SignalEffect):
+    name = "nonlinearity"
+    summary = "a quadratic term: reads a + β·a²/g (data sheet: ~0.2 % of full scale)"
+    param_names = ("quadratic_per_g",)
+
+    def initial(self, prep, residual, sig):
+        return np.array([_ls_coefficient(residual, sig.reading**2 / G, prep.fit_mask)])
+
+    def bounds(self, prep):
+        return [-0.5], [0.5]
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * sig.reading**2 / G
+
+    def compensate(self, prep, theta, acc, pos_est):
+        # first-order inverse of a + βa²/g; the offset in acc is small against g
+        return Compensation(acc_mps2=acc - theta[0] * acc**2 / G)
+
+
+class Tilt(SignalEffect):
+    """Gravity leaking into the axis.
+
+    A constant tilt θ adds g·sin θ: indistinguishable from the zero-g offset, and removed
+    with it. What the baseline misses is a tilt that changes: along the path (a rail that
+    is not level, g·κ·x with κ in rad/m), or, for an axis that carries gravity, the
+    axis turning away from the vertical — seen on the other axis o as g(cos θ − cos θ0)
+    ≈ −(o² − o0²)/(2g) for the measured axis.
+    """
+
+    name = "tilt"
+    summary = "gravity leaking into the axis as the tilt varies: along the path, or as the axis turns"
+    param_names = ("tilt_gradient_rad_per_m",)
+
+    def _mode(self, prep):
+        d = prep.data
+        if d.reference == "recorded":
+            return "path"
+        if d.other_mps2 is not None and self._gravity_sign(prep) != 0:
+            return "gravity"
+        return None
+
+    @staticmethod
+    def _gravity_sign(prep) -> int:
+        rest = prep.data.acc_mps2[prep.rest & prep.data.valid][:2000]
+        if rest.size < 10:
+            return 0
+        level = float(np.mean(rest))
+        return int(np.sign(level)) if abs(level) > 0.5 * G else 0
+
+    def unusable(self, prep):
+        if self._mode(prep) is None:
+            return ("needs the recorded reference (tilt along the path) or, for an axis carrying "
+                    "gravity, the other axis (tilt as the axis turns)")
+        return None
+
+    def regressor(self, prep, sig):
+        if self._mode(prep) == "path":
+            return G * sig.pos_m
+        o = np.nan_to_num(prep.data.other_mps2, nan=0.0)
+        rest = prep.rest & np.isfinite(prep.data.other_mps2)
+        o0 = float(np.mean(o[rest])) if rest.any() else 0.0
+        return -self._gravity_sign(prep) * (o * o - o0 * o0) / (2.0 * G)
+
+    def initial(self, prep, residual, sig):
+        return np.array([_ls_coefficient(residual, self.regressor(prep, sig), prep.fit_mask)])
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * self.regressor(prep, sig)
+
+    def report(self, theta, std):
+        return {"tilt_coefficient": (float(theta[0]), float(std[0]))}
+
+    def compensate(self, prep, theta, acc, pos_est):
+        if self._mode(prep) == "path":
+            return Compensation(acc_mps2=acc - theta[0] * G * pos_est,
+                                note="position from the estimate without the effect")
+        sig = Signal(np.zeros_like(acc), None)
+        return Compensation(acc_mps2=acc - theta[0] * self.regressor(prep, sig))
+
+
+class TemperatureOffset(SignalEffect):
+    name = "temperature_offset"
+    summary = "zero-g offset moves with the board temperature: k·(T − T̄) (data sheet: mg/°C)"
+    param_names = ("offset_mps2_per_c",)
+
+    def unusable(self, prep):
+        if not prep.data.column_ok("temp_c", min_std=0.05):
+            return "needs a temperature column that varies (temp_c)"
+        return None
+
+    def _regressor(self, prep):
+        temp = prep.data.temp_c
+        fill = float(np.nanmean(temp))
+        return np.nan_to_num(temp, nan=fill) - fill
+
+    def initial(self, prep, residual, sig):
+        return np.array([_ls_coefficient(residual, self._regressor(prep), prep.fit_mask)])
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * self._regressor(prep)
+
+    def report(self, theta, std):
+        return {"offset_mg_per_c": (float(theta[0] / G * 1e3), float(std[0] / G * 1e3))}
+
+    def compensate(self, prep, theta, acc, pos_est):
+        return Compensation(acc_mps2=acc - theta[0] * self._regressor(prep))
+
+
+def _resonance(prep, f0_hz, damping, x):
+    """A flexible mount: the element follows the base through (2ζωs + ω²)/(s² + 2ζωs + ω²)."""
+    w = 2.0 * math.pi * f0_hz
+    fs = 1.0 / prep.data.period_s
+    # pre-warp so the discrete resonance sits at f0
+    wp = 2.0 * fs * math.tan(w / (2.0 * fs))
+    b, a = bilinear([2.0 * damping * wp, wp * wp], [1.0, 2.0 * damping * wp, wp * wp], fs=fs)
+    zi = (x[0] if x.size else 0.0) * _steady_zi(b, a)
+    y, _ = lfilter(b, a, x, zi=zi)
+    return y
+
+
+def _steady_zi(b, a):
+    from scipy.signal import lfilter_zi
+
+    return lfilter_zi(b, a)
+
+
+class Vibration(SignalEffect):
+    name = "vibration"
+    stage = 1
+    summary = "a mount resonance rings after each change of acceleration (f0, damping ζ)"
+    param_names = ("frequency_hz", "damping_ratio")
+
+    def _nyquist(self, prep):
+        return 0.5 / prep.data.period_s
+
+    def initial(self, prep, residual, sig):
+        top = min(0.8 * self._nyquist(prep), 400.0)
+        grid = [(f, z) for f in np.geomspace(2.0, top, 36) for z in (0.02, 0.05, 0.12, 0.3)]
+        return _grid_best(prep, residual, sig, self, grid)
+
+    def bounds(self, prep):
+        return [0.5, 0.003], [0.9 * self._nyquist(prep), 0.9]
+
+    def apply(self, prep, theta, sig):
+        sig.reading = _resonance(prep, theta[0], theta[1], sig.reading)
+
+    def compensate(self, prep, theta, acc, pos_est):
+        return Compensation(note="not compensated: the ringing integrates to zero velocity and position change")
+
+
+def one_pole(prep, cutoff_hz, x):
+    a = math.exp(-2.0 * math.pi * cutoff_hz * prep.data.period_s)
+    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]] if x.size else [0.0])
+    return y
+
+
+class Bandwidth(SignalEffect):
+    name = "bandwidth"
+    stage = 1
+    summary = "a low-pass the model lacks (mount, a larger CX, the board's own filter): one pole at fc"
+    param_names = ("cutoff_hz",)
+
+    def initial(self, prep, residual, sig):
+        top = 0.9 * 0.5 / prep.data.period_s
+        return _grid_best(prep, residual, sig, self, [(f,) for f in np.geomspace(0.5, top, 40)])
+
+    def bounds(self, prep):
+        return [0.2], [0.95 * 0.5 / prep.data.period_s]
+
+    def apply(self, prep, theta, sig):
+        sig.reading = one_pole(prep, theta[0], sig.reading)
+
+    def compensate(self, prep, theta, acc, pos_est):
+        # the estimator undoes a sensor lag τ in its outputs; the extra pole adds its own
+        return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0])})
+
+
+class Clipping(SignalEffect):
+    name = "clipping"
+    stage = 3
+    summary = "the reading saturates below the model's ±2 g range (the part, its supply, the timer)"
+    param_names = ("upper_mps2", "lower_mps2")
+
+    def unusable(self, prep):
+        return None if prep.data.reference is not None else "needs a reference motion"
+
+    def initial(self, prep, residual, sig):
+        acc = prep.data.acc_mps2[prep.data.valid]
+        return np.array([float(acc.max()), float(acc.min())])
+
+    def bounds(self, prep):
+        r = prep.data.range_mps2
+        return [0.0, -r], [r, 0.0]
+
+    def apply(self, prep, theta, sig):
+        sig.out = np.clip(sig.out, theta[1], theta[0])
+
+    def report(self, theta, std):
+        return {"upper_g": (float(theta[0] / G), float(std[0] / G)),
+                "lower_g": (float(theta[1] / G), float(std[1] / G))}
+
+    def compensate(self, prep, theta, acc, pos_est):
+        margin = 0.02 * G
+        return Compensation(invalid=(acc >= theta[0] - margin) | (acc <= theta[1] + margin),
+                            note="samples at the clip level are treated as missing")
+
+
+class ReferenceDelay(SignalEffect):
+    name = "reference_delay"
+    stage = 0
+    summary = "the reference lags (+) or leads (−) the sensor: the motion at t is the reference at t + d"
+    param_names = ("delay_s",)
+
+    def initial(self, prep, residual, sig):
+        p = prep.data.period_s
+        grid = [(d,) for d in np.arange(-25, 25.5, 0.5) * p]
+        return _grid_best(prep, residual, sig, self, grid)
+
+    def bounds(self, prep):
+        return [-0.5], [0.5]
+
+    def apply(self, prep, theta, sig):
+        # read the reference d later and make the baseline's reading of it anew: exact for
+        # a piecewise-constant acceleration, where shifting the reading itself is not
+        d = prep.data
+        t = d.t_s
+        acc = d.ref_acc_mps2[np.clip(np.searchsorted(t, t + theta[0], side="right") - 1, 0, t.size - 1)]
+        sig.reading = sensor_reading(t, shifted(t, d.ref_vel_mps, theta[0]), acc, d.sensor_bandwidth_hz)
+        if sig.pos_m is not None:
+            sig.pos_m = shifted(t, sig.pos_m, theta[0])
+
+    def report(self, theta, std):
+        return {"delay_ms": (float(theta[0] * 1e3), float(std[0] * 1e3))}
+
+    def compensate(self, prep, theta, acc, pos_est):
+        return Compensation(ref_shift_s=float(theta[0]), note="the error is taken against the shifted reference")
+
+
+SIGNAL_EFFECTS: tuple[SignalEffect, ...] = (
+    ScaleFactor(), Tilt(), TemperatureOffset(), Vibration(), Bandwidth(), Nonlinearity(),
+    Clipping(), ReferenceDelay(),
+)

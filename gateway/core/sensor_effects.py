@@ -1,0 +1,234 @@
+"""Error terms the baseline simulator lacks, each one small ErrorTerm (simulator.py).
+
+They make measured-like recordings for the diagnosis tests and benchmark: a test picks
+one or two with random parameters, and `adxlgw diagnose` must find them without being
+told. The diagnosis never imports this module (a test checks it).
+
+Documented effect sizes (what the benchmark draws from, `EFFECT_SIZES`) are chosen to
+be physically plausible for an ADXL202 on a robot and visible in a 4-stroke run.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import bilinear, lfilter, lfilter_zi
+
+from gateway.core.simulator import ErrorTerm, SignalContext, SimulatedRun
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+
+
+def _resonate(x: np.ndarray, period_s: float, f0_hz: float, damping: float) -> np.ndarray:
+    fs = 1.0 / period_s
+    wp = 2.0 * fs * math.tan(math.pi * f0_hz / fs)
+    b, a = bilinear([2.0 * damping * wp, wp * wp], [1.0, 2.0 * damping * wp, wp * wp], fs=fs)
+    y, _ = lfilter(b, a, x, zi=lfilter_zi(b, a) * x[0])
+    return y
+
+
+def _true_motion_g(ctx: SignalContext) -> np.ndarray:
+    return ctx.ref_acc_mps2 / G
+
+
+def _sensed_motion_g(ctx: SignalContext) -> np.ndarray:
+    return ctx.motion_x_g
+
+
+@dataclass
+class ScaleFactorTerm(ErrorTerm):
+    scale_error_frac: float
+    name = "scale_factor"
+
+    def acceleration_g(self, ctx, ax, ay):
+        # the part's sensitivity error acts on everything the element senses
+        return ax * (1.0 + self.scale_error_frac), ay
+
+
+@dataclass
+class PathTiltTerm(ErrorTerm):
+    """The rail is not level: the tilt changes by gradient_rad_per_m along the path."""
+
+    gradient_rad_per_m: float
+    name = "tilt"
+
+    def acceleration_g(self, ctx, ax, ay):
+        return ax + np.sin(self.gradient_rad_per_m * ctx.ref_pos_m), ay
+
+
+@dataclass
+class CrossAxisTerm(ErrorTerm):
+    """The motion leaks into the other axis: y reads gain·a (misalignment, cross-axis sensitivity)."""
+
+    gain: float
+    name = "cross_axis"
+
+    def acceleration_g(self, ctx, ax, ay):
+        return ax, ay + self.gain * _sensed_motion_g(ctx)
+
+
+@dataclass
+class TemperatureTerm(ErrorTerm):
+    """Offset k·(T − 25 °C) with a board temperature that swings (a fan cycling, the robot's duty)."""
+
+    offset_g_per_c: float
+    swing_c: float = 4.0
+    cycle_s: float = 6.0
+    name = "temperature_offset"
+
+    def _temp(self, ctx):
+        t = ctx.t_s
+        phase = float(ctx.rng("temperature").uniform(0.0, 2.0 * math.pi))
+        return 25.0 + self.swing_c * np.sin(2.0 * math.pi * t / self.cycle_s + phase)
+
+    def acceleration_g(self, ctx, ax, ay):
+        temp = self._temp(ctx)
+        ctx.temp_c[:] = np.round(temp, 2)  # the board reports 0.01 °C
+        return ax + self.offset_g_per_c * (temp - 25.0), ay
+
+    def samples(self, ctx, run):
+        run.temp_c = ctx.temp_c.copy()
+        return run
+
+
+@dataclass
+class VibrationTerm(ErrorTerm):
+    frequency_hz: float
+    damping_ratio: float
+    name = "vibration"
+
+    def acceleration_g(self, ctx, ax, ay):
+        motion = _sensed_motion_g(ctx)
+        ring = _resonate(motion, ctx.sensor.t2_s, self.frequency_hz, self.damping_ratio) - motion
+        return ax + ring, ay
+
+
+@dataclass
+class BandwidthTerm(ErrorTerm):
+    cutoff_hz: float
+    name = "bandwidth"
+
+    def acceleration_g(self, ctx, ax, ay):
+        motion = _sensed_motion_g(ctx)
+        a = math.exp(-2.0 * math.pi * self.cutoff_hz * ctx.sensor.t2_s)
+        low, _ = lfilter([1.0 - a], [1.0, -a], motion, zi=[a * motion[0]])
+        return ax + (low - motion), ay
+
+
+@dataclass
+class NonlinearityTerm(ErrorTerm):
+    quadratic_per_g: float
+    name = "nonlinearity"
+
+    def acceleration_g(self, ctx, ax, ay):
+        return ax + self.quadratic_per_g * ax * ax, ay
+
+
+@dataclass
+class ClippingTerm(ErrorTerm):
+    limit_g: float
+    name = "clipping"
+
+    def acceleration_g(self, ctx, ax, ay):
+        return np.clip(ax, -self.limit_g, self.limit_g), ay
+
+
+@dataclass
+class BiasRandomWalkTerm(ErrorTerm):
+    k_g_per_rts: float
+    name = "bias_random_walk"
+
+    def acceleration_g(self, ctx, ax, ay):
+        dt = np.diff(ctx.t_s, prepend=ctx.t_s[0])
+        walk = np.cumsum(ctx.rng("bias_walk").standard_normal(ax.size) * np.sqrt(dt)) * self.k_g_per_rts
+        return ax + walk, ay
+
+
+@dataclass
+class ReferenceDelayTerm(ErrorTerm):
+    """The reference is logged delay_s late: the recorded reference at t is the motion at t − d."""
+
+    delay_s: float
+    name = "reference_delay"
+
+    def samples(self, ctx, run):
+        t = run.t_s
+        for col in ("ref_pos_m", "ref_vel_mps"):
+            setattr(run, col, np.interp(t - self.delay_s, t, getattr(run, col)))
+        # a delayed piecewise-constant log stays piecewise constant
+        run.ref_acc_mps2 = _delayed_steps(t, run.ref_acc_mps2, self.delay_s)
+        return run
+
+
+def _delayed_steps(t, acc, delay_s):
+    idx = np.clip(np.searchsorted(t, t - delay_s, side="right") - 1, 0, t.size - 1)
+    return acc[idx]
+
+
+@dataclass
+class SampleLossTerm(ErrorTerm):
+    """Frames lost on the line in short bursts (noise on RS-232, a full buffer)."""
+
+    lost_fraction: float
+    mean_burst: float = 2.0
+    name = "sample_loss"
+
+    def samples(self, ctx, run):
+        rng = ctx.rng("loss")
+        n = len(run)
+        starts = rng.random(n) < self.lost_fraction / self.mean_burst
+        keep = np.ones(n, dtype=bool)
+        for i in np.flatnonzero(starts):
+            keep[i:i + int(rng.geometric(1.0 / self.mean_burst))] = False
+        keep[:10] = True
+        keep[-10:] = True
+        return run.select(keep)
+
+
+@dataclass
+class TimingTerm(ErrorTerm):
+    """A USB adapter's latency timer: the host sees samples in bursts every hold_s."""
+
+    hold_s: float
+    name = "timing"
+
+    def samples(self, ctx, run):
+        phase = float(ctx.rng("usb").uniform(0.0, self.hold_s))
+        run.t_host_s = (np.floor((run.t_host_s + phase) / self.hold_s) + 1.0) * self.hold_s - phase
+        return run
+
+
+# Documented effect sizes: (low, high) of a uniform draw per parameter (sign random where ±).
+EFFECT_SIZES = {
+    "scale_factor": {"scale_error_frac": (0.01, 0.03)},
+    "tilt": {"gradient_rad_per_m": (0.03, 0.09)},  # 0.5–1.5° over a 30 cm stroke
+    "cross_axis": {"gain": (0.02, 0.06)},
+    "temperature_offset": {"offset_g_per_c": (0.5e-3, 2e-3)},
+    "vibration": {"frequency_hz": (12.0, 40.0), "damping_ratio": (0.03, 0.12)},
+    "bandwidth": {"cutoff_hz": (8.0, 25.0)},
+    "nonlinearity": {"quadratic_per_g": (0.005, 0.015)},
+    "clipping": {"limit_g": (0.6, 0.9)},
+    "bias_random_walk": {"k_g_per_rts": (0.4e-3, 1.2e-3)},
+    "reference_delay": {"delay_s": (0.004, 0.012)},
+    "sample_loss": {"lost_fraction": (0.002, 0.01)},
+    "timing": {"hold_s": (0.004, 0.016)},
+}
+SIGNED = {"scale_factor", "tilt", "cross_axis", "temperature_offset", "nonlinearity", "reference_delay"}
+
+TERMS = {
+    "scale_factor": ScaleFactorTerm, "tilt": PathTiltTerm, "cross_axis": CrossAxisTerm,
+    "temperature_offset": TemperatureTerm, "vibration": VibrationTerm, "bandwidth": BandwidthTerm,
+    "nonlinearity": NonlinearityTerm, "clipping": ClippingTerm, "bias_random_walk": BiasRandomWalkTerm,
+    "reference_delay": ReferenceDelayTerm, "sample_loss": SampleLossTerm, "timing": TimingTerm,
+}
+
+
+def draw_effect(name: str, rng: np.random.Generator) -> ErrorTerm:
+    """One effect at a random documented size."""
+    params = {}
+    for p, (lo, hi) in EFFECT_SIZES[name].items():
+        v = float(rng.uniform(lo, hi))
+        if name in SIGNED and rng.random() < 0.5:
+            v = -v
+        params[p] = v
+    return TERMS[name](**params)
