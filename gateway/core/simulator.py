@@ -40,6 +40,8 @@ class SignalContext:
     # the motion as the sensing element feels it (CX filter, period mean), g, X axis: set
     # before the error terms run, for terms that act on the motion only (mount, filters)
     motion_x_g: np.ndarray | None = None
+    # the motion itself, for terms that evaluate it at other times (a late reference log)
+    profile: PiecewiseConstantAcceleration | None = None
 
     def rng(self, name: str) -> np.random.Generator:
         """An independent, reproducible stream per name: adding a term leaves the others' draws alone."""
@@ -191,7 +193,7 @@ def simulate(
     t_s = edges_s[:-1]
     pos, vel, acc = profile.evaluate(t_s)
     temp_c = np.full(n, sensor.temperature_c)
-    ctx = SignalContext(t_s, pos, vel, acc, temp_c, sensor, seed)
+    ctx = SignalContext(t_s, pos, vel, acc, temp_c, sensor, seed, profile=profile)
 
     true_x_g = period_mean_lowpass(profile, n, period_s, sensor.bandwidth_hz) / STANDARD_GRAVITY_MPS2
     true_y_g = np.zeros(n)

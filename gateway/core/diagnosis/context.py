@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gateway.core.diagnosis.reading import NoiseModel, WHITE, sensor_reading
+from gateway.core.diagnosis.reading import NoiseModel, WHITE, reading_from_steps, reference_steps
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 G = STANDARD_GRAVITY_MPS2
@@ -87,6 +87,7 @@ class Prepared:
     drift_shape: np.ndarray
     fit_mask: np.ndarray  # samples every model is compared on
     noise: NoiseModel = WHITE
+    reference_steps: tuple = (0.0, np.zeros(0), np.zeros(0))
 
     @property
     def n_fit(self) -> int:
@@ -108,11 +109,13 @@ def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = 0.3) -> np.ndarr
 
 def prepare(data: DiagnosisInput) -> Prepared:
     t = data.t_s
+    steps = (0.0, np.zeros(0), np.zeros(0))
     if data.has_reference:
-        reading = sensor_reading(t, data.ref_vel_mps, data.ref_acc_mps2, data.sensor_bandwidth_hz)
+        steps = reference_steps(t, data.ref_vel_mps, data.ref_acc_mps2)
+        reading = reading_from_steps(t, *steps, data.sensor_bandwidth_hz)
         rest = rest_mask(t, data.ref_vel_mps, data.ref_acc_mps2)
     else:
         reading = np.zeros(t.size)
         rest = np.ones(t.size, dtype=bool)
     drift_shape = -np.expm1(-(t - t[0]) / DRIFT_TIME_CONSTANT_S)
-    return Prepared(data, reading, rest & data.valid, drift_shape, data.valid.copy())
+    return Prepared(data, reading, rest & data.valid, drift_shape, data.valid.copy(), reference_steps=steps)

@@ -31,35 +31,66 @@ from scipy.optimize import minimize
 from scipy.signal import lfilter
 
 
-def sensor_reading(t_s, ref_vel_mps, ref_acc_mps2, bandwidth_hz: float | None) -> np.ndarray:
-    """Period mean of the reference acceleration after a one-pole low-pass (None: no filter)."""
+def reference_steps(t_s, ref_vel_mps, ref_acc_mps2):
+    """The reference as piecewise-constant acceleration: (level before the record, step times, step sizes).
+
+    Where a_k ≠ a_(k+1) one step lies inside period k; its position follows from the
+    period mean m_k = (v_(k+1) − v_k)/P_k = f·a_k + (1 − f)·a_(k+1). Across a gap of lost
+    samples the step is put at the next sample.
+    """
     t = np.asarray(t_s, dtype=float)
     v = np.asarray(ref_vel_mps, dtype=float)
     a = np.asarray(ref_acc_mps2, dtype=float)
-    n = t.size
+    if t.size < 2:
+        return float(a[0]) if a.size else 0.0, np.zeros(0), np.zeros(0)
     periods = np.diff(t)
-    period = float(np.median(periods)) if n > 1 else 1.0
-    mean = a.copy()
-    if n > 1:
-        regular = periods < 1.5 * period  # across a gap of lost samples, keep the start value
-        mean[:-1] = np.where(regular, np.diff(v) / np.where(regular, periods, 1.0), a[:-1])
+    period = float(np.median(periods))
+    step = np.diff(a)
+    k = np.flatnonzero(np.abs(step) > 1e-12)
+    regular = periods[k] < 1.5 * period
+    mean = (v[k + 1] - v[k]) / periods[k]
+    f = np.where(regular, np.clip((a[k + 1] - mean) / step[k], 0.0, 1.0), 1.0)
+    return float(a[0]), t[k] + f * np.where(regular, periods[k], 0.0) + np.where(regular, 0.0, periods[k]), step[k]
+
+
+def reading_from_steps(t_s, level0: float, step_t, step_size, bandwidth_hz: float | None) -> np.ndarray:
+    """Period means of a piecewise-constant acceleration after a one-pole low-pass, exactly.
+
+    Over a period: ∫y = ∫u − τ·Δy (y' = (u − y)/τ); y at the period's end is the start
+    value decayed plus each level's share. A step at fraction g of period k adds
+    Δa·(1 − g) to the mean and Δa·(1 − e^(−(1−g)P/τ)) to the end value.
+    """
+    t = np.asarray(t_s, dtype=float)
+    n = t.size
+    period = float(np.median(np.diff(t))) if n > 1 else 1.0
+    step_t = np.asarray(step_t, dtype=float)
+    step_size = np.asarray(step_size, dtype=float)
+    # level at each period start, and where each step falls
+    cum = np.concatenate([[0.0], np.cumsum(step_size)])
+    level = level0 + cum[np.searchsorted(step_t, t, side="right")]
+    k = np.searchsorted(t, step_t, side="right") - 1
+    g = np.where(k >= 0, (step_t - t[np.maximum(k, 0)]) / period, 0.0)
+    late = g >= 1.0  # inside a gap: the step shows from the next sample on (already in level)
+    inside = (k >= 0) & (k < n) & ~late
+    k, g, size = k[inside], g[inside], step_size[inside]
+    mean = level.copy()
+    np.add.at(mean, k, size * (1.0 - g))
     if bandwidth_hz is None or not np.isfinite(bandwidth_hz):
         return mean
     tau = 1.0 / (2.0 * math.pi * bandwidth_hz)
-    # fraction f of the period spent at the start value a_k (the rest at a_(k+1))
-    nxt = np.append(a[1:], a[-1])
-    step = nxt - a
-    moved = np.abs(step) > 1e-12
-    f = np.ones(n)
-    f[moved] = np.clip((nxt[moved] - mean[moved]) / step[moved], 0.0, 1.0)
     decay = math.exp(-period / tau)
-    # y at the period's end: start value decays, a_k acts for f·P then a_(k+1) for (1−f)·P
-    tail = np.exp(-(1.0 - f) * period / tau)
-    forcing = a * tail * (1.0 - np.exp(-f * period / tau)) + nxt * (1.0 - tail)
-    y0 = a[0]  # settled: at rest (or steady) before the record starts
+    forcing = level * (1.0 - decay)
+    np.add.at(forcing, k, size * -np.expm1(-(1.0 - g) * period / tau))
+    y0 = level0  # settled before the record starts
     y_end, _ = lfilter([1.0], [1.0, -decay], forcing, zi=[decay * y0])
     y_start = np.concatenate([[y0], y_end[:-1]])
     return mean - tau * (y_end - y_start) / period
+
+
+def sensor_reading(t_s, ref_vel_mps, ref_acc_mps2, bandwidth_hz: float | None, delay_s: float = 0.0) -> np.ndarray:
+    """What the sensor reads of the reference motion; delay_s: the motion at t is the reference at t + d."""
+    level0, step_t, step_size = reference_steps(t_s, ref_vel_mps, ref_acc_mps2)
+    return reading_from_steps(t_s, level0, step_t - delay_s, step_size, bandwidth_hz)
 
 
 def shifted(t_s, x, delay_s: float) -> np.ndarray:

@@ -34,7 +34,7 @@ from gateway.core.estimator_settings import EstimatorSettings
 
 BIC_MARGIN = 10.0  # "very strong" evidence on Kass & Raftery's scale
 ALPHA = 1e-3  # per round, split over the candidates tried
-WHITE_ALPHA = 0.01
+WHITE_ALPHA = 1e-3  # a 60 s record has 6000 blocks: a small misfit of the noise model must not read as a cause
 
 ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
 

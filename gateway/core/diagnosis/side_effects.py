@@ -30,6 +30,7 @@ from gateway.core.diagnosis.signal_effects import Compensation
 
 # The baseline host link (sensor_model.HostLinkParams): exponential latency, mean 0.2 ms.
 BASELINE_LATENCY_MEAN_S = 0.2e-3
+BOARD_TIME_ROUNDING_S = 2e-6
 
 
 @dataclass
@@ -138,10 +139,14 @@ class Timing(SideEffect):
         t_end = d.t_s[ok] + d.period_s  # the sample is sent when its period ends
         delay = d.t_host_s[ok] - t_end
         t = t_end - t_end[0]
-        # baseline: clocks in step, delay = c + frame + Exp(μ); c is the lower edge
+        # baseline: clocks in step, delay = c + frame + U(0, h0) + Exp(μ); c is the lower
+        # edge and h0 the board clock's own rounding (its sample times are latched to ±1
+        # timer tick; BOARD_TIME_ROUNDING_S covers ticks down to 1 MHz)
         x0 = delay - delay.min() + 1e-9
-        mu0 = max(float(np.mean(x0)), 1e-7)
-        ll0 = _exp_loglik(x0, mu0)
+        mu0 = max(float(np.mean(x0)) - BOARD_TIME_ROUNDING_S / 2, 1e-7)
+        fit0 = minimize_scalar(lambda lm: -_uniform_exp_loglik(x0, BOARD_TIME_ROUNDING_S, math.exp(lm)),
+                               bounds=(math.log(mu0) - 4, math.log(mu0) + 2), method="bounded")
+        ll0 = -float(fit0.fun)
         # extended: a clock rate error (lower envelope of the delay), then U(0, L) + Exp(μ)
         blocks = np.array_split(np.arange(t.size), max(2, min(50, t.size // 50)))
         bt = np.array([t[b[np.argmin(delay[b])]] for b in blocks])
@@ -151,15 +156,15 @@ class Timing(SideEffect):
         x1 = detrended - detrended.min() + 1e-9
 
         def nll(p):
-            return -_uniform_exp_loglik(x1, math.exp(p[0]), math.exp(p[1]))
+            return -_uniform_exp_loglik(x1, max(math.exp(p[0]), BOARD_TIME_ROUNDING_S), math.exp(p[1]))
 
-        hold0 = max(float(np.quantile(x1, 0.95)), 2e-6)
+        hold0 = max(float(np.quantile(x1, 0.95)), 2 * BOARD_TIME_ROUNDING_S)
         best = minimize(nll, [math.log(hold0), math.log(max(mu0 / 4, 1e-7))], method="Nelder-Mead",
                         options={"xatol": 1e-4, "fatol": 1e-3, "maxiter": 400})
         hold, mu = (math.exp(v) for v in best.x)
-        ll1 = -float(best.fun)
-        # the exponential alone is nested at L → 0; compare with the better of the two
-        ll1 = max(ll1, _exp_loglik(x1, max(float(np.mean(x1)), 1e-7)), ll0)
+        hold = max(hold, BOARD_TIME_ROUNDING_S)
+        # nested: the baseline is the extension at rate 0 and L = h0
+        ll1 = max(-float(best.fun), ll0)
         excess0 = x0 - mu0
         excess1 = x1 - (hold / 2 + mu)
         spread = float(np.std(np.diff(d.t_host_s[ok])))
@@ -233,10 +238,14 @@ class BiasRandomWalk(SideEffect):
         if y.size < 20:
             return SideTest({}, 0.0, 0.0, 1, 1.0, 0.0, 0.0, detail="record too short for block means")
         sigma0 = float(np.std(y))
-        ll0 = float(np.sum(-0.5 * (np.log(2 * math.pi * sigma0**2) + ((y - y.mean()) / sigma0) ** 2)))
 
         def nll(p):
             return -local_level_loglik(y, self.block_s, math.exp(p[0]), math.exp(p[1]))
+
+        # the null on the same footing (same diffuse start, same terms): K = 0, σ free
+        null = minimize_scalar(lambda ls: -local_level_loglik(y, self.block_s, 0.0, math.exp(ls)),
+                               bounds=(math.log(sigma0) - 3, math.log(sigma0) + 3), method="bounded")
+        ll0 = -float(null.fun)
 
         starts = [(math.log(max(sigma0 * f / math.sqrt(self.block_s), 1e-9)), math.log(sigma0 * g))
                   for f in (0.05, 0.3, 1.0) for g in (0.5, 1.0)]

@@ -23,7 +23,7 @@ import numpy as np
 from scipy.signal import bilinear, lfilter
 
 from gateway.core.diagnosis.context import G, Prepared
-from gateway.core.diagnosis.reading import sensor_reading, shifted
+from gateway.core.diagnosis.reading import reading_from_steps, shifted
 
 
 @dataclass
@@ -339,11 +339,10 @@ class ReferenceDelay(SignalEffect):
         # read the reference d later and make the baseline's reading of it anew: exact for
         # a piecewise-constant acceleration, where shifting the reading itself is not
         d = prep.data
-        t = d.t_s
-        acc = d.ref_acc_mps2[np.clip(np.searchsorted(t, t + theta[0], side="right") - 1, 0, t.size - 1)]
-        sig.reading = sensor_reading(t, shifted(t, d.ref_vel_mps, theta[0]), acc, d.sensor_bandwidth_hz)
+        level0, step_t, step_size = prep.reference_steps
+        sig.reading = reading_from_steps(d.t_s, level0, step_t - theta[0], step_size, d.sensor_bandwidth_hz)
         if sig.pos_m is not None:
-            sig.pos_m = shifted(t, sig.pos_m, theta[0])
+            sig.pos_m = shifted(d.t_s, sig.pos_m, theta[0])
 
     def report(self, theta, std):
         return {"delay_ms": (float(theta[0] * 1e3), float(std[0] * 1e3))}
