@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "import_csv",
     "fit_drift",
     "estimate",
+    "diagnose",
     "config_cmd",
     "regmap",
     "dbc",

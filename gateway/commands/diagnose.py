@@ -1,0 +1,142 @@
+"""adxlgw diagnose: what the simulation gets wrong about a recording, the cause, the gain."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from gateway.commands.estimate import settings_for
+from gateway.core.diagnosis import DiagnosisInput, diagnose, list_effects
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.reference_point import NoRestError
+from gateway.core.sensor_model import SensorParams
+from gateway.core.units import STANDARD_GRAVITY_MPS2
+from gateway.diagnosis_report import jsonable, text_summary, write_report
+from gateway.errors import InputError
+from gateway.recording import REFERENCE_COLUMNS, read_recording, to_acceleration
+
+# below this the noise model, the whiteness test and the block means have too little to go on
+MIN_VALID_SAMPLES = 200
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "diagnose",
+        help="what the simulation gets wrong about a recording, the cause, the gain",
+        description="Compare a recording with the baseline sensor model (offset, drift, noise), look for "
+                    "each known effect the model lacks (--list-effects), accept one only on strong evidence "
+                    "(BIC and a likelihood-ratio test), and measure what it gains: residual, likelihood, "
+                    "distance error. With the reference motion in the file (ref_pos_m, ref_vel_mps, "
+                    "ref_acc_mps2) every effect can be looked for; without it the smoothed estimate stands in "
+                    "and only some can. Says what cannot be analysed and why.",
+    )
+    p.add_argument("recording", metavar="FILE.csv", nargs="?", help="the recording (either form)")
+    p.add_argument("--json", metavar="OUT.json", help="write the full result as JSON")
+    p.add_argument("--report", metavar="DIR", help="write DIR/report.md with plots (residual, spectrum, Allan "
+                                                   "deviation, position error; before and after)")
+    p.add_argument("--returns-to-start", action="store_true",
+                   help="the motion ends where it began: without a reference, the final position is the "
+                        "distance error the gain is measured by")
+    p.add_argument("--list-effects", action="store_true", help="list the effects looked for and exit")
+    p.set_defaults(run=run, _parser=p)
+
+
+def _warn(msg: str) -> None:
+    print(f"adxlgw diagnose: warning: {msg}", file=sys.stderr)
+
+
+def _progress(msg: str) -> None:
+    print(f"diagnose: {msg}", file=sys.stderr)
+
+
+def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
+    ref = series.reference
+    present = [k for k in REFERENCE_COLUMNS if k in ref]
+    complete = len(present) == len(REFERENCE_COLUMNS)
+    if present and not complete:
+        missing = [k for k in REFERENCE_COLUMNS if k not in ref]
+        notes.append(f"reference incomplete (has {', '.join(present)}, lacks {', '.join(missing)}): "
+                     "it is not used")
+    sensor = SensorParams()
+    raw = rec.form == "raw"
+    return DiagnosisInput(
+        t_s=series.t_s,
+        acc_mps2=series.acc_mps2,
+        valid=series.valid,
+        lost_before=series.lost_before,
+        reference="recorded" if complete else None,
+        ref_pos_m=ref["ref_pos_m"] if complete else None,
+        ref_vel_mps=ref["ref_vel_mps"] if complete else None,
+        ref_acc_mps2=ref["ref_acc_mps2"] if complete else None,
+        other_mps2=series.other_axis_mps2,
+        temp_c=series.temp_c,
+        t_host_s=series.t_host_s,
+        # the ADXL202's CX filter for the board's own counts; a foreign sensor's filter is unknown
+        sensor_bandwidth_hz=sensor.bandwidth_hz if raw else None,
+        range_mps2=sensor.range_g * STANDARD_GRAVITY_MPS2,
+        raw_form=raw,
+    )
+
+
+def _nothing(path: str, why: str) -> InputError:
+    return InputError(f"{path}: nothing to analyse: {why}")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.list_effects:
+        effects = list_effects()
+        width = max(len(name) for name, _ in effects)
+        for name, summary in effects:
+            print(f"{name.ljust(width)}  {summary}")
+        return 0
+    if not args.recording:
+        args._parser.error("the following arguments are required: FILE.csv (or --list-effects)")
+    path = args.recording
+    rec = read_recording(path)
+    series = to_acceleration(rec)
+    n_valid = int(np.count_nonzero(series.valid))
+    if n_valid < MIN_VALID_SAMPLES:
+        raise _nothing(path, f"{n_valid} valid samples, the diagnosis needs at least {MIN_VALID_SAMPLES}")
+    notes: list[str] = []
+    data = build_input(path, rec, series, notes)
+    no_rest = ("no reference motion and no standstill to start the smoothed estimate from "
+               "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
+    try:
+        settings = settings_for(series, rec.form, "auto", None)
+    except NoRestError as err:
+        if data.reference is None:
+            raise _nothing(path, f"{no_rest}: {err}") from err
+        # a reference is there: the fit needs no rest; the filter takes the data-sheet noise
+        notes.append(f"no initial rest for the filter's noise settings ({err}): the ADXL202 data-sheet "
+                     "values are used, so the distance gains are indicative only")
+        settings = from_sensor_model(SensorParams(), axis=series.axis)
+    for note in notes:
+        _warn(note)
+    try:
+        result = diagnose(data, settings, returns_to_start=args.returns_to_start, progress=_progress)
+    except NoRestError as err:
+        if data.reference is None or data.reference == "estimated":
+            raise _nothing(path, f"{no_rest}: {err}") from err
+        raise InputError(f"{path}: cannot analyse: {err}") from err
+    except ValueError as err:
+        raise InputError(f"{path}: cannot analyse: {err}") from err
+    result.cannot[:0] = notes
+    for c in result.cannot[len(notes):]:
+        _warn(c)
+    print(text_summary(result, path))
+    if args.json:
+        doc = jsonable(result.to_dict())
+        try:
+            with open(args.json, "w", encoding="utf-8") as fh:
+                json.dump(doc, fh, indent=2, allow_nan=False, ensure_ascii=False)
+                fh.write("\n")
+        except OSError as err:
+            raise InputError(f"{args.json}: cannot write: {err.strerror or err}") from err
+        print(f"wrote {args.json}")
+    if args.report:
+        ref_pos = series.reference.get("ref_pos_m") if data.reference == "recorded" else None
+        files = write_report(args.report, result, path, ref_pos)
+        print(f"wrote {files[0]} and {len(files) - 1} plots")
+    return 0

@@ -1,0 +1,184 @@
+"""`adxlgw diagnose`: the command on real parts — simulated recordings, a hidden effect, bad input."""
+import json
+
+import numpy as np
+import pytest
+
+from gateway.cli import main
+from gateway.core.motion_profiles import StrokeSettings
+from gateway.core.scenarios import ScenarioSettings, build_profile
+from gateway.core.sensor_effects import ScaleFactorTerm
+from gateway.core.sensor_model import SensorParams
+from gateway.core.simulator import simulate
+from gateway.recording import write_recording
+
+EFFECTS = ("scale_factor tilt cross_axis temperature_offset timing sample_loss vibration bandwidth "
+           "nonlinearity clipping bias_random_walk reference_delay").split()
+PNGS = ("residual.png", "spectrum.png", "allan.png", "position.png")
+
+
+def _strict_json(path):
+    def no_constants(name):
+        raise AssertionError(f"{path}: {name} is not JSON")
+
+    return json.loads(path.read_text(encoding="utf-8"), parse_constant=no_constants)
+
+
+def _write_sim(path, seed, terms=()):
+    sim = simulate(build_profile(ScenarioSettings(name="paper", strokes=StrokeSettings(strokes=3))),
+                   SensorParams(), seed=seed, error_terms=terms)
+    write_recording(path, {"tick_hz": f"{sim.tick_hz:g}", "source": "simulation", "axis": "x", "seed": str(seed)},
+                    sim.recording_columns())
+    return path
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    path = tmp_path_factory.mktemp("clean") / "clean.csv"
+    assert main(["simulate", "--scenario", "paper", "--strokes", "3", "--seed", "5", "--out", str(path)]) == 0
+    return path
+
+
+@pytest.fixture(scope="module")
+def clean_run(clean, tmp_path_factory):
+    out = tmp_path_factory.mktemp("clean_out")
+    code = main(["diagnose", str(clean), "--json", str(out / "d.json"), "--report", str(out / "rep")])
+    return code, out
+
+
+def test_list_effects_names_all_twelve_with_a_summary(capsys):
+    assert main(["diagnose", "--list-effects"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    names = [line.split()[0] for line in lines]
+    assert sorted(names) == sorted(EFFECTS)
+    assert all(len(line.split(None, 1)) == 2 for line in lines)  # each with its summary
+
+
+def test_without_file_or_list_effects_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["diagnose"])
+    assert exc.value.code == 2
+    assert "usage:" in capsys.readouterr().err
+
+
+def test_clean_recording_finds_nothing_and_writes_strict_json(clean_run):
+    code, out = clean_run
+    assert code == 0
+    doc = _strict_json(out / "d.json")
+    for key in ("effects", "residual_white", "unexplained", "candidates", "cannot_analyse", "screening"):
+        assert key in doc
+    assert doc["effects"] == []
+    assert doc["reference"] == "recorded"
+    assert doc["residual_white"] is True and doc["unexplained"] is False
+    assert sorted(c["name"] for c in doc["candidates"]) == sorted(EFFECTS)
+
+
+def test_report_writes_markdown_and_png_plots(clean_run):
+    code, out = clean_run
+    assert code == 0
+    rep = out / "rep"
+    md = (rep / "report.md").read_text(encoding="utf-8")
+    assert "residual white: yes; unexplained structure remains: no" in md
+    for name in PNGS:
+        data = (rep / name).read_bytes()
+        assert data.startswith(b"\x89PNG") and len(data) > 1000, name
+        assert f"]({name})" in md
+
+
+def test_summary_on_stdout_and_progress_on_stderr(clean, capsys):
+    assert main(["diagnose", str(clean)]) == 0
+    cap = capsys.readouterr()
+    assert "reference: recorded" in cap.out
+    assert "effects found: none" in cap.out
+    assert "residual white: yes; unexplained structure remains: no" in cap.out
+    for name in EFFECTS:
+        assert name in cap.out
+    assert "diagnose: baseline" in cap.err
+    assert all(line.startswith(("diagnose: ", "adxlgw diagnose: warning: ")) for line in cap.err.splitlines())
+
+
+def test_hidden_scale_factor_is_named_with_its_value_and_gain(tmp_path, capsys):
+    rec = _write_sim(tmp_path / "scale.csv", seed=5, terms=(ScaleFactorTerm(0.02),))
+    out = tmp_path / "scale.json"
+    assert main(["diagnose", str(rec), "--json", str(out)]) == 0
+    doc = _strict_json(out)
+    names = [e["name"] for e in doc["effects"]]
+    assert "scale_factor" in names
+    effect = doc["effects"][names.index("scale_factor")]
+    value, std = effect["params"]["scale_error_frac"]
+    assert abs(value - 0.02) < 0.003 and std > 0
+    gain = effect["gain"]
+    assert gain["residual_rms_mps2"][1] < gain["residual_rms_mps2"][0]
+    assert gain["distance"]["available"] is True
+    assert gain["distance"]["improvement_mm"] > 0
+    text = capsys.readouterr().out
+    assert "scale_factor (signal): scale_error_frac = " in text
+    assert "distance error (stop_rms_mm)" in text
+
+
+def _one_line_error(capsys, path):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("adxlgw diagnose: error: ") and str(path) in err[0]
+    return err[0]
+
+
+def test_too_short_recording_is_bad_input(clean, tmp_path, capsys):
+    lines = clean.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    short = tmp_path / "short.csv"
+    short.write_text("\n".join(lines[: header + 1 + 50]) + "\n")
+    assert main(["diagnose", str(short)]) == 2
+    assert "nothing to analyse" in _one_line_error(capsys, short)
+
+
+def test_non_numeric_cell_is_bad_input(clean, tmp_path, capsys):
+    lines = clean.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    cells = lines[header + 10].split(",")
+    cells[1] = "abc"
+    lines[header + 10] = ",".join(cells)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    assert main(["diagnose", str(bad)]) == 2
+    assert "'abc' is not a number" in _one_line_error(capsys, bad)
+
+
+def test_header_only_file_is_bad_input(clean, tmp_path, capsys):
+    lines = clean.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    empty = tmp_path / "empty.csv"
+    empty.write_text("\n".join(lines[: header + 1]) + "\n")
+    assert main(["diagnose", str(empty)]) == 2
+    _one_line_error(capsys, empty)
+
+
+def test_no_reference_and_no_standstill_is_bad_input(tmp_path, capsys):
+    rng = np.random.default_rng(11)
+    t = np.arange(3000) * 1e-3
+    # still for 0.22 s (shorter than the 0.2 s rest plus its guard), then shaken to the end
+    acc = np.where(t < 0.22, 0.0, 8.0 * np.sin(2 * np.pi * 3.1 * t) + 5.0 * np.sin(2 * np.pi * 11.0 * t))
+    acc = acc + 0.05 * rng.standard_normal(t.size)
+    path = tmp_path / "moving.csv"
+    write_recording(path, {"source": "test", "axis": "x"}, {"t_s": t, "acc_x_mps2": acc})
+    assert main(["diagnose", str(path)]) == 2
+    assert "no reference motion and no standstill" in _one_line_error(capsys, path)
+
+
+def test_incomplete_reference_is_said_and_the_rest_analysed(clean, tmp_path, capsys):
+    lines = clean.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    names = lines[header].split(",")
+    keep = [i for i, n in enumerate(names) if n not in ("ref_vel_mps", "ref_acc_mps2")]
+    partial = tmp_path / "partial.csv"
+    partial.write_text("\n".join(lines[:header] + [",".join(line.split(",")[i] for i in keep)
+                                                    for line in lines[header:]]) + "\n")
+    out = tmp_path / "partial.json"
+    assert main(["diagnose", str(partial), "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "adxlgw diagnose: warning: reference incomplete" in err
+    doc = _strict_json(out)
+    assert doc["reference"] == "estimated"
+    assert any("reference incomplete" in c for c in doc["cannot_analyse"])
+    scale = next(c for c in doc["candidates"] if c["name"] == "scale_factor")
+    assert scale["status"] == "not applicable"
