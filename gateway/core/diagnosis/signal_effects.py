@@ -297,16 +297,20 @@ class Clipping(SignalEffect):
     summary = "the reading saturates below the model's ±2 g range (the part, its supply, the timer)"
     param_names = ("upper_mps2", "lower_mps2")
 
-    def unusable(self, prep):
-        return None if prep.data.reference is not None else "needs a reference motion"
+    # the smoothed estimate follows a clipped reading, so only a recorded reference shows it
+    def _limits(self, prep):
+        # a foreign sensor may read beyond the ADXL202's range: "no clipping" must fit
+        acc = prep.data.acc_mps2[prep.data.valid]
+        r = prep.data.range_mps2
+        return max(r, 1.01 * float(acc.max())), min(-r, 1.01 * float(acc.min()))
 
     def initial(self, prep, residual, sig):
         acc = prep.data.acc_mps2[prep.data.valid]
         return np.array([float(acc.max()), float(acc.min())])
 
     def bounds(self, prep):
-        r = prep.data.range_mps2
-        return [0.0, -r], [r, 0.0]
+        hi, lo = self._limits(prep)
+        return [0.0, lo], [hi, 0.0]
 
     def apply(self, prep, theta, sig):
         sig.out = np.clip(sig.out, theta[1], theta[0])
