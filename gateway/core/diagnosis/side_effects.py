@@ -30,7 +30,8 @@ from gateway.core.diagnosis.signal_effects import Compensation
 
 # The baseline host link (sensor_model.HostLinkParams): exponential latency, mean 0.2 ms.
 BASELINE_LATENCY_MEAN_S = 0.2e-3
-BOARD_TIME_ROUNDING_S = 2e-6
+# The bin width of the timing test (see Timing)
+TIMING_RESOLUTION_S = 1e-4
 
 
 @dataclass
@@ -110,21 +111,35 @@ class CrossAxis(SideEffect):
         )
 
 
-def _exp_loglik(x: np.ndarray, mean: float) -> float:
-    return float(-x.size * math.log(mean) - np.sum(x) / mean)
+def delay_cdf(x, hold_s: float, mean_s: float):
+    """CDF of U(0, L) + Exp(μ) (L = 0: the exponential alone)."""
+    x = np.maximum(np.asarray(x, dtype=float), 0.0)
+    if hold_s <= 0.0:
+        return -np.expm1(-x / mean_s)
+    below = np.minimum(x, hold_s)
+    # ∫0^x (1 − e^(−u/μ))/L du for x ≤ L; beyond L the exponential tail of the sum
+    inside = (below + mean_s * np.expm1(-below / mean_s)) / hold_s
+    beyond = np.where(x > hold_s,
+                      mean_s * -np.expm1(-hold_s / mean_s) * -np.expm1(-(x - hold_s) / mean_s) / hold_s, 0.0)
+    return inside + beyond
 
 
-def _uniform_exp_loglik(x: np.ndarray, hold_s: float, mean: float) -> float:
-    """Density of U(0, L) + Exp(μ): (1 − e^(−x/μ))/L below L, (e^(−(x−L)/μ) − e^(−x/μ))/L above."""
-    below = x <= hold_s
-    dens = np.empty_like(x)
-    dens[below] = -np.expm1(-x[below] / mean)
-    xa = x[~below]
-    dens[~below] = np.exp(-(xa - hold_s) / mean) * -np.expm1(-hold_s / mean)
-    return float(np.sum(np.log(np.maximum(dens, 1e-300))) - x.size * math.log(hold_s))
+def binned_loglik(counts: np.ndarray, edges: np.ndarray, hold_s: float, mean_s: float) -> float:
+    """Multinomial log-likelihood of a histogram (last bin open to +∞)."""
+    cdf = delay_cdf(edges, hold_s, mean_s)
+    p = np.diff(np.append(cdf, 1.0))
+    return float(np.sum(counts * np.log(np.maximum(p, 1e-300))))
 
 
 class Timing(SideEffect):
+    """Host delays are compared as a histogram of TIMING_RESOLUTION_S bins.
+
+    A latency model with a hard lower edge is pinned by its few smallest values to
+    ~μ/n (tens of ns): any µs-level offset — the board's ±1-tick sample times, a lost
+    sample's period taken as its neighbour's — would then read as a timing effect. Host
+    timing that matters is 0.1–10s of ms, so the likelihood is binned at 0.1 ms.
+    """
+
     name = "timing"
     summary = "host timestamps disagree with the board's T2 clock: clock rate, latency bursts, jitter"
 
@@ -139,43 +154,60 @@ class Timing(SideEffect):
         t_end = d.t_s[ok] + d.period_s  # the sample is sent when its period ends
         delay = d.t_host_s[ok] - t_end
         t = t_end - t_end[0]
-        # baseline: clocks in step, delay = c + frame + U(0, h0) + Exp(μ); c is the lower
-        # edge and h0 the board clock's own rounding (its sample times are latched to ±1
-        # timer tick; BOARD_TIME_ROUNDING_S covers ticks down to 1 MHz)
-        x0 = delay - delay.min() + 1e-9
-        mu0 = max(float(np.mean(x0)) - BOARD_TIME_ROUNDING_S / 2, 1e-7)
-        fit0 = minimize_scalar(lambda lm: -_uniform_exp_loglik(x0, BOARD_TIME_ROUNDING_S, math.exp(lm)),
-                               bounds=(math.log(mu0) - 4, math.log(mu0) + 2), method="bounded")
-        ll0 = -float(fit0.fun)
-        # extended: a clock rate error (lower envelope of the delay), then U(0, L) + Exp(μ)
+        # after a gap the board time steps by up to a tick per lost sample: the delay's
+        # lower edge is taken per stretch between gaps (stretches under 20 samples dropped)
+        stretch = np.cumsum(d.lost_before > 0)[ok]
+        sizes = np.bincount(stretch)
+        keep = sizes[stretch] >= 20
+        edge = np.full(sizes.size, np.inf)
+        np.minimum.at(edge, stretch[keep], delay[keep])
+        delay = (delay - edge[stretch])[keep]
+        t = t[keep]
+        res = TIMING_RESOLUTION_S
+        # a clock rate error shows as a slope of the delay's lower envelope
         blocks = np.array_split(np.arange(t.size), max(2, min(50, t.size // 50)))
-        bt = np.array([t[b[np.argmin(delay[b])]] for b in blocks])
-        bd = np.array([delay[b].min() for b in blocks])
+        bt = np.array([float(np.median(t[b])) for b in blocks])
+        bd = np.array([float(np.quantile(delay[b], 0.05)) for b in blocks])
         rate = float(np.polyfit(bt, bd, 1)[0]) if bt.size >= 3 else 0.0
-        detrended = delay - rate * t
-        x1 = detrended - detrended.min() + 1e-9
 
-        def nll(p):
-            return -_uniform_exp_loglik(x1, max(math.exp(p[0]), BOARD_TIME_ROUNDING_S), math.exp(p[1]))
+        def histogram(x):
+            x = x - x.min()
+            edges = np.arange(0.0, float(x.max()) + res, res)
+            counts = np.bincount(np.minimum((x / res).astype(np.int64), edges.size - 1), minlength=edges.size)
+            return counts, edges
 
-        hold0 = max(float(np.quantile(x1, 0.95)), 2 * BOARD_TIME_ROUNDING_S)
-        best = minimize(nll, [math.log(hold0), math.log(max(mu0 / 4, 1e-7))], method="Nelder-Mead",
-                        options={"xatol": 1e-4, "fatol": 1e-3, "maxiter": 400})
+        # baseline: clocks in step, delay = frame + Exp(μ)
+        c0, e0 = histogram(delay)
+        mu0 = max(float(np.mean(delay - delay.min())), res / 10)
+        fit0 = minimize_scalar(lambda lm: -binned_loglik(c0, e0, 0.0, math.exp(lm)),
+                               bounds=(math.log(mu0) - 4, math.log(mu0) + 2), method="bounded")
+        ll0, mu_base = -float(fit0.fun), math.exp(fit0.x)
+        # extended: the rate removed, then U(0, L) + Exp(μ) (a latency timer, bursts)
+        x1 = delay - rate * t
+        c1, e1 = histogram(x1)
+        span = float(x1.max() - x1.min())
+        starts = [(math.log(max(f * span, res / 10)), math.log(max(g * mu0, res / 10)))
+                  for f in (0.05, 0.5, 0.9) for g in (0.1, 1.0)]
+        best = min((minimize(lambda p: -binned_loglik(c1, e1, math.exp(p[0]), math.exp(p[1])), s0,
+                             method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 400})
+                    for s0 in starts), key=lambda r: r.fun)
         hold, mu = (math.exp(v) for v in best.x)
-        hold = max(hold, BOARD_TIME_ROUNDING_S)
-        # nested: the baseline is the extension at rate 0 and L = h0
-        ll1 = max(-float(best.fun), ll0)
-        excess0 = x0 - mu0
-        excess1 = x1 - (hold / 2 + mu)
+        ll_exp = -float(minimize_scalar(lambda lm: -binned_loglik(c1, e1, 0.0, math.exp(lm)),
+                                        bounds=(math.log(mu0) - 4, math.log(mu0) + 2), method="bounded").fun)
+        # nested: the baseline is the extension at rate 0 and L = 0
+        ll1 = max(-float(best.fun), ll_exp, ll0)
         spread = float(np.std(np.diff(d.t_host_s[ok])))
+        excess0 = delay - delay.min() - mu_base
+        excess1 = x1 - x1.min() - (hold / 2 + mu)
         return SideTest(
             params={"clock_rate_error_ppm": (rate * 1e6, float("nan")),
                     "hold_back_ms": (hold * 1e3, float("nan")),
                     "latency_mean_ms": (mu * 1e3, float("nan")),
                     "arrival_interval_std_ms": (spread * 1e3, float("nan"))},
-            loglik_before=ll0, loglik_after=ll1, extra_params=2, p_value=_lr_p(ll0, ll1, 2),
+            loglik_before=ll0, loglik_after=ll1, extra_params=3, p_value=_lr_p(ll0, ll1, 3),
             rms_before=float(np.sqrt(np.mean(excess0**2))), rms_after=float(np.sqrt(np.mean(excess1**2))),
-            detail=f"host delay against the board clock; baseline latency mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms",
+            detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
+                    f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
             values={"host_time": True},
         )
 
