@@ -134,64 +134,35 @@ class Nonlinearity(SignalEffect):
 
 
 class Tilt(SignalEffect):
-    """Gravity leaking into the axis.
+    """Gravity leaking into the axis as the tilt varies along the path.
 
     A constant tilt θ adds g·sin θ: indistinguishable from the zero-g offset, and removed
-    with it. What the baseline misses is a tilt that changes: along the path (a rail that
-    is not level, g·κ·x with κ in rad/m), or, for an axis that carries gravity, the
-    axis turning away from the vertical — seen on the other axis o as g(cos θ − cos θ0)
-    ≈ −(o² − o0²)/(2g) for the measured axis.
+    with it. What the baseline misses is a tilt that changes with position — a rail that
+    is not level, an arm or a hand that turns the sensor as it moves: g·κ·x to first
+    order, κ in rad/m. Without a recorded reference, x is the smoothed estimate's
+    position (so the compensation feeds the estimate back, once).
     """
 
     name = "tilt"
-    summary = "gravity leaking into the axis as the tilt varies: along the path, or as the axis turns"
+    summary = "gravity leaking into the axis as the tilt varies along the path: g·κ·x"
     param_names = ("tilt_gradient_rad_per_m",)
 
-    def _mode(self, prep):
-        d = prep.data
-        if d.reference == "recorded":
-            return "path"
-        if d.other_mps2 is not None and self._gravity_sign(prep) != 0:
-            return "gravity"
-        return None
-
-    @staticmethod
-    def _gravity_sign(prep) -> int:
-        rest = prep.data.acc_mps2[prep.rest & prep.data.valid][:2000]
-        if rest.size < 10:
-            return 0
-        level = float(np.mean(rest))
-        return int(np.sign(level)) if abs(level) > 0.5 * G else 0
-
     def unusable(self, prep):
-        if self._mode(prep) is None:
-            return ("needs the recorded reference (tilt along the path) or, for an axis carrying "
-                    "gravity, the other axis (tilt as the axis turns)")
-        return None
-
-    def regressor(self, prep, sig):
-        if self._mode(prep) == "path":
-            return G * sig.pos_m
-        o = np.nan_to_num(prep.data.other_mps2, nan=0.0)
-        rest = prep.rest & np.isfinite(prep.data.other_mps2)
-        o0 = float(np.mean(o[rest])) if rest.any() else 0.0
-        return -self._gravity_sign(prep) * (o * o - o0 * o0) / (2.0 * G)
+        return None if prep.data.ref_pos_m is not None else "needs a position: the reference or an estimate"
 
     def initial(self, prep, residual, sig):
-        return np.array([_ls_coefficient(residual, self.regressor(prep, sig), prep.fit_mask)])
+        return np.array([_ls_coefficient(residual, G * sig.pos_m, prep.fit_mask)])
 
     def apply(self, prep, theta, sig):
-        sig.out = sig.out + theta[0] * self.regressor(prep, sig)
+        sig.out = sig.out + theta[0] * G * sig.pos_m
 
     def report(self, theta, std):
-        return {"tilt_coefficient": (float(theta[0]), float(std[0]))}
+        return {"tilt_coefficient": (float(theta[0]), float(std[0])),
+                "tilt_gradient_deg_per_m": (math.degrees(float(theta[0])), math.degrees(float(std[0])))}
 
     def compensate(self, prep, theta, acc, pos_est):
-        if self._mode(prep) == "path":
-            return Compensation(acc_mps2=acc - theta[0] * G * pos_est,
-                                note="position from the estimate without the effect")
-        sig = Signal(np.zeros_like(acc), None)
-        return Compensation(acc_mps2=acc - theta[0] * self.regressor(prep, sig))
+        return Compensation(acc_mps2=acc - theta[0] * G * pos_est,
+                            note="position from the estimate without the effect")
 
 
 class TemperatureOffset(SignalEffect):
