@@ -140,7 +140,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     else:
         cannot.append("no rest long enough for the noise model: the residual is taken as white")
     base = fit_model(prep, ())
-    p_white_before = block_whiteness_p(prep, base.whitened)
+    p_white_before = _whiteness(prep, base)
 
     candidates: dict[str, Candidate] = {}
     usable: list[SignalEffect] = []
@@ -252,7 +252,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         effects=effects,
         candidates=sorted(candidates.values(), key=lambda c: order.index(c.name)),
         whiteness_p_before=p_white_before,
-        whiteness_p_after=block_whiteness_p(prep, current.whitened),
+        whiteness_p_after=_whiteness(prep, current),
         residual_rms_before=base.residual_rms,
         residual_rms_after=current.residual_rms,
         screening=screening,
@@ -262,6 +262,16 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         residual_after=current.residual,
         distance={"before": plan.baseline(data).track(prep), "after": before_plan.track(prep)},
     )
+
+
+def _whiteness(prep: Prepared, fit: ModelFit) -> float:
+    """Block Ljung–Box p of the whitened residual. Against the smoothed estimate only the
+    standstills count: in motion the estimate follows the reading, so the residual there
+    is smooth by construction and says nothing about whiteness."""
+    if prep.data.reference != "estimated":
+        return block_whiteness_p(prep, fit.whitened)
+    still = prep.rest[prep.fit_mask]
+    return block_whiteness_p(prep, fit.whitened[still]) if still.sum() >= 50 else float("nan")
 
 
 def _current_reading(prep: Prepared, fit: ModelFit) -> np.ndarray:
