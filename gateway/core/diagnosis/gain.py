@@ -22,6 +22,10 @@ from gateway.core.evaluation import summarise_errors
 from gateway.core.reference_point import NoRestError
 
 
+POSITION_ITERATIONS = 12
+POSITION_SETTLED_M = 1e-5
+
+
 @dataclass
 class EstimatePlan:
     settings: EstimatorSettings
@@ -56,10 +60,28 @@ class EstimatePlan:
         plan = self._base_of_chain(prep)
         for e in effects:
             theta, _ = fit.effect_theta(e)
-            pos_est = plan.track(prep).pos_m if plan.track(prep) is not None else np.zeros(len(prep.data))
-            comp = e.compensate(prep, theta, plan.acc_mps2, pos_est)
-            plan = plan.apply(comp)
+            plan = self._compensated(prep, plan, e, theta)
         return plan
+
+    def _compensated(self, prep: Prepared, plan: "EstimatePlan", effect, theta) -> "EstimatePlan":
+        """The plan corrected for one effect. An effect that needs the position (tilt) is
+        corrected with the estimate's, re-estimated until it settles: the estimate without
+        the correction can be metres off, and one pass from there overshoots."""
+        track = plan.track(prep)
+        pos = track.pos_m if track is not None else np.zeros(len(prep.data))
+        new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, pos))
+        if not getattr(effect, "uses_position", False):
+            return new
+        for _ in range(POSITION_ITERATIONS):
+            track = new.track(prep)
+            if track is None:
+                break
+            step = float(np.max(np.abs(track.pos_m - pos)))
+            pos = track.pos_m
+            new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, pos))
+            if step < POSITION_SETTLED_M:
+                break
+        return new
 
     def _base_of_chain(self, prep: Prepared) -> "EstimatePlan":
         d = prep.data

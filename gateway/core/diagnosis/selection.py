@@ -171,7 +171,17 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             k = fit.n_params - current.n_params
             p = float(chi2.sf(max(0.0, 2.0 * (fit.loglik - current.loglik)), k))
             candidates[e.name] = Candidate(e.name, "rejected", dbic, p, "ΔBIC or p not enough")
-        dbic, best, fit = trials[0]
+        # a candidate whose fit is physically implausible drops out of this round
+        passing = []
+        for dbic, e, fit in trials:
+            why = getattr(e, "implausible", lambda prep, theta: None)(prep, fit.effect_theta(e)[0])
+            if why:
+                candidates[e.name] = Candidate(e.name, "rejected", dbic, candidates[e.name].p_value, why)
+            else:
+                passing.append((dbic, e, fit))
+        if not passing:
+            break
+        dbic, best, fit = passing[0]
         k = fit.n_params - current.n_params
         p = float(chi2.sf(max(0.0, 2.0 * (fit.loglik - current.loglik)), k))
         if not (dbic <= -BIC_MARGIN and p < alpha):

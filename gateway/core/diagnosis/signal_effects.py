@@ -146,6 +146,7 @@ class Tilt(SignalEffect):
     name = "tilt"
     summary = "gravity leaking into the axis as the tilt varies along the path: g·κ·x"
     param_names = ("tilt_gradient_rad_per_m",)
+    uses_position = True  # gain.py iterates the correction with the estimate's position
 
     def unusable(self, prep):
         return None if prep.data.ref_pos_m is not None else "needs a position: the reference or an estimate"
@@ -162,7 +163,7 @@ class Tilt(SignalEffect):
 
     def compensate(self, prep, theta, acc, pos_est):
         return Compensation(acc_mps2=acc - theta[0] * G * pos_est,
-                            note="position from the estimate without the effect")
+                            note="position from the estimate, iterated until it settles")
 
 
 class TemperatureOffset(SignalEffect):
@@ -262,6 +263,10 @@ class Bandwidth(SignalEffect):
         return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0])})
 
 
+CLIP_TOLERANCE_G = 0.003  # the timer's quantisation: clipped samples scatter by ~1 mg
+CLIP_MIN_SAMPLES = 10  # 20 ms of saturation at 500 samples/s
+
+
 class Clipping(SignalEffect):
     name = "clipping"
     stage = 3
@@ -290,10 +295,20 @@ class Clipping(SignalEffect):
         return {"upper_g": (float(theta[0] / G), float(std[0] / G)),
                 "lower_g": (float(theta[1] / G), float(std[1] / G))}
 
+    def implausible(self, prep, theta) -> str | None:
+        """A part that clips reads its limit, again and again: a fit whose limits no run
+        of samples sits at is trimming a model's overshoot, not finding saturation."""
+        acc = prep.data.acc_mps2[prep.data.valid]
+        tol = CLIP_TOLERANCE_G * G
+        at_limit = int(np.count_nonzero(np.abs(acc - theta[0]) < tol) + np.count_nonzero(np.abs(acc - theta[1]) < tol))
+        if at_limit < CLIP_MIN_SAMPLES:
+            return f"only {at_limit} samples within {CLIP_TOLERANCE_G * 1e3:g} mg of the fitted limits"
+        return None
+
     def compensate(self, prep, theta, acc, pos_est):
-        margin = 0.02 * G
-        return Compensation(invalid=(acc >= theta[0] - margin) | (acc <= theta[1] + margin),
-                            note="samples at the clip level are treated as missing")
+        # what was clipped is gone: treating those samples as missing loses even the part
+        # that was read (measured: −150 mm median), so the estimator is left as it is
+        return Compensation(note="not compensated: clipped acceleration cannot be recovered")
 
 
 class ReferenceDelay(SignalEffect):
