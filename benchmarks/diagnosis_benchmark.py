@@ -25,8 +25,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import shlex
 import sys
 import time
@@ -39,23 +37,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from gateway.core.jit import JIT_ENABLED  # noqa: E402
+from benchmarks.machine_info import machine  # noqa: E402
 from tests.diagnosis_cases import CHECKS, EFFECTS, STROKES, CaseOutcome, run_case  # noqa: E402
 
 DETECTION_GOAL = 0.95
 FALSE_POSITIVE_GOAL = 0.02
-
-
-def machine() -> str:
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numba {'on' if JIT_ENABLED else 'off'}"
 
 
 def _work(task: tuple[tuple[str, ...], int]) -> CaseOutcome:

@@ -21,7 +21,6 @@ import contextlib
 import csv
 import datetime
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -33,12 +32,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
+from benchmarks.machine_info import machine  # noqa: E402
 from gateway.cli import main as adxlgw  # noqa: E402
 from gateway.core.drift_model import drift_g  # noqa: E402
 from gateway.core.estimator import EstimateTrack, estimate_series  # noqa: E402
 from gateway.core.estimator_settings import from_rest, from_sensor_model  # noqa: E402
 from gateway.core.evaluation import summarise_errors  # noqa: E402
-from gateway.core.jit import JIT_ENABLED  # noqa: E402
 from gateway.core.reference_point import find_initial_rest  # noqa: E402
 from gateway.core.sensor_model import SensorParams  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
@@ -46,18 +45,6 @@ from gateway.recording import read_recording, to_acceleration  # noqa: E402
 
 METHODS = ("raw", "paper", "realtime", "smoothed", "floor")
 DATASETS = REPO.parent / "shared" / "datasets" / "airbrakes-imu"
-
-
-def machine() -> str:
-    cpu = platform.processor() or "?"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, numba {'on' if JIT_ENABLED else 'off'}"
 
 
 def quiet_adxlgw(argv: list[str]) -> int:

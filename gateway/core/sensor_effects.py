@@ -13,18 +13,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import bilinear, lfilter, lfilter_zi
 
+from gateway.core.filters import mount_resonance, one_pole_lowpass
 from gateway.core.simulator import ErrorTerm, SignalContext, SimulatedRun
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
-
-
-def _resonate(x: np.ndarray, period_s: float, f0_hz: float, damping: float) -> np.ndarray:
-    fs = 1.0 / period_s
-    wp = 2.0 * fs * math.tan(math.pi * f0_hz / fs)
-    b, a = bilinear([2.0 * damping * wp, wp * wp], [1.0, 2.0 * damping * wp, wp * wp], fs=fs)
-    y, _ = lfilter(b, a, x, zi=lfilter_zi(b, a) * x[0])
-    return y
 
 
 def _true_motion_g(ctx: SignalContext) -> np.ndarray:
@@ -99,7 +91,7 @@ class VibrationTerm(ErrorTerm):
 
     def acceleration_g(self, ctx, ax, ay):
         motion = _sensed_motion_g(ctx)
-        ring = _resonate(motion, ctx.sensor.t2_s, self.frequency_hz, self.damping_ratio) - motion
+        ring = mount_resonance(motion, ctx.sensor.t2_s, self.frequency_hz, self.damping_ratio) - motion
         return ax + ring, ay
 
 
@@ -110,9 +102,7 @@ class BandwidthTerm(ErrorTerm):
 
     def acceleration_g(self, ctx, ax, ay):
         motion = _sensed_motion_g(ctx)
-        a = math.exp(-2.0 * math.pi * self.cutoff_hz * ctx.sensor.t2_s)
-        low, _ = lfilter([1.0 - a], [1.0, -a], motion, zi=[a * motion[0]])
-        return ax + (low - motion), ay
+        return ax + (one_pole_lowpass(motion, ctx.sensor.t2_s, self.cutoff_hz) - motion), ay
 
 
 @dataclass

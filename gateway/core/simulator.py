@@ -100,16 +100,6 @@ class ErrorTerm:
         return run
 
 
-def one_pole_lowpass(u: np.ndarray, period_s: float, bandwidth_hz: float) -> np.ndarray:
-    """y_k = a·y_(k−1) + (1 − a)·u_k, a = e^(−2π f Ts): the CX/CY filter on the sample grid.
-
-    Starts settled at u_0 (the sensor has been powered long before the run).
-    """
-    a = np.exp(-2.0 * np.pi * bandwidth_hz * period_s)
-    y, _ = lfilter([1.0 - a], [1.0, -a], u, zi=[a * u[0]] if u.size else [0.0])
-    return y
-
-
 def period_mean_lowpass(
     profile: PiecewiseConstantAcceleration, n: int, period_s: float, bandwidth_hz: float
 ) -> np.ndarray:

@@ -20,9 +20,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import bilinear, lfilter
 
 from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.filters import mount_resonance, one_pole_lowpass
 from gateway.core.diagnosis.reading import reading_from_steps, shifted
 
 
@@ -194,24 +194,6 @@ class TemperatureOffset(SignalEffect):
         return Compensation(acc_mps2=acc - theta[0] * self._regressor(prep))
 
 
-def _resonance(prep, f0_hz, damping, x):
-    """A flexible mount: the element follows the base through (2ζωs + ω²)/(s² + 2ζωs + ω²)."""
-    w = 2.0 * math.pi * f0_hz
-    fs = 1.0 / prep.data.period_s
-    # pre-warp so the discrete resonance sits at f0
-    wp = 2.0 * fs * math.tan(w / (2.0 * fs))
-    b, a = bilinear([2.0 * damping * wp, wp * wp], [1.0, 2.0 * damping * wp, wp * wp], fs=fs)
-    zi = (x[0] if x.size else 0.0) * _steady_zi(b, a)
-    y, _ = lfilter(b, a, x, zi=zi)
-    return y
-
-
-def _steady_zi(b, a):
-    from scipy.signal import lfilter_zi
-
-    return lfilter_zi(b, a)
-
-
 class Vibration(SignalEffect):
     name = "vibration"
     stage = 1
@@ -230,16 +212,10 @@ class Vibration(SignalEffect):
         return [0.5, 0.003], [0.9 * self._nyquist(prep), 0.9]
 
     def apply(self, prep, theta, sig):
-        sig.reading = _resonance(prep, theta[0], theta[1], sig.reading)
+        sig.reading = mount_resonance(sig.reading, prep.data.period_s, theta[0], theta[1])
 
     def compensate(self, prep, theta, acc, pos_est):
         return Compensation(note="not compensated: the ringing integrates to zero velocity and position change")
-
-
-def one_pole(prep, cutoff_hz, x):
-    a = math.exp(-2.0 * math.pi * cutoff_hz * prep.data.period_s)
-    y, _ = lfilter([1.0 - a], [1.0, -a], x, zi=[a * x[0]] if x.size else [0.0])
-    return y
 
 
 class Bandwidth(SignalEffect):
@@ -256,7 +232,7 @@ class Bandwidth(SignalEffect):
         return [0.2], [0.95 * 0.5 / prep.data.period_s]
 
     def apply(self, prep, theta, sig):
-        sig.reading = one_pole(prep, theta[0], sig.reading)
+        sig.reading = one_pole_lowpass(sig.reading, prep.data.period_s, theta[0])
 
     def compensate(self, prep, theta, acc, pos_est):
         # the estimator undoes a sensor lag τ in its outputs; the extra pole adds its own
