@@ -93,6 +93,22 @@ class Prepared:
     def n_fit(self) -> int:
         return int(self.fit_mask.sum())
 
+    where: np.ndarray = None  # received samples' places on the full grid (lost ones between)
+    t_full: np.ndarray = None
+    reading_full: np.ndarray = None  # reading_mps2 on the full grid
+
+    def full_reading(self, level0: float, step_t, step_size) -> np.ndarray:
+        """The baseline sensor's reading of a piecewise-constant motion on the full grid."""
+        return reading_from_steps(self.t_full, level0, step_t, step_size, self.data.sensor_bandwidth_hz)
+
+    def set_reading(self, full: np.ndarray) -> None:
+        self.reading_full = full
+        self.reading_mps2 = full[self.where]
+
+    def set_received_reading(self, received: np.ndarray) -> None:
+        """A reading known at the received samples only (the smoothed estimate's)."""
+        self.set_reading(np.interp(np.arange(self.t_full.size), self.where, received))
+
 
 def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = 0.3) -> np.ndarray:
     """At rest by the reference and settle_s past the last motion (ringing, filter tails)."""
@@ -109,13 +125,16 @@ def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = 0.3) -> np.ndarr
 
 def prepare(data: DiagnosisInput) -> Prepared:
     t = data.t_s
-    steps = (0.0, np.zeros(0), np.zeros(0))
-    if data.has_reference:
-        steps = reference_steps(t, data.ref_vel_mps, data.ref_acc_mps2)
-        reading = reading_from_steps(t, *steps, data.sensor_bandwidth_hz)
-        rest = rest_mask(t, data.ref_vel_mps, data.ref_acc_mps2)
-    else:
-        reading = np.zeros(t.size)
-        rest = np.ones(t.size, dtype=bool)
     drift_shape = -np.expm1(-(t - t[0]) / DRIFT_TIME_CONSTANT_S)
-    return Prepared(data, reading, rest & data.valid, drift_shape, data.valid.copy(), reference_steps=steps)
+    prep = Prepared(data, np.zeros(t.size), np.ones(t.size, dtype=bool), drift_shape, data.valid.copy())
+    # the full sample grid: lost samples (seq gaps) take their place, times interpolated
+    prep.where = np.arange(t.size) + np.cumsum(data.lost_before)
+    n_full = int(prep.where[-1]) + 1 if t.size else 0
+    prep.t_full = np.interp(np.arange(n_full), prep.where, t) if t.size else t
+    prep.set_reading(np.zeros(n_full))
+    if data.has_reference:
+        prep.reference_steps = reference_steps(t, data.ref_vel_mps, data.ref_acc_mps2)
+        prep.set_reading(prep.full_reading(*prep.reference_steps))
+        prep.rest = rest_mask(t, data.ref_vel_mps, data.ref_acc_mps2)
+    prep.rest &= data.valid
+    return prep

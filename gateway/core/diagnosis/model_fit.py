@@ -60,7 +60,7 @@ def _ordered(effects):
 
 
 def predict(prep: Prepared, effects: tuple[SignalEffect, ...], theta: np.ndarray) -> np.ndarray:
-    sig = Signal(prep.reading_mps2.copy(), None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
+    sig = Signal(prep.reading_full.copy(), prep.where, None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
     chunks, i = [], len(BASELINE_PARAMS)
     for e in effects:
         k = len(e.param_names)

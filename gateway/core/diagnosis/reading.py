@@ -35,8 +35,8 @@ def reference_steps(t_s, ref_vel_mps, ref_acc_mps2):
     """The reference as piecewise-constant acceleration: (level before the record, step times, step sizes).
 
     Where a_k ≠ a_(k+1) one step lies inside period k; its position follows from the
-    period mean m_k = (v_(k+1) − v_k)/P_k = f·a_k + (1 − f)·a_(k+1). Across a gap of lost
-    samples the step is put at the next sample.
+    period mean m_k = (v_(k+1) − v_k)/P_k = f·a_k + (1 − f)·a_(k+1) — across a gap of
+    lost samples too, exact when the gap holds one step.
     """
     t = np.asarray(t_s, dtype=float)
     v = np.asarray(ref_vel_mps, dtype=float)
@@ -44,13 +44,12 @@ def reference_steps(t_s, ref_vel_mps, ref_acc_mps2):
     if t.size < 2:
         return float(a[0]) if a.size else 0.0, np.zeros(0), np.zeros(0)
     periods = np.diff(t)
-    period = float(np.median(periods))
     step = np.diff(a)
     k = np.flatnonzero(np.abs(step) > 1e-12)
-    regular = periods[k] < 1.5 * period
+    # across a gap of lost samples the same holds over the gap, if it holds one step
     mean = (v[k + 1] - v[k]) / periods[k]
-    f = np.where(regular, np.clip((a[k + 1] - mean) / step[k], 0.0, 1.0), 1.0)
-    return float(a[0]), t[k] + f * np.where(regular, periods[k], 0.0) + np.where(regular, 0.0, periods[k]), step[k]
+    f = np.clip((a[k + 1] - mean) / step[k], 0.0, 1.0)
+    return float(a[0]), t[k] + f * periods[k], step[k]
 
 
 def reading_from_steps(t_s, level0: float, step_t, step_size, bandwidth_hz: float | None) -> np.ndarray:

@@ -121,7 +121,7 @@ def _prepare_with_estimate(data: DiagnosisInput, plan: EstimatePlan) -> Prepared
     if data.reference == "estimated":
         track = plan.run(data.t_s, data.acc_mps2, data.valid, data.lost_before)
         data.ref_pos_m, data.ref_vel_mps = track.pos_m, track.vel_mps
-        prep.reading_mps2 = np.nan_to_num(track.acc_mps2)
+        prep.set_received_reading(np.nan_to_num(track.acc_mps2))
         prep.rest = track.standstill.astype(bool) & data.valid
     return prep
 
@@ -161,7 +161,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         trials = []
         for e in usable:
             progress(f"round {len(accepted) + 1}: trying {e.name}")
-            sig = Signal(_current_reading(prep, current), data.ref_pos_m)
+            sig = _current_signal(prep, current)
             init = e.initial(prep, np.nan_to_num(current.residual), sig)
             fit = fit_model(prep, tuple(accepted) + (e,), {**start, e.name: init}, base_start=current.theta[:2])
             trials.append((fit.bic - current.bic, e, fit))
@@ -284,15 +284,15 @@ def _whiteness(prep: Prepared, fit: ModelFit) -> float:
     return block_whiteness_p(prep, fit.whitened[still]) if still.sum() >= 50 else float("nan")
 
 
-def _current_reading(prep: Prepared, fit: ModelFit) -> np.ndarray:
+def _current_signal(prep: Prepared, fit: ModelFit) -> Signal:
     """The motion's reading with the accepted filters and delay applied (what new effects act on)."""
     from gateway.core.diagnosis.model_fit import BASELINE_PARAMS
 
-    sig = Signal(prep.reading_mps2.copy(), None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
+    sig = Signal(prep.reading_full.copy(), prep.where, None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
     i = len(BASELINE_PARAMS)
     for e in fit.effects:
         k = len(e.param_names)
         if e.stage < 2:
             e.apply(prep, fit.theta[i:i + k], sig)
         i += k
-    return sig.reading
+    return sig

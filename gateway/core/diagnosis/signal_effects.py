@@ -23,16 +23,26 @@ import numpy as np
 
 from gateway.core.diagnosis.context import G, Prepared
 from gateway.core.filters import mount_resonance, one_pole_lowpass
-from gateway.core.diagnosis.reading import reading_from_steps, shifted
+from gateway.core.diagnosis.reading import shifted
 
 
 @dataclass
 class Signal:
     """The model's state between stages."""
 
-    reading: np.ndarray  # the baseline sensor's reading of the motion (m/s²)
+    # the baseline sensor's reading of the motion (m/s²) on the full sample grid: lost
+    # samples included, so the filters of stage 1 run through gaps as the sensor did
+    full: np.ndarray
+    where: np.ndarray  # the received samples' places in it
     pos_m: np.ndarray | None
-    out: np.ndarray | None = None  # the predicted measurement, from stage 2 on
+    out: np.ndarray | None = None  # the predicted measurement (received samples), from stage 2 on
+
+    @property
+    def reading(self) -> np.ndarray:
+        return self.full[self.where]
+
+    def copy(self) -> "Signal":
+        return Signal(self.full.copy(), self.where, None if self.pos_m is None else self.pos_m.copy())
 
 
 @dataclass
@@ -85,7 +95,7 @@ def _grid_best(prep: Prepared, residual, sig: Signal, effect, grid):
     best, best_cost = grid[0], np.inf
     m = prep.fit_mask
     for theta in grid:
-        trial = Signal(sig.reading.copy(), sig.pos_m)
+        trial = sig.copy()
         effect.apply(prep, np.asarray(theta, dtype=float), trial)
         delta = trial.reading - sig.reading
         r = residual - delta
@@ -212,7 +222,7 @@ class Vibration(SignalEffect):
         return [0.5, 0.003], [0.9 * self._nyquist(prep), 0.9]
 
     def apply(self, prep, theta, sig):
-        sig.reading = mount_resonance(sig.reading, prep.data.period_s, theta[0], theta[1])
+        sig.full = mount_resonance(sig.full, prep.data.period_s, theta[0], theta[1])
 
     def compensate(self, prep, theta, acc, pos_est):
         return Compensation(note="not compensated: the ringing integrates to zero velocity and position change")
@@ -232,7 +242,7 @@ class Bandwidth(SignalEffect):
         return [0.2], [0.95 * 0.5 / prep.data.period_s]
 
     def apply(self, prep, theta, sig):
-        sig.reading = one_pole_lowpass(sig.reading, prep.data.period_s, theta[0])
+        sig.full = one_pole_lowpass(sig.full, prep.data.period_s, theta[0])
 
     def compensate(self, prep, theta, acc, pos_est):
         # the estimator undoes a sensor lag τ in its outputs; the extra pole adds its own
@@ -306,7 +316,7 @@ class ReferenceDelay(SignalEffect):
         # a piecewise-constant acceleration, where shifting the reading itself is not
         d = prep.data
         level0, step_t, step_size = prep.reference_steps
-        sig.reading = reading_from_steps(d.t_s, level0, step_t - theta[0], step_size, d.sensor_bandwidth_hz)
+        sig.full = prep.full_reading(level0, step_t - theta[0], step_size)
         if sig.pos_m is not None:
             sig.pos_m = shifted(d.t_s, sig.pos_m, theta[0])
 
