@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
 import numpy as np
@@ -75,7 +76,8 @@ def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
         t_host_s=series.t_host_s,
         # the ADXL202's CX filter for the board's own counts; a foreign sensor's filter is unknown
         sensor_bandwidth_hz=sensor.bandwidth_hz if raw else None,
-        range_mps2=sensor.range_g * STANDARD_GRAVITY_MPS2,
+        # the ADXL202 saturates at ±2 g; a foreign sensor's range is not known
+        range_mps2=sensor.range_g * STANDARD_GRAVITY_MPS2 if raw else math.inf,
         raw_form=raw,
     )
 

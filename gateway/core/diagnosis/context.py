@@ -35,7 +35,7 @@ class DiagnosisInput:
     temp_c: np.ndarray | None = None
     t_host_s: np.ndarray | None = None
     # the baseline sensor: its CX low-pass (None for a foreign sensor of unknown filter)
-    # and its range (clipping); the ADXL202's by default
+    # and its range, where it saturates (math.inf for a foreign sensor of unknown range)
     sensor_bandwidth_hz: float | None = None
     range_mps2: float = 2.0 * G
     raw_form: bool = True

@@ -73,7 +73,9 @@ def predict(prep: Prepared, effects: tuple[SignalEffect, ...], theta: np.ndarray
     for e, th in zip(effects, chunks):
         if e.stage >= 2:
             e.apply(prep, th, sig)
-    return sig.out
+    # the baseline sensor saturates at its range too (the simulator clips at ±2 g)
+    r = prep.data.range_mps2
+    return np.clip(sig.out, -r, r)
 
 
 def _whitened(prep: Prepared, residual: np.ndarray) -> np.ndarray:
