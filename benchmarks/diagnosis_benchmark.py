@@ -91,8 +91,7 @@ def table(stats: list[dict]) -> list[str]:
             f"{'err med':>9}{'err p90':>9}{'gain +':>9}{'dist mm':>9}{'s/case':>8}")
     rows = [head, "-" * len(head)]
     for s in stats:
-        mark = ""
-        rows.append(f"{s['effect'] + mark:<19}{s['cases']:>6}{_pct(s['detection_rate']):>10}"
+        rows.append(f"{s['effect']:<19}{s['cases']:>6}{_pct(s['detection_rate']):>10}"
                     f"{_pct(s['wrong_name_rate']):>9}{_pct(s['within_tolerance_rate']):>9}"
                     f"{100 * s['rel_error_median']:>7.1f} %{100 * s['rel_error_p90']:>7.1f} %"
                     f"{_pct(s['gain_positive_rate']):>9}{s['distance_improvement_mm_median']:>9.2f}"
@@ -154,7 +153,6 @@ def main() -> int:
           f"{np.mean([o.seconds for o in outcomes]):.2f} s per case in one process):")
     print()
     print("\n".join(table(stats)))
-    print("  * known not to be detected reliably yet (the core is being tuned)")
     print("  wrong: any other effect named; in tol: named with every parameter within tolerance;")
     print("  err: relative parameter error when named (worst parameter); dist mm: median distance improvement")
     print()
