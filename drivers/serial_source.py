@@ -8,7 +8,13 @@ have arrived, without blocking its caller:
   ``timeout_s`` and suits a reader thread;
 * ``async for chunk in source.chunks()`` waits in the event loop's reader
   (``loop.add_reader``) when the port has a file descriptor, else in one worker thread
-  polling with a short timeout, so a coroutine never blocks on the port.
+  polling with a short timeout, so a coroutine never blocks on the port;
+* ``await source.deliver(consume)`` does the same but calls ``consume(chunk)`` straight
+  from the event loop's reader callback, with the descriptor registered once per open
+  port. That is one wakeup and one ``read`` per arrival and no task switch: what the
+  daemon uses, since at 500 frames/s the per-arrival overhead is most of its CPU use
+  (``chunks()`` registers and unregisters the reader, creates a future and resumes a
+  task per chunk, and pyserial's ``read`` adds a ``select`` per call).
 
 When the port disappears (read fails or reports EOF: adapter unplugged, pty closed)
 the source logs it, records it in :class:`SerialSourceState`, closes the port and
@@ -18,8 +24,8 @@ reopens it with exponential back-off until it is back. With
 first place always raises, naming the port and the OS error.
 
 One consumer at a time: the source is not meant to be read from two threads at once.
-Stop a running ``chunks()`` by cancelling its task, then ``close()``; calling
-``close()`` from the ``async for`` body also ends it. For a port without a
+Stop a running ``chunks()`` or ``deliver()`` by cancelling its task, then ``close()``;
+calling ``close()`` from the ``async for`` body (or from ``consume``) also ends it. For a port without a
 descriptor, bytes the worker thread reads after cancellation are dropped.
 """
 
@@ -39,6 +45,11 @@ from typing import Any
 import serial
 
 from drivers.errors import SerialPortError
+
+try:  # the POSIX serial class: its descriptor can be read with os.read directly
+    from serial.serialposix import Serial as _PosixSerial
+except ImportError:  # pragma: no cover - not on Linux
+    _PosixSerial = None
 
 logger = logging.getLogger(__name__)
 
@@ -142,6 +153,8 @@ class SerialSource:
         self._opener = opener
         self._port: serial.SerialBase | None = None
         self._fd: int | None = None
+        #: The open port is a POSIX device whose descriptor deliver() reads with os.read.
+        self._direct_fd = False
         self._wanted_open = False
         self._given_up = False
         self._delays: Iterator[float] = reconnect_delays_s(settings)
@@ -177,6 +190,16 @@ class SerialSource:
             last_data_monotonic_s=self._last_data_s,
         )
 
+    @property
+    def is_open(self) -> bool:
+        """Same as ``state.is_open``, without building a snapshot (read per sample)."""
+        return self._port is not None
+
+    @property
+    def last_data_monotonic_s(self) -> float | None:
+        """Same as ``state.last_data_monotonic_s``, without building a snapshot."""
+        return self._last_data_s
+
     # --- opening and closing ------------------------------------------------------------
 
     def open(self) -> None:
@@ -195,6 +218,7 @@ class SerialSource:
             self._fd = port.fileno()
         except (OSError, AttributeError):  # loop:// and friends have no descriptor
             self._fd = None
+        self._direct_fd = self._fd is not None and _PosixSerial is not None and isinstance(port, _PosixSerial)
         self._wanted_open = True
         self._given_up = False
         self._delays = reconnect_delays_s(self.settings)
@@ -206,6 +230,7 @@ class SerialSource:
 
     def _drop_port(self) -> None:
         port, self._port, self._fd = self._port, None, None
+        self._direct_fd = False
         if port is not None:
             try:
                 port.close()
@@ -351,6 +376,88 @@ class SerialSource:
                     await asyncio.sleep(self.settings.thread_poll_s)
             if data:
                 yield data
+
+
+    async def deliver(self, consume: Callable[[bytes], object]) -> None:
+        """Call ``consume(chunk)`` with every non-empty chunk as it arrives, forever.
+
+        The contract of :meth:`chunks` (reopens after a loss; raises SerialPortError if
+        the port cannot be opened at first, or when it is lost and ``reconnect`` is
+        False; ends when ``close()`` is called, also from ``consume``), but for a port
+        with a descriptor ``consume`` runs inside the event loop's reader callback, which
+        stays registered while the port is open. An exception from ``consume`` ends
+        ``deliver()`` with that exception.
+        """
+        if not self._wanted_open:
+            await asyncio.to_thread(self.open)
+        loop = asyncio.get_running_loop()
+        while True:
+            if not self._wanted_open:
+                return  # close() was called
+            self._ensure_usable()
+            if self._port is None:
+                await asyncio.sleep(max(0.0, self._next_attempt_s - time.monotonic()))
+                await asyncio.to_thread(self._reopen_if_due)
+                continue
+            if self._fd is None:
+                data = await asyncio.to_thread(self.read, None, self.settings.thread_poll_s)
+                if data:
+                    consume(data)
+                continue
+            await self._deliver_while_open(loop, self._fd, consume)
+
+    async def _deliver_while_open(
+        self, loop: asyncio.AbstractEventLoop, fd: int, consume: Callable[[bytes], object]
+    ) -> None:
+        """Until this descriptor is dropped (port lost or closed): readable → read → consume."""
+        ended = loop.create_future()
+        read = self._read_fd if self._direct_fd else self._read_now
+        max_bytes = self.settings.read_chunk_bytes
+
+        def on_readable() -> None:
+            try:
+                data = read(max_bytes)
+                if data:
+                    consume(data)
+            except Exception as err:  # SerialPortError (no reconnect), or consume failed
+                loop.remove_reader(fd)
+                if not ended.done():
+                    ended.set_exception(err)
+                return
+            if self._fd != fd:  # lost while reading, or closed by consume
+                loop.remove_reader(fd)
+                if not ended.done():
+                    ended.set_result(None)
+
+        loop.add_reader(fd, on_readable)
+        try:
+            await ended
+        finally:
+            loop.remove_reader(fd)  # no-op when already removed
+
+    def _read_fd(self, max_bytes: int) -> bytes:
+        """os.read on a POSIX serial descriptor that the loop reported readable.
+
+        What pyserial's ``read`` does with timeout 0, minus its ``select`` and timeout
+        objects: EAGAIN is nothing to read; an error, or end of file on a readable
+        descriptor (a device that is gone), is a loss, reported as pyserial reports it.
+        """
+        assert self._fd is not None
+        self._reads += 1
+        try:
+            data = os.read(self._fd, max_bytes)
+        except BlockingIOError:
+            return b""
+        except OSError as err:
+            self._lose(serial.SerialException(f"read failed: {err}"))
+            return b""
+        if not data:
+            self._lose(serial.SerialException(
+                "device reports readiness to read but returned no data (device disconnected?)"))
+            return b""
+        self._bytes_read += len(data)
+        self._last_data_s = time.monotonic()
+        return data
 
 
 async def _wait_readable(loop: asyncio.AbstractEventLoop, fd: int) -> None:

@@ -81,17 +81,24 @@ def max_attempts_within(settings: SerialSettings, elapsed_s: float) -> int:
 
 
 class Consumer:
-    """Runs ``async for chunk in source.chunks()`` into a decoder, as the daemon will."""
+    """Feeds a decoder from ``source.deliver()`` (as the daemon does) or from
+    ``async for chunk in source.chunks()``."""
 
-    def __init__(self, source: SerialSource) -> None:
+    def __init__(self, source: SerialSource, mode: str = "deliver") -> None:
         self.source = source
         self.decoder = StreamDecoder()
         self.frames: list = []
-        self.task = asyncio.create_task(self._run())
+        self.task = asyncio.create_task(self._deliver() if mode == "deliver" else self._chunks())
 
-    async def _run(self) -> None:
+    def _consume(self, chunk: bytes) -> None:
+        self.frames += self.decoder.feed(chunk)
+
+    async def _deliver(self) -> None:
+        await self.source.deliver(self._consume)
+
+    async def _chunks(self) -> None:
         async for chunk in self.source.chunks():
-            self.frames += self.decoder.feed(chunk)
+            self._consume(chunk)
 
     async def stop(self) -> None:
         self.task.cancel()
@@ -103,13 +110,17 @@ class Consumer:
 # --- pty ------------------------------------------------------------------------------
 
 
-def test_chunks_reads_frames_from_a_pty(make_pty):
+READERS = pytest.mark.parametrize("mode", ["deliver", "chunks"])
+
+
+@READERS
+def test_reads_frames_from_a_pty(make_pty, mode):
     pty = make_pty()
     sent = frames(range(200))
 
     async def scenario():
         source = SerialSource(SerialSettings(port=pty.path))
-        consumer = Consumer(source)
+        consumer = Consumer(source, mode)
         await wait_until(lambda: source.state.is_open, "port open")
         os.write(pty.master, wire(sent))
         await wait_until(lambda: len(consumer.frames) >= len(sent), "frames")
@@ -121,6 +132,34 @@ def test_chunks_reads_frames_from_a_pty(make_pty):
     assert state.bytes_read == len(wire(sent))
     assert (state.losses, state.reconnects, state.open_attempts) == (0, 0, 1)
     assert consumer.decoder.counters.bytes_skipped == 0
+
+
+def test_deliver_reads_once_per_arrival_and_keeps_the_reader_registered(make_pty):
+    """One read per burst of bytes on the line, and the descriptor is registered with
+    the loop once for the whole time the port is open (not once per chunk)."""
+    pty = make_pty()
+    sent = frames(range(20))
+
+    async def scenario():
+        loop = asyncio.get_running_loop()
+        registrations = []
+        add_reader = loop.add_reader
+        loop.add_reader = lambda fd, cb, *args: (registrations.append(fd), add_reader(fd, cb, *args))[1]
+        source = SerialSource(SerialSettings(port=pty.path))
+        consumer = Consumer(source)
+        await wait_until(lambda: source.state.is_open, "port open")
+        await asyncio.sleep(0.05)
+        for k, sample in enumerate(sent):
+            os.write(pty.master, wire([sample]))
+            await wait_until(lambda: len(consumer.frames) == k + 1, f"frame {k}")
+        state = source.state
+        await consumer.stop()
+        return consumer.frames, state, registrations
+
+    got, state, registrations = asyncio.run(scenario())
+    assert got == sent
+    assert state.reads == len(sent)
+    assert len(registrations) == 1
 
 
 def test_close_from_the_loop_body_ends_chunks_and_a_later_read_reopens(make_pty):
@@ -143,6 +182,46 @@ def test_close_from_the_loop_body_ends_chunks_and_a_later_read_reopens(make_pty)
     assert source.read_available() == b""
     assert source.state.is_open and source.state.open_attempts == 2
     source.close()
+
+
+def test_close_from_consume_ends_deliver(make_pty):
+    pty = make_pty()
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path))
+        source.open()
+        got = bytearray()
+
+        def consume(chunk: bytes) -> None:
+            got.extend(chunk)
+            if len(got) >= 30:
+                source.close()
+
+        os.write(pty.master, wire(frames(range(2))))
+        await asyncio.wait_for(source.deliver(consume), DEADLINE_S)
+        return source, bytes(got)
+
+    source, got = asyncio.run(scenario())
+    assert StreamDecoder().feed(got) == frames(range(2))
+    assert not source.state.is_open
+
+
+def test_an_error_in_consume_ends_deliver_with_it(make_pty):
+    pty = make_pty()
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path))
+        source.open()
+
+        def consume(chunk: bytes) -> None:
+            raise RuntimeError("consumer broke")
+
+        os.write(pty.master, wire(frames(range(1))))
+        with pytest.raises(RuntimeError, match="consumer broke"):
+            await asyncio.wait_for(source.deliver(consume), DEADLINE_S)
+        source.close()
+
+    asyncio.run(scenario())
 
 
 def test_read_available_never_blocks_and_read_waits_at_most_its_timeout(make_pty):
@@ -176,6 +255,31 @@ def test_pty_hangup_with_reconnect_disabled_raises_naming_the_port(make_pty):
     assert source.state.open_attempts == 1
 
 
+def test_deliver_with_reconnect_disabled_ends_with_an_error(make_pty):
+    pty = make_pty()
+    sent = frames(range(1))
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path, reconnect=False))
+        source.open()
+        os.write(pty.master, wire(sent))
+        got = bytearray()
+
+        def consume(chunk: bytes) -> None:
+            got.extend(chunk)
+            if len(got) >= len(wire(sent)):
+                pty.unplug()
+
+        with pytest.raises(SerialPortError, match="lost") as info:
+            await asyncio.wait_for(source.deliver(consume), DEADLINE_S)
+        assert isinstance(info.value.__cause__, serial.SerialException)
+        return bytes(got), source.state
+
+    got, state = asyncio.run(scenario())
+    assert StreamDecoder().feed(got) == sent
+    assert (state.losses, state.open_attempts, state.is_open) == (1, 1, False)
+
+
 def test_chunks_with_reconnect_disabled_ends_with_an_error(make_pty):
     pty = make_pty()
     sent = frames(range(1))
@@ -197,7 +301,8 @@ def test_chunks_with_reconnect_disabled_ends_with_an_error(make_pty):
     assert (state.losses, state.open_attempts, state.is_open) == (1, 1, False)
 
 
-def test_port_lost_backs_off_then_reconnects_when_the_symlink_returns(make_pty, tmp_path: Path):
+@READERS
+def test_port_lost_backs_off_then_reconnects_when_the_symlink_returns(make_pty, tmp_path: Path, mode):
     """A /dev/serial/by-id/... path is a symlink that udev removes on unplug and
     recreates, pointing at a new tty, on replug; this plays that with ptys."""
     link = tmp_path / "usb-FTDI_board-if00-port0"
@@ -207,7 +312,7 @@ def test_port_lost_backs_off_then_reconnects_when_the_symlink_returns(make_pty, 
 
     async def scenario():
         source = SerialSource(settings)
-        consumer = Consumer(source)
+        consumer = Consumer(source, mode)
         await wait_until(lambda: source.state.is_open, "first open")
         os.write(first.master, wire(frames(range(0, 10))))
         await wait_until(lambda: len(consumer.frames) == 10, "frames before unplug")
@@ -352,7 +457,8 @@ class RecordingOpener:
         return self.ports[-1]
 
 
-def test_loop_url_read_available_and_thread_backed_chunks():
+@READERS
+def test_loop_url_read_available_and_thread_backed_reading(mode):
     opener = RecordingOpener()
     sent = frames(range(50))
 
@@ -362,7 +468,7 @@ def test_loop_url_read_available_and_thread_backed_chunks():
     assert StreamDecoder().feed(source.read_available()) == sent[:5]
 
     async def scenario():
-        consumer = Consumer(source)
+        consumer = Consumer(source, mode)
         await asyncio.sleep(0)
         opener.ports[0].write(wire(sent[5:]))
         await wait_until(lambda: len(consumer.frames) == 45, "loop:// frames")
@@ -372,7 +478,8 @@ def test_loop_url_read_available_and_thread_backed_chunks():
     assert asyncio.run(scenario()) == sent[5:]
 
 
-def test_socket_url_reconnects_after_the_peer_hangs_up():
+@READERS
+def test_socket_url_reconnects_after_the_peer_hangs_up(mode):
     """socket:// has a descriptor, so chunks() waits on the event loop's reader;
     a peer hang-up is pyserial's 'socket disconnected', i.e. a loss."""
     sent = frames(range(30))
@@ -395,7 +502,7 @@ def test_socket_url_reconnects_after_the_peer_hangs_up():
         server = await asyncio.start_server(board, "127.0.0.1", 0)
         port = server.sockets[0].getsockname()[1]
         source = SerialSource(SerialSettings(port=f"socket://127.0.0.1:{port}", **FAST_BACKOFF))
-        consumer = Consumer(source)
+        consumer = Consumer(source, mode)
         await wait_until(lambda: source.state.is_open, "connected")
         may_send[0].set()
         await wait_until(lambda: source.state.reconnects == 1, "reconnected")
