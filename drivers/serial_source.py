@@ -24,8 +24,9 @@ reopens it with exponential back-off until it is back. With
 first place always raises, naming the port and the OS error.
 
 One consumer at a time: the source is not meant to be read from two threads at once.
-Stop a running ``chunks()`` or ``deliver()`` by cancelling its task, then ``close()``;
-calling ``close()`` from the ``async for`` body (or from ``consume``) also ends it. For a port without a
+Stop a running ``chunks()`` by cancelling its task, then ``close()``; calling
+``close()`` from the ``async for`` body also ends it. ``deliver()`` ends on ``close()``
+from anywhere in the event loop's thread (``consume`` included). For a port without a
 descriptor, bytes the worker thread reads after cancellation are dropped.
 """
 
@@ -155,6 +156,8 @@ class SerialSource:
         self._fd: int | None = None
         #: The open port is a POSIX device whose descriptor deliver() reads with os.read.
         self._direct_fd = False
+        #: The running deliver(): (loop, descriptor, its end).
+        self._delivery: tuple[asyncio.AbstractEventLoop, int, asyncio.Future[None]] | None = None
         self._wanted_open = False
         self._given_up = False
         self._delays: Iterator[float] = reconnect_delays_s(settings)
@@ -229,6 +232,7 @@ class SerialSource:
         self._drop_port()
 
     def _drop_port(self) -> None:
+        self._end_delivery()  # unregister the descriptor before it is closed (its number may be reused)
         port, self._port, self._fd = self._port, None, None
         self._direct_fd = False
         if port is not None:
@@ -410,9 +414,10 @@ class SerialSource:
         self, loop: asyncio.AbstractEventLoop, fd: int, consume: Callable[[bytes], object]
     ) -> None:
         """Until this descriptor is dropped (port lost or closed): readable → read → consume."""
-        ended = loop.create_future()
+        ended: asyncio.Future[None] = loop.create_future()
         read = self._read_fd if self._direct_fd else self._read_now
         max_bytes = self.settings.read_chunk_bytes
+        failed: list[Exception] = []
 
         def on_readable() -> None:
             try:
@@ -420,20 +425,25 @@ class SerialSource:
                 if data:
                     consume(data)
             except Exception as err:  # SerialPortError (no reconnect), or consume failed
-                loop.remove_reader(fd)
-                if not ended.done():
-                    ended.set_exception(err)
-                return
-            if self._fd != fd:  # lost while reading, or closed by consume
-                loop.remove_reader(fd)
-                if not ended.done():
-                    ended.set_result(None)
+                failed.append(err)
+                self._end_delivery()
 
+        self._delivery = (loop, fd, ended)
         loop.add_reader(fd, on_readable)
         try:
-            await ended
+            await ended  # resolved by _end_delivery: the port dropped, or a failure
         finally:
-            loop.remove_reader(fd)  # no-op when already removed
+            self._end_delivery()
+        if failed:
+            raise failed[0]
+
+    def _end_delivery(self) -> None:
+        delivery, self._delivery = self._delivery, None
+        if delivery is not None:
+            loop, fd, ended = delivery
+            loop.remove_reader(fd)
+            if not ended.done():
+                ended.set_result(None)
 
     def _read_fd(self, max_bytes: int) -> bytes:
         """os.read on a POSIX serial descriptor that the loop reported readable.

@@ -206,6 +206,24 @@ def test_close_from_consume_ends_deliver(make_pty):
     assert not source.state.is_open
 
 
+def test_close_from_another_task_ends_deliver(make_pty):
+    pty = make_pty()
+
+    async def scenario():
+        source = SerialSource(SerialSettings(port=pty.path))
+        got = bytearray()
+        task = asyncio.create_task(source.deliver(got.extend))
+        await wait_until(lambda: source.state.is_open, "port open")
+        os.write(pty.master, wire(frames(range(1))))
+        await wait_until(lambda: len(got) == 15, "a frame")
+        source.close()
+        await asyncio.wait_for(task, DEADLINE_S)
+        return source.state
+
+    state = asyncio.run(scenario())
+    assert not state.is_open and state.losses == 0
+
+
 def test_an_error_in_consume_ends_deliver_with_it(make_pty):
     pty = make_pty()
 
