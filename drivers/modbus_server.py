@@ -61,6 +61,8 @@ from .published_values import (
     Command,
     CommandCallback,
     PublishedValues,
+    ValuesSource,
+    current,
 )
 
 log = logging.getLogger(__name__)
@@ -172,18 +174,19 @@ class ModbusServer:
         self._command_counter = 0
         self._command_result = CommandResult.NONE
         self._image: list[int] = encode_input_registers(NOTHING_PUBLISHED, word_order=config.word_order)
-        self._pending: PublishedValues | None = None
+        self._pending: ValuesSource | None = None
         self._servers: list[_TcpServer | _SerialServer] = []
         self._tcp: _TcpServer | None = None
         self._handlers: set[_GatewayRequestHandler] = set()
 
     # ---------------------------------------------------------------- API --
-    def update(self, values: PublishedValues) -> None:
-        """Publish a new snapshot; the next read of any client sees all of it."""
-        # Encoding is deferred to the next read: the daemon updates 500 times a second,
-        # clients read far less often (or never), and an image nobody reads costs CPU.
-        # Reads and updates run in the same event loop thread, so a read encodes the
-        # newest snapshot as a whole, never a mix.
+    def update(self, values: ValuesSource) -> None:
+        """Publish a new snapshot (or a function returning it); the next read of any
+        client sees all of it."""
+        # Encoding (and, for a function, building the snapshot) is deferred to the next
+        # read: the daemon updates 500 times a second, clients read far less often (or
+        # never), and an image nobody reads costs CPU. Reads and updates run in the same
+        # event loop thread, so a read encodes the newest snapshot as a whole, never a mix.
         self._pending = values
 
     @property
@@ -314,7 +317,7 @@ class ModbusServer:
             # One slice assignment from the current image, then the live server rows;
             # no await until pymodbus slices the answer out of this list.
             if self._pending is not None:
-                self._image = encode_input_registers(self._pending, word_order=self.config.word_order)
+                self._image = encode_input_registers(current(self._pending), word_order=self.config.word_order)
                 self._pending = None
             current_registers[0:INPUT_SIZE] = self._image
             encode_rows(

@@ -134,3 +134,14 @@ class PublishedValues:
 
 #: What publishers serve before the daemon's first update: nothing measured yet.
 NOTHING_PUBLISHED = PublishedValues()
+
+#: What a publisher's `update()` takes: a snapshot, or a function that returns the
+#: newest snapshot, which the publisher calls only when it needs the values (a Modbus
+#: read, a CAN transmission) — the daemon updates once per board sample, 500 times a
+#: second, while clients read and frames go out far less often.
+ValuesSource = PublishedValues | Callable[[], PublishedValues]
+
+
+def current(values: ValuesSource) -> PublishedValues:
+    """The snapshot a `ValuesSource` stands for."""
+    return values if isinstance(values, PublishedValues) else values()

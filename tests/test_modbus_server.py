@@ -144,6 +144,30 @@ def test_every_input_register_reads_back_the_published_values(order: WordOrder) 
     run(scenario())
 
 
+def test_values_given_as_a_function_are_built_only_when_a_client_reads() -> None:
+    """update() with a function (what the daemon does per sample): called at the next
+    read, once per update however many reads follow, never without a read."""
+    calls: list[int] = []
+
+    def build() -> PublishedValues:
+        calls.append(1)
+        return PublishedValues(position_m=float(len(calls)), status=StatusBits.VALID)
+
+    async def scenario() -> list[float]:
+        async with serving(tcp_config()) as server:
+            async with tcp_client(server.tcp_port) as client:
+                for _ in range(100):
+                    server.update(build)  # many updates, no read
+                assert calls == []
+                seen = [decode(client, await read_table(client), "POSITION", WordOrder.ABCD) for _ in range(3)]
+                server.update(build)
+                seen.append(decode(client, await read_table(client), "POSITION", WordOrder.ABCD))
+                return seen
+
+    assert run(scenario()) == [1.0, 1.0, 1.0, 2.0]
+    assert len(calls) == 2
+
+
 def test_a_register_pair_never_mixes_two_snapshots() -> None:
     a = PublishedValues(position_m=1.0, velocity_mps=-3.0, status=StatusBits.VALID)
     b = PublishedValues(position_m=-2.5e3, velocity_mps=7.0e2, status=StatusBits.STALE)
