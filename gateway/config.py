@@ -102,10 +102,14 @@ SCHEMA: tuple[Key, ...] = (
         "python-can interface: socketcan in production, virtual for tests and the demo.", _nonempty),
     Key("can", "channel", "adxlgw", str, "CAN channel (vcan0, can0, or a virtual bus name).", _nonempty),
     Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).", _range(10_000, 1_000_000)),
-    Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames.", _range(1, 10_000)),
+    Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames (ms).", _range(1, 10_000)),
+    Key("can", "sync_to_updates", True, bool,
+        "Send each cycle's frames with the first new values (one per board sample) at or after the "
+        "cycle is due, so they carry that sample at once; none within half a period: send anyway. "
+        "Still one frame pair per period_ms on average. false: exactly on the timer."),
     Key("can", "min_interval_ms", -1, int,
-        "Also send at once when new values arrive, at most this often (ms); -1: purely cyclic. "
-        "Lowers latency at the cost of bus load.", _range(-1, 10_000)),
+        "Also send at once whenever new values arrive, at most this often (ms): more frames than one "
+        "per period (0: one per sample, ~500/s per frame). -1: off.", _range(-1, 10_000)),
     Key("can", "commands_enabled", False, bool, "Accept the tare command frame."),
     # --- estimator ---------------------------------------------------------
     Key("estimator", "drift_model", "", str,

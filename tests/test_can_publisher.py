@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import math
+import random
 import re
 import subprocess
 import sys
@@ -26,8 +28,9 @@ from drivers.can_frames import (
     AckResult,
     e2e_p01_crc,
     encode_command,
+    encode_cyclic,
 )
-from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError
+from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError, CyclicEncoder
 from drivers.published_values import Command, PublishedValues, StatusBits
 
 DBC_PATH = Path(__file__).resolve().parent.parent / "config" / "adxl-gateway.dbc"
@@ -156,6 +159,31 @@ def test_cyclic_frames_carry_the_values_with_counter_and_crc(channel: str) -> No
     assert publisher.counters.frames_sent >= 40 and publisher.counters.send_errors == 0
 
 
+def test_the_fast_encoder_gives_the_bytes_of_encode_cyclic() -> None:
+    """CyclicEncoder (what the publisher sends) against the frame table's own encoder."""
+    rng = random.Random(7)
+    special = [math.nan, math.inf, -math.inf, 0.0, -0.0, 2147.483647, -2147.483647, 2147.4836475,
+               -2147.4836476, 1e9, -1e9, 32.767, -32.767, 32.7675, -32.7685, 0.0000005, -0.0000015, 1e-300]
+
+    def number() -> float:
+        pick = rng.random()
+        if pick < 0.2:
+            return rng.choice(special)
+        if pick < 0.4:  # exactly halfway between two raw steps, where rounding decides
+            return (rng.randrange(-10**6, 10**6) + 0.5) * rng.choice([1e-6, 1e-3])
+        return rng.uniform(-1, 1) * 10 ** rng.uniform(-7, 4)
+
+    encoder = CyclicEncoder()
+    for _ in range(20000):
+        values = PublishedValues(position_m=number(), velocity_mps=number(), acceleration_mps2=number(),
+                                 status=StatusBits(rng.getrandbits(14)))
+        pos_counter, vel_counter = rng.randrange(COUNTER_MAX + 1), rng.randrange(COUNTER_MAX + 1)
+        expected = dict(encode_cyclic(values, {POSITION_FRAME.frame_id: pos_counter,
+                                               VELOCITY_FRAME.frame_id: vel_counter}))
+        assert encoder.encode(values, pos_counter, vel_counter) == (
+            expected[POSITION_FRAME], expected[VELOCITY_FRAME]), values
+
+
 def test_new_values_appear_in_the_next_cycles(channel: str) -> None:
     async def scenario() -> None:
         async with publishing(virtual_config(channel)) as (publisher, peer):
@@ -231,6 +259,143 @@ def test_update_can_send_at_once_when_min_interval_is_set(channel: str) -> None:
     run(scenario())
 
 
+class RecordingBus(virtual.VirtualBus):
+    """A virtual bus that notes each ADXL_Position frame sent: when, whether the sender
+    was inside CanPublisher.update() at the time, its position and alive counter."""
+
+    inside_update = False
+    sends: list[tuple[float, bool, float, int]] = []
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == POSITION_FRAME.frame_id:
+            decoded = DB.decode_message(msg.arbitration_id, msg.data)
+            RecordingBus.sends.append(
+                (time.monotonic(), RecordingBus.inside_update, decoded["Pos_Position"], decoded["Pos_Counter"])
+            )
+        super().send(msg, timeout)
+
+
+def recording_factory(**kwargs) -> can.BusABC:
+    kwargs.pop("interface")
+    RecordingBus.sends = []
+    return RecordingBus(**kwargs)
+
+
+def sent_between(start: float, end: float) -> list[tuple[float, bool, float, int]]:
+    return [s for s in RecordingBus.sends if start <= s[0] < end]
+
+
+async def feed_updates(publisher: CanPublisher, every_s: float, duration_s: float) -> None:
+    """update() with position = k mm every `every_s` (like the daemon per sample)."""
+    k = 0
+    end = time.monotonic() + duration_s
+    while time.monotonic() < end:
+        k += 1
+        RecordingBus.inside_update = True
+        publisher.update(PublishedValues(position_m=k / 1000, status=StatusBits.VALID))
+        RecordingBus.inside_update = False
+        await asyncio.sleep(every_s)
+
+
+def test_frames_follow_the_updates_once_per_period_with_the_newest_values(channel: str) -> None:
+    """The default: each cycle's frames go out inside the first update() at or after
+    their due time, carrying that update's values; one transmission per period."""
+    async def scenario() -> tuple[list, float]:
+        config = virtual_config(channel, period_ms=50)
+        async with publishing(config, bus_factory=recording_factory) as (publisher, _):
+            await asyncio.sleep(0.12)  # no updates yet: the timer keeps the cycle
+            started = time.monotonic()
+            await feed_updates(publisher, every_s=0.005, duration_s=1.0)
+            ended = time.monotonic()
+            return sent_between(started, ended), ended - started
+
+    sends, elapsed = run(scenario())
+    on_update = [s for s in sends if s[1]]
+    # nearly all sent from update() (the timer only when the loop overslept by 25 ms),
+    # each carrying the values of the update it was sent in (position k mm, k ≥ 1)
+    assert len(on_update) >= 0.8 * len(sends), sends
+    assert all(position >= 0.001 for _, _, position, _ in on_update)
+    # one transmission per period: never more than the drift-free schedule allows
+    assert len(sends) <= elapsed / 0.050 + 1, (len(sends), elapsed)
+    assert len(sends) >= 0.5 * elapsed / 0.050, (len(sends), elapsed)
+    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
+    assert min(gaps) >= 0.025 - 0.002, gaps  # at least half a period apart
+    counters = [c for *_, c in sends]
+    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+
+
+def test_without_updates_the_timer_keeps_the_cycle_and_the_counter_going(channel: str) -> None:
+    async def scenario() -> tuple[list, float, float]:
+        config = virtual_config(channel, period_ms=20)
+        async with publishing(config, bus_factory=recording_factory) as (publisher, _):
+            await feed_updates(publisher, every_s=0.002, duration_s=0.2)
+            stopped = time.monotonic()  # the board falls silent
+            await asyncio.sleep(0.4)
+            return RecordingBus.sends, stopped, time.monotonic()
+
+    sends, stopped, ended = run(scenario())
+    after = [s for s in sends if stopped <= s[0] < ended]
+    # one per period (20 ms) on average, no burst; the first within 1.5 periods
+    assert 0.4 / 0.020 * 0.5 <= len(after) <= 0.4 / 0.020 + 1, len(after)
+    assert after[0][0] - stopped <= 0.030 + 0.010
+    counters = [c for *_, c in sends]
+    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+
+
+def test_values_given_as_a_function_are_built_once_per_transmission(channel: str) -> None:
+    calls: list[int] = []
+
+    def build() -> PublishedValues:
+        calls.append(1)
+        return PublishedValues(position_m=1.25, status=StatusBits.VALID)
+
+    async def scenario() -> tuple[int, int, list[can.Message]]:
+        async with publishing(virtual_config(channel, period_ms=20)) as (publisher, peer):
+            await peer.frames(1, POSITION_FRAME.frame_id)
+            before, sent_before = len(calls), publisher.counters.frames_sent
+            for _ in range(200):  # updates between two due times: at most one transmission
+                publisher.update(build)
+            burst = len(calls) - before
+            frames = await peer.frames(3, POSITION_FRAME.frame_id)
+            await publisher.stop()
+            return burst, len(calls), publisher.counters.frames_sent - sent_before, frames
+
+    burst, built, sent, frames = run(scenario())
+    assert burst <= 1
+    assert built == sent // 2  # once per frame pair, none in between
+    assert DB.decode_message(POSITION_FRAME.frame_id, frames[-1].data)["Pos_Position"] == 1.25
+
+
+def test_strictly_cyclic_frames_never_go_out_from_update(channel: str) -> None:
+    async def scenario() -> list:
+        config = virtual_config(channel, period_ms=20, sync_to_updates=False)
+        async with publishing(config, bus_factory=recording_factory) as (publisher, _):
+            await feed_updates(publisher, every_s=0.002, duration_s=0.3)
+            return list(RecordingBus.sends)
+
+    sends = run(scenario())
+    assert len(sends) >= 5
+    assert not any(inside for _, inside, *_ in sends)
+
+
+def test_min_interval_sends_on_update_at_most_that_often(channel: str) -> None:
+    """Mixed mode: update() sends when min_interval_ms has passed since the last
+    transmission, more often than the period."""
+    async def scenario() -> tuple[list, float]:
+        config = virtual_config(channel, period_ms=200, min_interval_ms=20)
+        async with publishing(config, bus_factory=recording_factory) as (publisher, _):
+            await asyncio.sleep(0.05)
+            started = time.monotonic()
+            await feed_updates(publisher, every_s=0.005, duration_s=0.6)
+            return [s for s in RecordingBus.sends if s[0] >= started], time.monotonic() - started
+
+    sends, elapsed = run(scenario())
+    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
+    assert min(gaps) >= 0.020 - 0.001, gaps
+    assert len(sends) > elapsed / 0.200 * 3  # far more than one per 200 ms period
+    assert sum(inside for _, inside, *_ in sends) >= 0.8 * len(sends)
+
+
 # --------------------------------------------------------------------------- #
 # Send failures
 # --------------------------------------------------------------------------- #
@@ -284,7 +449,8 @@ def test_unknown_interface_raises_can_publisher_error(channel: str) -> None:
     run(scenario())
 
 
-@pytest.mark.parametrize("overrides", [{"period_ms": 0}, {"period_ms": 10, "min_interval_ms": 20}])
+@pytest.mark.parametrize("overrides", [{"period_ms": 0}, {"period_ms": 10, "min_interval_ms": 20},
+                                       {"period_ms": 10, "min_interval_ms": -1}])
 def test_config_validation(overrides: dict) -> None:
     with pytest.raises(CanPublisherError):
         CanPublisherConfig(**overrides)

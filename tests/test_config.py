@@ -33,6 +33,8 @@ def test_default_text_is_complete_valid_toml_with_every_key_commented():
         ("[modbus]\nword_order = \"BADC\"\n", "modbus.word_order = 'BADC' must be one of 'ABCD', 'CDAB'"),
         ("[modbus]\nwrite_allow = [\"10.0.0.300\"]\n", "'10.0.0.300' is not an IP address or network"),
         ("[can]\nperiod_ms = 0\n", "can.period_ms = 0 must be ≥ 1"),
+        ("[can]\nsync_to_updates = 1\n", "can.sync_to_updates = 1 must be true or false"),
+        ("[can]\nperiod_ms = 10\nmin_interval_ms = 20\n", "can.min_interval_ms must not exceed can.period_ms"),
         ("[calibration]\nsensitivity_x = 0.0\n", "calibration.sensitivity_x = 0.0 must be > 0.0"),
         ("[serial]\nreconnect_min_s = 9.0\nreconnect_max_s = 1.0\n", "must not exceed serial.reconnect_max_s"),
         ("[serial\n", "not valid TOML"),
