@@ -7,6 +7,7 @@ the status bits are made of.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from gateway.core import estimator_kernel as K
@@ -45,17 +46,43 @@ class EstimatorLink:
     def reset(self) -> None:
         self.estimator = RealtimeEstimator(self.settings)
         self._bias_requested = False
+        est = self.estimator
+        try:  # the kernel's state, for the per-sample fast path (see step)
+            self._kernel_args = (est._x, est._P, est._m, est._ring_z, est._ring_ok, est._snap, est._prm, est._gain)
+            self._out = est._out
+        except AttributeError:  # the core changed its internals: use its public step
+            self._kernel_args = None
 
     def step(self, t_s: float, acc_mps2: float | None, lost_before: int) -> LinkEstimate:
-        e = self.estimator.step(t_s, acc_mps2, lost_before)
-        if e.flags & K.F_ENTRY:
+        """RealtimeEstimator.step, then the health the daemon publishes.
+
+        The kernel is called exactly as RealtimeEstimator.step calls it, on the
+        estimator's own state, but without building its full Estimate (twelve numpy
+        scalars turned into floats, a frozen dataclass): that wrapper cost four times
+        the kernel, 500 times a second. tests/test_service_parts.py checks that both
+        paths give the same numbers, bit for bit.
+        """
+        if self._kernel_args is None:
+            e = self.estimator.step(t_s, acc_mps2, lost_before)
+            pos, vel, acc, bias, pos_std, flags = e.pos_m, e.vel_mps, e.acc_mps2, e.bias_mps2, e.pos_std_m, e.flags
+        else:
+            valid = acc_mps2 is not None
+            K.step(*self._kernel_args, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before),
+                   self._out)
+            o = self._out.tolist()
+            pos, vel, acc, bias = o[K.O_POS], o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS]
+            var = o[K.O_POS_VAR]
+            pos_std = math.sqrt(var) if var >= 0.0 else math.nan  # as np.sqrt
+            flags = int(o[K.O_FLAGS])
+        if flags & K.F_ENTRY:
             self._bias_requested = False  # the new standstill re-measures the bias
+        initialised = bool(flags & K.F_INITIALISED)
         return LinkEstimate(
-            pos_m=e.pos_m, vel_mps=e.vel_mps, acc_mps2=e.acc_mps2, standstill=e.standstill,
-            bias_mps2=e.bias_mps2, pos_std_m=e.pos_std_m,
-            holding=bool(e.flags & (K.F_INPUT_INVALID | K.F_TIME_ERROR)),
-            initialising=not e.initialised,
-            bias_estimating=self._bias_requested or not e.initialised,
+            pos_m=pos, vel_mps=vel, acc_mps2=acc, standstill=bool(flags & K.F_STANDSTILL),
+            bias_mps2=bias, pos_std_m=pos_std,
+            holding=bool(flags & (K.F_INPUT_INVALID | K.F_TIME_ERROR)),
+            initialising=not initialised,
+            bias_estimating=self._bias_requested or not initialised,
         )
 
     def request_bias_reestimate(self, at_standstill: bool) -> bool:
