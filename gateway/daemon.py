@@ -4,6 +4,14 @@ One asyncio task tree under one supervisor coroutine. Signals: SIGTERM/SIGINT st
 (cancel, then gather; well within 2 s), SIGHUP reloads the config. systemd hears
 READY once the board's port is open and the servers listen, WATCHDOG only while
 samples flow, STOPPING at the end.
+
+The hot path is one event-loop callback per arrival of bytes on the serial port
+(`SerialSource.deliver`): decode, estimate each sample, publish once per chunk (the
+values are built only when a Modbus read or a CAN frame needs them); the CAN frames
+of a due cycle go out from inside that publish. Nothing else wakes the process while
+samples flow: the publishing tick is a timer that the chunks keep pushing back, and
+fires only once the board has been quiet for PUBLISH_TICK_S to 2 × PUBLISH_TICK_S
+(then every PUBLISH_TICK_S).
 """
 from __future__ import annotations
 
@@ -37,6 +45,7 @@ from gateway.terminal_view import TerminalView
 log = logging.getLogger("adxlgw")
 
 PUBLISH_TICK_S = 0.01  # staleness, heartbeat and republishing while no samples come
+HOUSEKEEPING_S = 0.25  # terminal view, periodic state save
 SATURATION_HOLD_S = 1.0
 STATE_SAVE_EVERY_S = 60.0
 
@@ -63,6 +72,7 @@ def can_config_from(cfg: Config) -> CanPublisherConfig:
         interface=c.interface, channel=c.channel,
         bitrate=None if c.interface == "socketcan" else c.bitrate,
         period_ms=float(c.period_ms),
+        sync_to_updates=c.sync_to_updates,
         min_interval_ms=None if c.min_interval_ms < 0 else float(c.min_interval_ms),
         commands_enabled=c.commands_enabled,
     )
@@ -110,7 +120,10 @@ class Gateway:
         # position reference: published = estimator position − offset
         self.reference_offset_m = -self.saved.last_position_m if self.saved.last_position_m else 0.0
         self.referenced = False  # after a restart, never trust an old reference
-        self.values = PublishedValues()
+        self._values = PublishedValues()
+        self._values_built = True  # False: published since, build on the next read
+        self._published_at = clock()
+        self._values_source = self._current_values  # handed to the publishers
         self._estimate = None
         self._last_sample_s: float | None = None
         self._saturated_until = -1.0
@@ -122,6 +135,10 @@ class Gateway:
         self._ready_sent = False
         self._serial_path: str | None = None
         self._tasks: list[asyncio.Task] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tick_handle: asyncio.TimerHandle | None = None
+        self._tick_due = -math.inf
+        self._tick_failed = False
         self._last_saved_s = clock()
         self._state_dirty = False
 
@@ -146,27 +163,41 @@ class Gateway:
 
     # --------------------------------------------------------------- frames --
     def handle_frames(self, data: bytes) -> None:
+        """Bytes from the board: every sample through the estimator, then one publish.
+
+        One publish per chunk, not per sample: a chunk is what arrived at once, its
+        samples share one arrival time, and the newest estimate is what every wire
+        shows (saturation and lost samples are held for a while, so none is missed).
+        """
         now = self.clock()
+        sampled = False
         for frame in self.decoder.feed(data):
             if isinstance(frame, Sample):
                 sample = self.session.on_sample(frame)
                 if sample is None:
                     continue
                 self.counters.samples += 1
-                self._last_sample_s = now
+                sampled = True
                 if sample.lost_before:
                     self._lost_at = now
                 if sample.saturated:
                     self._saturated_until = now + SATURATION_HOLD_S
                 self._estimate = self.estimator.step(sample.t_s, sample.acc_mps2, sample.lost_before)
-                self.publish(now)
             elif isinstance(frame, (Status, Hello)):
                 if self.session.on_report(frame):
                     log.warning("board reset: continuity lost, position not referenced until the next tare")
                     self._board_reset_at = now
                     self._lose_reference()
+        if sampled:
+            self._last_sample_s = now
+            self.publish(now)
+            # push the quiet tick back, about once per tick (not per chunk)
+            if self._tick_handle is not None and self._tick_due - now < PUBLISH_TICK_S:
+                self._arm_tick(now)
 
     def _lose_reference(self) -> None:
+        if not self._values_built:
+            self._build_values()  # the numbers published until now, kept while unreferenced
         if self._estimate is not None:
             # keep the published position continuous; it is just no longer trusted
             self.reference_offset_m -= self._estimate.pos_m
@@ -177,13 +208,13 @@ class Gateway:
     # -------------------------------------------------------------- publish --
     def condition(self, now: float) -> GatewayCondition:
         est = self._estimate
-        state = self.source.state if self.source else None
+        source = self.source
         return GatewayCondition(
             now_s=now,
             have_estimate=est is not None,
-            port_open=bool(state and state.is_open),
+            port_open=source is not None and source.is_open,
             last_sample_s=self._last_sample_s,
-            last_byte_s=None if not state or state.last_data_monotonic_s is None else state.last_data_monotonic_s,
+            last_byte_s=None if source is None else source.last_data_monotonic_s,
             stale_after_s=self.cfg.serial.stale_after_ms / 1000,
             lost_after_s=self.cfg.serial.lost_after_ms / 1000,
             referenced=self.referenced,
@@ -198,16 +229,42 @@ class Gateway:
         )
 
     def publish(self, now: float) -> None:
+        """New values as of `now`: the heartbeat moves and every wire will show them.
+
+        The snapshot itself is built only when something reads it (a Modbus read, a
+        CAN transmission, `values`): per sample this is a few assignments.
+        """
+        self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
+        self._published_at = now
+        self._values_built = False
+        if self.modbus:
+            self.modbus.update(self._values_source)
+        if self.can:
+            self.can.update(self._values_source)
+
+    @property
+    def values(self) -> PublishedValues:
+        """What the wires show: the snapshot of the last publish."""
+        if not self._values_built:
+            self._build_values()
+        return self._values
+
+    def _current_values(self) -> PublishedValues:
+        return self.values
+
+    def _build_values(self) -> None:
+        now = self._published_at
         est = self._estimate
         c = self.decoder.live_counters
-        self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
         if est is not None:
             pos = est.pos_m - self.reference_offset_m
             vel, acc, bias, pos_std = est.vel_mps, est.acc_mps2, est.bias_mps2, est.pos_std_m
         else:  # nothing estimated since start or reset: last published numbers, flagged
-            pos, vel, acc = self.values.position_m, self.values.velocity_mps, self.values.acceleration_mps2
-            bias, pos_std = self.values.bias_estimate_mps2, self.values.position_std_m
-        self.values = PublishedValues(
+            last = self._values
+            pos, vel, acc = last.position_m, last.velocity_mps, last.acceleration_mps2
+            bias, pos_std = last.bias_estimate_mps2, last.position_std_m
+        self._values_built = True
+        self._values = PublishedValues(
             position_m=pos, velocity_mps=vel, acceleration_mps2=acc,
             status=status_bits(self.condition(now)),
             heartbeat=self._heartbeat,
@@ -217,12 +274,8 @@ class Gateway:
             board_temp_c=self.session.temp_c,
             lost_samples=c.samples_lost, crc_errors=c.crc_errors,
             board_resets=self.session.counters.resets_announced + self.session.counters.resets_inferred,
-            can_send_errors=self.can.counters.send_errors if self.can else 0,
+            can_send_errors=self.can.send_errors if self.can else 0,
         )
-        if self.modbus:
-            self.modbus.update(self.values)
-        if self.can:
-            self.can.update(self.values)
 
     # ---------------------------------------------------------------- state --
     def _save_state(self) -> None:
@@ -260,20 +313,42 @@ class Gateway:
                 await asyncio.sleep(delay)
 
     async def _board_task(self) -> None:
-        async for chunk in self.source.chunks():
-            self.handle_frames(chunk)
+        # handle_frames runs inside the loop's reader callback: no task switch per chunk
+        await self.source.deliver(self.handle_frames)
 
-    async def _tick_task(self) -> None:
-        next_view = 0.0
+    def _arm_tick(self, now: float, delay: float = 2 * PUBLISH_TICK_S) -> None:
+        """(Re)schedule the quiet tick `delay` from now.
+
+        While samples flow, each chunk pushes it back to 2 ticks ahead once less than
+        one is left, so it fires 10–20 ms after the last sample (as a plain 10 ms tick
+        that skips when a sample came within the last 10 ms did), without waking the
+        process while samples flow.
+        """
+        if self._tick_handle is not None:
+            self._tick_handle.cancel()
+        self._tick_due = now + delay
+        self._tick_handle = self._loop.call_later(delay, self._quiet_tick)
+
+    def _quiet_tick(self) -> None:
+        """While no samples come: publish every PUBLISH_TICK_S, so the heartbeat, the
+        sample age and the STALE/BOARD_LOST bits keep moving (on Modbus and CAN)."""
+        self._tick_handle = None
+        now = self.clock()
+        try:
+            self.publish(now)
+        except Exception:
+            if not self._tick_failed:  # a bug; say it once, keep ticking
+                log.exception("publishing tick failed")
+                self._tick_failed = True
+        finally:
+            if self._tick_handle is None:
+                self._arm_tick(now, PUBLISH_TICK_S)
+
+    async def _housekeeping_task(self) -> None:
         while True:
-            await asyncio.sleep(PUBLISH_TICK_S)
+            await asyncio.sleep(HOUSEKEEPING_S)
             now = self.clock()
-            # While samples flow each one publishes; the tick only keeps the heartbeat,
-            # the age and the STALE/BOARD_LOST bits moving when they do not.
-            if self._last_sample_s is None or now - self._last_sample_s >= PUBLISH_TICK_S:
-                self.publish(now)
-            if self.view and now >= next_view:
-                next_view = now + 0.25
+            if self.view:
                 self.view.draw(self.values, self._view_extra())
             if self._state_dirty or now - self._last_saved_s >= STATE_SAVE_EVERY_S:
                 self._save_state()
@@ -371,9 +446,11 @@ class Gateway:
         loop.add_signal_handler(signal.SIGTERM, self._stop.set)
         loop.add_signal_handler(signal.SIGINT, self._stop.set)
         loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self.reload())))
+        self._loop = loop
         try:
             await self._start_servers()
-            self._tasks.append(asyncio.create_task(self._tick_task(), name="tick"))
+            self._arm_tick(self.clock(), PUBLISH_TICK_S)
+            self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
             opener = asyncio.create_task(self._open_board(), name="open-board")
             stopper = asyncio.create_task(self._stop.wait())
             await asyncio.wait({opener, stopper}, return_when=asyncio.FIRST_COMPLETED)
@@ -408,6 +485,9 @@ class Gateway:
             await self._shutdown()
 
     async def _shutdown(self) -> None:
+        tick, self._tick_handle = self._tick_handle, None
+        if tick is not None:
+            tick.cancel()
         runner = getattr(self, "_board_runner", None)
         tasks = [t for t in [*self._tasks, runner] if t is not None]
         for task in tasks:
