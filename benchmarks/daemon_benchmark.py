@@ -1,6 +1,7 @@
 """Daemon benchmark: sample latency to Modbus and CAN, CPU use, Modbus client load.
 
     .venv/bin/python benchmarks/daemon_benchmark.py [--seconds 20] [--clients 0,10,25,50,75]
+    .venv/bin/python benchmarks/daemon_benchmark.py --cpu-only [--repeat 3]
 
 A writer process plays the board on a real pty: SAMPLE frames at 500 samples/s (the
 paper's strokes), timestamping the moment the last byte of each frame is written
@@ -10,9 +11,16 @@ paper's strokes), timestamping the moment the last byte of each frame is written
   sample k is "showing" when the counter first reads ≥ k+1. The poll round trip is
   part of the number (it is what a PLC sees) and is printed beside it.
 - CAN latency: the gateway process is instrumented (benchmark only, never in the
-  product): each CAN frame sent records its time, and a sample's latency is the first
-  ADXL_Position frame sent after the gateway processed it, i.e. the first frame that
-  carries it. Cyclic mode (10 ms, the default) and send-on-update mode are measured.
+  product): each ADXL_Position frame sent records its time and how many samples the
+  gateway had processed, so the newest sample it carries is known. Two numbers:
+  "carrying it" — for each sample that a frame carries as its newest, from the sample
+  to the first such frame (the age of the data when it goes on the bus); "every
+  sample" — for every sample, to the first frame that carries it or a newer one (with
+  frames every 10 ms and samples every 2 ms, four in five samples are never sent on
+  their own; this includes the wait for the next cycle). Measured in the default mode
+  (10 ms, sync_to_updates), strictly cyclic (sync_to_updates = false) and send on
+  update (min_interval_ms = 0); the frame intervals are printed too. These runs have
+  no Modbus client (the back-to-back poller alone keeps one of two cores busy).
 - CPU: utime+stime of the gateway process from /proc over the run, % of one core.
 - Clients: N further Modbus TCP clients, each polling all input registers at 100 Hz
   (from 2 load processes), while the Modbus latency is measured again.
@@ -182,11 +190,12 @@ finally:
 """
 
 
-def start_gateway(tmp: Path, link: str, port: int, min_interval_ms: int, instrumented: bool):
+def start_gateway(tmp: Path, link: str, port: int, min_interval_ms: int, sync: bool, instrumented: bool):
     config = tmp / "gw.toml"
     config.write_text(
         f'[serial]\nport = "{link}"\n[modbus]\nport = {port}\n'
         f'[can]\ninterface = "virtual"\nchannel = "bench"\nmin_interval_ms = {min_interval_ms}\n'
+        f'sync_to_updates = {"true" if sync else "false"}\n'
         f'[state]\npath = "{tmp / "state.json"}"\n[service]\nlog_level = "warning"\n'
     )
     trace = tmp / "trace.json"
@@ -216,12 +225,13 @@ def pct(values, q) -> float:
     return float(np.percentile(values, q)) if len(values) else float("nan")
 
 
-def one_run(seconds: float, min_interval_ms: int, instrumented: bool, clients: int = 0, poll: bool = True):
+def one_run(seconds: float, min_interval_ms: int, instrumented: bool, clients: int = 0, poll: bool = True,
+            sync: bool = True):
     """Returns latencies (ms) to Modbus and CAN, CPU %, RTT, and client stats."""
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-bench-"))
     pty = PtyPort(tmp / "board")
     port = free_port()
-    gw, trace = start_gateway(tmp, str(pty.link), port, min_interval_ms, instrumented)
+    gw, trace = start_gateway(tmp, str(pty.link), port, min_interval_ms, sync, instrumented)
     if not pty.wait_for_reader(30):
         raise SystemExit("gateway never opened the board port")
     frames = board_frames(seconds)
@@ -265,18 +275,28 @@ def one_run(seconds: float, min_interval_ms: int, instrumented: bool, clients: i
         idx = np.searchsorted(seen_c, k + 1)
         if idx < len(seen_c):
             modbus_ms.append((seen_t[idx] - w) / 1e6)
-    can_ms = []
+    can_ms, carried_ms, interval_ms = [], [], []
     if instrumented:
         data = json.loads(trace.read_text())
         send_t = np.array([t for t, _ in data["sends"]], dtype=np.int64)
         send_count = np.maximum.accumulate(np.array([c for _, c in data["sends"]], dtype=np.int64))
         for k, w in enumerate(written):
-            i = np.searchsorted(send_count, k + 1)  # the first frame carrying sample k
+            i = np.searchsorted(send_count, k + 1)  # the first frame carrying sample k or a newer one
             if i < len(send_t):
                 can_ms.append((send_t[i] - w) / 1e6)
+        # frames carrying a sample as their newest: the first frame with each new count
+        first = np.flatnonzero(np.diff(send_count, prepend=0) > 0)
+        for i in first:
+            k = send_count[i] - 1
+            if 0 <= k < len(written):
+                carried_ms.append((send_t[i] - written[k]) / 1e6)
+        during = send_t[(send_t >= written[0]) & (send_t <= written[-1])]
+        interval_ms = list(np.diff(during) / 1e6)
     return {
         "modbus_ms": modbus_ms,
         "can_ms": can_ms,
+        "carried_ms": carried_ms,
+        "interval_ms": interval_ms,
         "cpu_pct": 100.0 * (cpu1 - cpu0) / (wall1 - wall0),
         "rtt_ms": [r / 1e6 for r in rtts],
         "samples": len(written),
@@ -290,11 +310,16 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=20.0, help="board time per run")
     ap.add_argument("--clients", default="0,10,25,50,75", help="client counts for the load table")
     ap.add_argument("--cpu-only", action="store_true", help="only the CPU measurement (quick)")
+    ap.add_argument("--repeat", type=int, default=1, help="with --cpu-only: runs, then median and range")
     args = ap.parse_args()
     if args.cpu_only:
-        quiet = one_run(args.seconds, -1, instrumented=False, poll=False)
-        print(f"CPU of the gateway at 500 samples/s, CAN cyclic 10 ms, no Modbus client: "
-              f"{quiet['cpu_pct']:.1f} % of one core")
+        runs = []
+        for _ in range(args.repeat):
+            runs.append(one_run(args.seconds, -1, instrumented=False, poll=False)["cpu_pct"])
+            print(f"CPU of the gateway at 500 samples/s, default config (CAN 10 ms), no Modbus client: "
+                  f"{runs[-1]:.1f} % of one core", flush=True)
+        if len(runs) > 1:
+            print(f"median {np.median(runs):.1f} %, range {min(runs):.1f}–{max(runs):.1f} % over {len(runs)} runs")
         return
     clients = [int(c) for c in args.clients.split(",")]
     print(f"command: .venv/bin/python benchmarks/daemon_benchmark.py --seconds {args.seconds:g} "
@@ -303,23 +328,33 @@ def main() -> None:
     print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
     print()
     print("latency from the last byte of a SAMPLE on the pty (500 samples/s):")
-    print(f"{'path':44} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'n':>7}")
+    print(f"{'path':58} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'n':>7}")
     plain = one_run(args.seconds, -1, instrumented=False)
     quiet = one_run(args.seconds, -1, instrumented=False, poll=False)
-    cyclic = one_run(args.seconds, -1, instrumented=True)
-    eager = one_run(args.seconds, 0, instrumented=True)
-    rows = [
-        ("Modbus register (TCP poll, incl. round trip)", plain["modbus_ms"]),
-        ("CAN frame, cyclic 10 ms (default)", cyclic["can_ms"]),
-        ("CAN frame, send on update (min_interval_ms=0)", eager["can_ms"]),
+    # CAN without the back-to-back Modbus poller: on two cores it takes one by itself
+    synced = one_run(args.seconds, -1, instrumented=True, poll=False)
+    cyclic = one_run(args.seconds, -1, instrumented=True, poll=False, sync=False)
+    eager = one_run(args.seconds, 0, instrumented=True, poll=False)
+    modes = [
+        ("default: 10 ms, sync_to_updates", synced),
+        ("strictly cyclic 10 ms (sync_to_updates=false)", cyclic),
+        ("send on update (min_interval_ms=0)", eager),
     ]
+    rows = [("Modbus register (TCP poll, incl. round trip)", plain["modbus_ms"])]
+    rows += [(f"CAN frame carrying it, {name}", run["carried_ms"]) for name, run in modes]
+    rows += [(f"every sample to a CAN frame, {name}", run["can_ms"]) for name, run in modes]
     for name, values in rows:
-        print(f"{name:44} {pct(values, 50):8.2f} {pct(values, 99):8.2f} {max(values, default=float('nan')):8.2f} "
+        print(f"{name:58} {pct(values, 50):8.2f} {pct(values, 99):8.2f} {max(values, default=float('nan')):8.2f} "
               f"{len(values):7d}")
     print(f"  Modbus poll round trip: p50 {pct(plain['rtt_ms'], 50):.2f} ms, p99 {pct(plain['rtt_ms'], 99):.2f} ms")
+    print("  ADXL_Position frame intervals:")
+    for name, run in modes:
+        gaps = run["interval_ms"]
+        print(f"    {name:50} mean {np.mean(gaps):6.2f} ms, p1 {pct(gaps, 1):6.2f}, p99 {pct(gaps, 99):6.2f}, "
+              f"max {max(gaps, default=float('nan')):6.2f}")
     print()
-    print(f"CPU of the gateway at 500 samples/s, CAN cyclic 10 ms, no Modbus client: {quiet['cpu_pct']:.1f} % "
-          f"of one core")
+    print(f"CPU of the gateway at 500 samples/s, default config (CAN 10 ms), no Modbus client: "
+          f"{quiet['cpu_pct']:.1f} % of one core")
     print(f"  (with the back-to-back latency poller, {len(plain['rtt_ms']) / (plain['samples'] / RATE_HZ):.0f} "
           f"requests/s: {plain['cpu_pct']:.1f} %)")
     print()
