@@ -16,6 +16,11 @@ from gateway.core.estimator import RealtimeEstimator
 from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
 from gateway.core.sensor_model import SensorParams
 
+# the kernel's output layout and flags, looked up once (the step runs 500 times a second)
+_O_POS, _O_VEL, _O_ACC, _O_BIAS, _O_POS_VAR, _O_FLAGS = K.O_POS, K.O_VEL, K.O_ACC, K.O_BIAS, K.O_POS_VAR, K.O_FLAGS
+_F_ENTRY, _F_STANDSTILL, _F_INITIALISED = K.F_ENTRY, K.F_STANDSTILL, K.F_INITIALISED
+_F_HOLDING = K.F_INPUT_INVALID | K.F_TIME_ERROR
+
 
 @dataclass(slots=True)  # not frozen: built 500 times a second, and frozen init is slow
 class LinkEstimate:
@@ -70,20 +75,16 @@ class EstimatorLink:
             K.step(*self._kernel_args, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before),
                    self._out)
             o = self._out.tolist()
-            pos, vel, acc, bias = o[K.O_POS], o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS]
-            var = o[K.O_POS_VAR]
+            pos, vel, acc, bias, var = o[_O_POS], o[_O_VEL], o[_O_ACC], o[_O_BIAS], o[_O_POS_VAR]
             pos_std = math.sqrt(var) if var >= 0.0 else math.nan  # as np.sqrt
-            flags = int(o[K.O_FLAGS])
-        if flags & K.F_ENTRY:
+            flags = int(o[_O_FLAGS])
+        if flags & _F_ENTRY:
             self._bias_requested = False  # the new standstill re-measures the bias
-        initialised = bool(flags & K.F_INITIALISED)
-        return LinkEstimate(
-            pos_m=pos, vel_mps=vel, acc_mps2=acc, standstill=bool(flags & K.F_STANDSTILL),
-            bias_mps2=bias, pos_std_m=pos_std,
-            holding=bool(flags & (K.F_INPUT_INVALID | K.F_TIME_ERROR)),
-            initialising=not initialised,
-            bias_estimating=self._bias_requested or not initialised,
-        )
+        initialised = bool(flags & _F_INITIALISED)
+        # positional, in field order: pos, vel, acc, standstill, bias, pos_std, holding,
+        # initialising, fault, bias_estimating
+        return LinkEstimate(pos, vel, acc, bool(flags & _F_STANDSTILL), bias, pos_std, bool(flags & _F_HOLDING),
+                            not initialised, False, self._bias_requested or not initialised)
 
     def request_bias_reestimate(self, at_standstill: bool) -> bool:
         """Accepted only at standstill: the bias variance widens and the rest re-measures it."""
