@@ -22,6 +22,9 @@ paper's strokes), timestamping the moment the last byte of each frame is written
   update (min_interval_ms = 0); the frame intervals are printed too. These runs have
   no Modbus client (the back-to-back poller alone keeps one of two cores busy).
 - CPU: utime+stime of the gateway process from /proc over the run, % of one core.
+  Beside it, the floor: the CPU of a process that only reads the same stream from the
+  same pty on an asyncio event loop, as the gateway does (a reader callback, os.read,
+  nothing else) — what any process pays on this machine to be woken 500 times a second.
 - Clients: N further Modbus TCP clients, each polling all input registers at 100 Hz
   (from 2 load processes), while the Modbus latency is measured again.
 
@@ -216,6 +219,49 @@ def start_gateway(tmp: Path, link: str, port: int, min_interval_ms: int, sync: b
     raise SystemExit(f"gateway did not start: {proc.stderr.read()}")
 
 
+FLOOR_READER = """
+import asyncio, os, signal, tty
+
+async def main():
+    fd = os.open({link!r}, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    tty.setraw(fd)
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+    loop.add_signal_handler(signal.SIGTERM, done.set_result, None)
+    loop.add_reader(fd, lambda: os.read(fd, 4096))
+    await done
+
+asyncio.run(main())
+"""
+
+
+def floor_run(seconds: float) -> float:
+    """CPU % of a process that only reads the board's stream (see the module doc)."""
+    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-bench-"))
+    pty = PtyPort(tmp / "board")
+    code = FLOOR_READER.format(link=str(pty.link))
+    reader = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT)
+    if not pty.wait_for_reader(30):
+        reader.kill()
+        raise SystemExit("the floor reader never opened the pty")
+    frames = board_frames(seconds)
+    start_ns = time.monotonic_ns() + int(1e9)
+    ctx = mp.get_context("fork")
+    w_recv, w_send = ctx.Pipe(False)
+    wproc = ctx.Process(target=writer, args=(pty.master_fd, frames, start_ns, w_send))
+    wproc.start()
+    while time.monotonic_ns() < start_ns:
+        time.sleep(0.01)
+    cpu0, wall0 = cpu_seconds(reader.pid), time.monotonic()
+    w_recv.recv()
+    cpu1, wall1 = cpu_seconds(reader.pid), time.monotonic()
+    wproc.join()
+    reader.send_signal(signal.SIGTERM)
+    reader.wait(timeout=10)
+    pty.close(remove_link=True)
+    return 100.0 * (cpu1 - cpu0) / (wall1 - wall0)
+
+
 def cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
@@ -313,13 +359,17 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="with --cpu-only: runs, then median and range")
     args = ap.parse_args()
     if args.cpu_only:
-        runs = []
-        for _ in range(args.repeat):
+        runs, floors = [], []
+        for _ in range(args.repeat):  # interleaved: the machine's load drifts between runs
             runs.append(one_run(args.seconds, -1, instrumented=False, poll=False)["cpu_pct"])
-            print(f"CPU of the gateway at 500 samples/s, default config (CAN 10 ms), no Modbus client: "
-                  f"{runs[-1]:.1f} % of one core", flush=True)
+            floors.append(floor_run(args.seconds))
+            print(f"CPU at 500 samples/s: gateway, default config (CAN 10 ms), no Modbus "
+                  f"client: {runs[-1]:.1f} % of one core; floor (a reader that does nothing): {floors[-1]:.1f} %",
+                  flush=True)
         if len(runs) > 1:
-            print(f"median {np.median(runs):.1f} %, range {min(runs):.1f}–{max(runs):.1f} % over {len(runs)} runs")
+            print(f"gateway: median {np.median(runs):.1f} %, range {min(runs):.1f}–{max(runs):.1f} %; "
+                  f"floor: median {np.median(floors):.1f} %, range {min(floors):.1f}–{max(floors):.1f} % "
+                  f"over {len(runs)} runs")
         return
     clients = [int(c) for c in args.clients.split(",")]
     print(f"command: .venv/bin/python benchmarks/daemon_benchmark.py --seconds {args.seconds:g} "
@@ -355,6 +405,7 @@ def main() -> None:
     print()
     print(f"CPU of the gateway at 500 samples/s, default config (CAN 10 ms), no Modbus client: "
           f"{quiet['cpu_pct']:.1f} % of one core")
+    print(f"  (floor: a process that only reads the same stream: {floor_run(args.seconds):.1f} %)")
     print(f"  (with the back-to-back latency poller, {len(plain['rtt_ms']) / (plain['samples'] / RATE_HZ):.0f} "
           f"requests/s: {plain['cpu_pct']:.1f} %)")
     print()
