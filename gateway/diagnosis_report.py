@@ -17,7 +17,8 @@ from gateway.errors import InputError
 from gateway.figures import save_figure
 
 # side effects' residual RMS is not in m/s² (timing: seconds of host delay)
-_SIDE_RMS_UNIT = {"timing": ("ms", 1e3)}
+# the gain's residual_rms_<unit> key → (shown unit, factor)
+_RMS_UNIT = {"mps2": ("m/s²", 1.0), "s": ("ms", 1e3)}
 PLOTS = ("residual.png", "spectrum.png", "allan.png", "position.png")
 
 
@@ -80,7 +81,7 @@ def gain_lines(effect) -> list[str]:
     lines = []
     rms_key = next((k for k in gain if k.startswith("residual_rms")), None)
     if rms_key:
-        unit, factor = ("m/s²", 1.0) if effect.kind == "signal" else _SIDE_RMS_UNIT.get(effect.name, ("", 1.0))
+        unit, factor = _RMS_UNIT.get(rms_key.removeprefix("residual_rms_"), ("", 1.0))
         b, a = gain[rms_key]
         lines.append(f"residual RMS {_num(b * factor)} → {_num(a * factor)} {unit}".rstrip())
     if "loglik" in gain:

@@ -58,7 +58,8 @@ widened for it.
 
 "Positive gain": a signal effect lowers the residual RMS and raises the log-likelihood
 (gain["residual_rms_mps2"], gain["loglik"]: before, after); a side effect raises its own
-log-likelihood (gain["loglik"]). The distance gain (gain["distance"]["improvement_mm"])
+log-likelihood (gain["loglik"]) and reports its residual RMS in its own unit
+(residual_rms_s for timing; none for sample loss). The distance gain (gain["distance"]["improvement_mm"])
 is recorded but not required: the vibration's ringing integrates to no distance.
 """
 from __future__ import annotations
@@ -236,6 +237,11 @@ class CaseOutcome:
 def _gain_check(effect) -> tuple[bool, str]:
     g = effect.gain
     ll_before, ll_after = g["loglik"]
+    # one residual RMS, its unit in the key (timing's is seconds); sample loss has none
+    rms_keys = sorted(k for k in g if k.startswith("residual_rms"))
+    expected = [] if effect.name == "sample_loss" else ["residual_rms_s" if effect.name == "timing" else "residual_rms_mps2"]
+    if rms_keys != expected:
+        return False, f"(residual RMS keys {rms_keys}, expected {expected})"
     if effect.kind == "signal":
         rms_before, rms_after = g["residual_rms_mps2"]
         ok = rms_after < rms_before and ll_after > ll_before

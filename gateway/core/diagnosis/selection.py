@@ -234,9 +234,10 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 without, step_plan = before_plan.as_gapless(prep), before_plan
             else:
                 without, step_plan = before_plan, before_plan.with_side(prep, s, test)
-            gain = {"residual_rms": [test.rms_before, test.rms_after],
-                    "loglik": [test.loglik_before, test.loglik_after],
+            gain = {"loglik": [test.loglik_before, test.loglik_after],
                     "distance": distance_gain(prep, without, step_plan)}
+            if test.rms_unit is not None:  # the same key shape as a signal effect's residual_rms_mps2
+                gain[f"residual_rms_{test.rms_unit}"] = [test.rms_before, test.rms_after]
             before_plan = step_plan
             effects.append(EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail))
 

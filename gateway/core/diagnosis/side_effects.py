@@ -44,6 +44,9 @@ class SideTest:
     rms_before: float
     rms_after: float
     detail: str = ""
+    #: unit of rms_before/after, the suffix of the gain's residual_rms_* key; None: no
+    #: residual to compare (sample loss is counted, not fitted)
+    rms_unit: str | None = "mps2"
     compensation: Compensation | None = None
     values: dict = field(default_factory=dict)  # for the gain computation
 
@@ -206,6 +209,7 @@ class Timing(SideEffect):
                     "arrival_interval_std_ms": (spread * 1e3, float("nan"))},
             loglik_before=ll0, loglik_after=ll1, extra_params=3, p_value=_lr_p(ll0, ll1, 3),
             rms_before=float(np.sqrt(np.mean(excess0**2))), rms_after=float(np.sqrt(np.mean(excess1**2))),
+            rms_unit="s",
             detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
                     f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
             values={"host_time": True},
@@ -230,7 +234,7 @@ class SampleLoss(SideEffect):
                     "gaps": (float(gaps), 0.0),
                     "mean_gap_samples": ((total / gaps) if gaps else 0.0, 0.0)},
             loglik_before=ll0, loglik_after=ll1, extra_params=1, p_value=0.0 if total else 1.0,
-            rms_before=0.0, rms_after=0.0, detail=f"{total} samples lost in {gaps} gaps",
+            rms_before=0.0, rms_after=0.0, rms_unit=None, detail=f"{total} samples lost in {gaps} gaps",
             values={"lost": True},
         )
 
