@@ -350,25 +350,33 @@ class SerialSource:
         self._last_data_s = time.monotonic()
         return first + (self._read_now(max_bytes - 1) if max_bytes > 1 and self._port is not None else b"")
 
+    async def _open_first(self) -> None:
+        """Open at the start of chunks()/deliver() (raises if it cannot). Opening may
+        block (socket:// connects, a USB device settles): a worker thread does it."""
+        if not self._wanted_open:
+            await asyncio.to_thread(self.open)
+
+    async def _port_ready(self) -> bool:
+        """Wait until the port is open again after a loss (back-off; raises when
+        ``reconnect`` is False); False once close() was called: chunks/deliver end."""
+        while True:
+            if not self._wanted_open:
+                return False  # close() was called
+            self._ensure_usable()
+            if self._port is not None:
+                return True
+            await asyncio.sleep(max(0.0, self._next_attempt_s - time.monotonic()))
+            await asyncio.to_thread(self._reopen_if_due)
+
     async def chunks(self) -> AsyncIterator[bytes]:
         """Yield non-empty chunks as they arrive, forever (or until the port is given up).
 
         Raises SerialPortError if the port cannot be opened at first, or when it is lost
         and ``reconnect`` is False.
         """
-        # Opening may block (socket:// connects, a USB device settles), so it runs
-        # in a worker thread rather than in the event loop.
-        if not self._wanted_open:
-            await asyncio.to_thread(self.open)
+        await self._open_first()
         loop = asyncio.get_running_loop()
-        while True:
-            if not self._wanted_open:
-                return  # close() was called
-            self._ensure_usable()
-            if self._port is None:
-                await asyncio.sleep(max(0.0, self._next_attempt_s - time.monotonic()))
-                await asyncio.to_thread(self._reopen_if_due)
-                continue
+        while await self._port_ready():
             if self._fd is None:
                 data = await asyncio.to_thread(self.read, None, self.settings.thread_poll_s)
             else:
@@ -392,17 +400,9 @@ class SerialSource:
         stays registered while the port is open. An exception from ``consume`` ends
         ``deliver()`` with that exception.
         """
-        if not self._wanted_open:
-            await asyncio.to_thread(self.open)
+        await self._open_first()
         loop = asyncio.get_running_loop()
-        while True:
-            if not self._wanted_open:
-                return  # close() was called
-            self._ensure_usable()
-            if self._port is None:
-                await asyncio.sleep(max(0.0, self._next_attempt_s - time.monotonic()))
-                await asyncio.to_thread(self._reopen_if_due)
-                continue
+        while await self._port_ready():
             if self._fd is None:
                 data = await asyncio.to_thread(self.read, None, self.settings.thread_poll_s)
                 if data:
