@@ -392,6 +392,32 @@ class StreamDecoder:
         """Bytes held back for the next feed (an incomplete frame or half a sync pair)."""
         return len(self._pending)
 
+    @property
+    def last_seq(self) -> int:
+        """seq of the last SAMPLE (or HELLO), −1 before any: what the next gap is counted from."""
+        return -1 if self._last_seq is None else self._last_seq
+
+    def account_samples(self, nbytes: int, samples: int, last_seq: int, lost: int, gaps: int) -> None:
+        """Record a run of good SAMPLE frames that a caller decoded itself, as `feed`
+        would have: `nbytes` bytes of `samples` frames, the newest with `last_seq`, and
+        the seq gaps and samples lost among them (counted from `last_seq` as it was).
+
+        For `drivers.sample_scan.sample_at` in compiled code, which only ever takes
+        whole SAMPLE frames from the start of a chunk while nothing is buffered here;
+        the rest of the chunk then goes to `feed`.
+        """
+        if self._pending:
+            raise RuntimeError("account_samples with bytes buffered: feed them first")
+        counters = self._counters
+        counters.bytes_received += nbytes
+        if samples:
+            self._last_seq = last_seq
+            self._in_bad_run = False
+            counters.frames_decoded += samples
+            counters.samples_decoded += samples
+            counters.samples_lost += lost
+            counters.seq_gaps += gaps
+
     def _skip(self, count: int) -> None:
         counters = self._counters
         counters.bytes_skipped += count

@@ -51,12 +51,10 @@ class EstimatorLink:
     def reset(self) -> None:
         self.estimator = RealtimeEstimator(self.settings)
         self._bias_requested = False
-        est = self.estimator
-        try:  # the kernel's state, for the per-sample fast path (see step)
-            self._kernel_args = (est._x, est._P, est._m, est._ring_z, est._ring_ok, est._snap, est._prm, est._gain)
-            self._out = est._out
-        except AttributeError:  # the core changed its internals: use its public step
-            self._kernel_args = None
+        # the kernel's state, for the per-sample fast path (see step) and the daemon's
+        # compiled per-chunk path (gateway/sample_fast_path.py)
+        *self.kernel_args, self.kernel_out = self.estimator.kernel_state
+        self.kernel_args = tuple(self.kernel_args)
 
     def step(self, t_s: float, acc_mps2: float | None, lost_before: int) -> LinkEstimate:
         """RealtimeEstimator.step, then the health the daemon publishes.
@@ -67,18 +65,24 @@ class EstimatorLink:
         the kernel, 500 times a second. tests/test_service_parts.py checks that both
         paths give the same numbers, bit for bit.
         """
-        if self._kernel_args is None:
-            e = self.estimator.step(t_s, acc_mps2, lost_before)
-            pos, vel, acc, bias, pos_std, flags = e.pos_m, e.vel_mps, e.acc_mps2, e.bias_mps2, e.pos_std_m, e.flags
-        else:
-            valid = acc_mps2 is not None
-            K.step(*self._kernel_args, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before),
-                   self._out)
-            o = self._out.tolist()
-            pos, vel, acc, bias, var = o[_O_POS], o[_O_VEL], o[_O_ACC], o[_O_BIAS], o[_O_POS_VAR]
-            pos_std = math.sqrt(var) if var >= 0.0 else math.nan  # as np.sqrt
-            flags = int(o[_O_FLAGS])
-        if flags & _F_ENTRY:
+        valid = acc_mps2 is not None
+        K.step(*self.kernel_args, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before),
+               self.kernel_out)
+        return self.latest(entered_standstill=None)
+
+    def latest(self, entered_standstill: bool | None) -> LinkEstimate:
+        """The estimate in the kernel's output array (its newest step).
+
+        `entered_standstill`: whether any step since the last call began a standstill
+        (the daemon's compiled path steps a whole chunk); None: look at the newest step.
+        """
+        o = self.kernel_out.tolist()
+        pos, vel, acc, bias, var = o[_O_POS], o[_O_VEL], o[_O_ACC], o[_O_BIAS], o[_O_POS_VAR]
+        pos_std = math.sqrt(var) if var >= 0.0 else math.nan  # as np.sqrt
+        flags = int(o[_O_FLAGS])
+        if entered_standstill is None:
+            entered_standstill = bool(flags & _F_ENTRY)
+        if entered_standstill:
             self._bias_requested = False  # the new standstill re-measures the bias
         initialised = bool(flags & _F_INITIALISED)
         # positional, in field order: pos, vel, acc, standstill, bias, pos_std, holding,

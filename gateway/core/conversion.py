@@ -108,6 +108,19 @@ class SampleTimeline:
         self._next_t_s: float | None = None
         self._last_period_s: float | None = None
 
+    @property
+    def state(self) -> tuple[float, float] | None:
+        """(next sample's time s, last period s), None before the first sample: for a
+        compiled caller that advances the timeline itself and hands it back (`resume`)."""
+        if self._next_t_s is None:
+            return None
+        return self._next_t_s, self._last_period_s
+
+    def resume(self, next_t_s: float, last_period_s: float) -> None:
+        """Continue from a state that `advance` would have reached (see `state`)."""
+        self._next_t_s = next_t_s
+        self._last_period_s = last_period_s
+
     def advance(self, t2_ticks: int, tick_hz: float, lost_before: int = 0) -> float:
         period = t2_ticks / tick_hz if t2_ticks > 0 else self._last_period_s
         if self._next_t_s is None:

@@ -100,6 +100,15 @@ class RealtimeEstimator:
             flags=int(o[K.O_FLAGS]),
         )
 
+    @property
+    def kernel_state(self) -> tuple:
+        """The arrays `estimator_kernel.step` works on, in its argument order (x, P, misc,
+        ring_z, ring_ok, snap, prm, gain) plus its output array: for a caller that
+        drives the kernel from its own compiled loop (the daemon's per-chunk path).
+        Valid until `reset()`; `step()` and that caller then share one filter."""
+        return (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._prm, self._gain,
+                self._out)
+
     def tare(self) -> None:
         """Position := 0 here; it is then exact by definition (no variance, no correlation)."""
         self._x[0] = 0.0
