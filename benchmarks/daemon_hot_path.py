@@ -6,12 +6,13 @@ Explains the CPU number of daemon_benchmark.py. One Gateway in this process (Mod
 a free port, CAN on the python-can virtual bus):
 
 - hot: Gateway.handle_frames fed the paper's SAMPLE frames back to back, CAN left out
-  (µs per sample); then publish + one CAN cycle (values built, both frames encoded and
-  sent) back to back (µs per cycle). What the code costs with everything in cache.
+  (µs per sample), one frame per call and five per call (a batch of Gateway.receive);
+  then publish + one CAN cycle (values built, both frames encoded and sent) back to
+  back (µs per cycle). What the code costs with everything in cache.
 - in the flow: the same gateway reading a real pty while a writer process plays the
-  board at 500 samples/s; handle_frames timed around each call (wall µs, it includes the
-  CAN cycles it sends), and this process's main-thread CPU per sample (the event loop's
-  wakeup included).
+  board at 500 samples/s; Gateway.receive timed around each call (wall µs, it includes
+  the batches it runs and the CAN cycles it sends), and this process's main-thread CPU
+  per sample (the event loop's wakeup included).
 """
 from __future__ import annotations
 
@@ -37,6 +38,9 @@ from gateway.daemon import Gateway  # noqa: E402
 HELLO = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 
 
+COMPILED_SAMPLES = True  # --python-samples: the Python path only (what it replaced)
+
+
 def config(tmp: Path, port: str):
     return validate({"serial": {"port": port}, "modbus": {"port": 0},
                      "can": {"interface": "virtual", "channel": f"hot-{tmp.name}"},
@@ -45,7 +49,8 @@ def config(tmp: Path, port: str):
 
 async def hot(frames: list[bytes]) -> tuple[float, float]:
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-hot-"))
-    gw = Gateway(config(tmp, str(tmp / "no-board")))  # the port never opens: frames are fed by hand
+    # the port never opens: frames are fed by hand
+    gw = Gateway(config(tmp, str(tmp / "no-board")), compiled_samples=COMPILED_SAMPLES)
     task = asyncio.create_task(gw.run())
     while gw.can is None:
         await asyncio.sleep(0.05)
@@ -55,6 +60,11 @@ async def hot(frames: list[bytes]) -> tuple[float, float]:
     for frame in frames:
         gw.handle_frames(frame)
     per_sample = (time.perf_counter() - t0) / len(frames)
+    batches = [b"".join(frames[k:k + 5]) for k in range(0, len(frames), 5)]
+    t0 = time.perf_counter()
+    for batch in batches:
+        gw.handle_frames(batch)
+    per_sample_batched = (time.perf_counter() - t0) / len(frames)
     gw.can = can
     cycles = 2000
     t0 = time.perf_counter()
@@ -64,14 +74,14 @@ async def hot(frames: list[bytes]) -> tuple[float, float]:
     per_cycle = (time.perf_counter() - t0) / cycles
     gw._stop.set()
     await task
-    return per_sample * 1e6, per_cycle * 1e6
+    return per_sample * 1e6, per_sample_batched * 1e6, per_cycle * 1e6
 
 
 async def in_flow(pty: PtyPort, seconds: float, start_ns: int) -> tuple[float, float, int]:
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-hot-"))
-    gw = Gateway(config(tmp, str(pty.link)))
+    gw = Gateway(config(tmp, str(pty.link)), compiled_samples=COMPILED_SAMPLES)
     spent = [0.0, 0]
-    handle = gw.handle_frames
+    handle = gw.receive
 
     def timed(data: bytes) -> None:
         t = time.perf_counter()
@@ -79,7 +89,7 @@ async def in_flow(pty: PtyPort, seconds: float, start_ns: int) -> tuple[float, f
         spent[0] += time.perf_counter() - t
         spent[1] += 1
 
-    gw.handle_frames = timed  # before run(): the board task hands this to the port
+    gw.receive = timed  # before run(): the board task hands this to the port
     task = asyncio.create_task(gw.run())
     while (time.monotonic_ns() - start_ns) / 1e9 < 1.0:  # the first second after the writer starts
         await asyncio.sleep(0.05)
@@ -96,7 +106,11 @@ async def in_flow(pty: PtyPort, seconds: float, start_ns: int) -> tuple[float, f
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=8.0, help="measured board time in the flow")
+    ap.add_argument("--python-samples", action="store_true",
+                    help="without the compiled per-chunk sample path (gateway/sample_fast_path.py)")
     args = ap.parse_args()
+    global COMPILED_SAMPLES
+    COMPILED_SAMPLES = not args.python_samples
     frames = board_frames(args.seconds + 4.0)
     # the writer is forked before any event loop or thread exists in this process
     pty = PtyPort(Path(tempfile.mkdtemp(prefix="adxlgw-hot-")) / "board")
@@ -105,16 +119,17 @@ def main() -> None:
     _, sent = ctx.Pipe(False)  # the writer's timestamps are not needed here
     board = ctx.Process(target=writer, args=(pty.master_fd, frames, start_ns, sent))
     board.start()
-    hot_sample_us, hot_cycle_us = asyncio.run(hot(frames))
+    hot_sample_us, hot_batched_us, hot_cycle_us = asyncio.run(hot(frames))
     flow_call_us, flow_cpu_us, samples = asyncio.run(in_flow(pty, args.seconds, start_ns))
     board.terminate()  # it may still be writing the spare frames, with nobody reading
     board.join()
     pty.close(remove_link=True)
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_hot_path.py --seconds {args.seconds:g}")
+    flag = " --python-samples" if args.python_samples else ""
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_hot_path.py --seconds {args.seconds:g}{flag}")
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
-    print(f"hot:         handle_frames {hot_sample_us:.1f} µs per sample (no CAN); "
-          f"publish + CAN cycle {hot_cycle_us:.1f} µs per cycle")
-    print(f"in the flow: handle_frames {flow_call_us:.1f} µs per call (CAN cycles included); "
+    print(f"hot:         handle_frames {hot_sample_us:.1f} µs per sample one by one, {hot_batched_us:.1f} µs "
+          f"in fives (no CAN); publish + CAN cycle {hot_cycle_us:.1f} µs per cycle")
+    print(f"in the flow: receive {flow_call_us:.1f} µs per call (batches and CAN cycles included); "
           f"main-thread CPU {flow_cpu_us:.0f} µs per sample ({samples} samples at 500/s)")
 
 

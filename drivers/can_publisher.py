@@ -279,6 +279,19 @@ class CanPublisher:
                 self._next_due = now + self._period_s
                 self._arm_timer()
 
+    def update_due(self) -> bool:
+        """Would `update()` transmit right now? For a caller that defers building its
+        values until someone needs them: a due cycle (in step with the updates) or
+        send-on-update is such a need; a strictly cyclic publisher reads the values
+        when its own timer fires, so an update never is."""
+        if not self._running:
+            return False
+        if self._sync:
+            return time.monotonic() >= self._next_due
+        if self._min_interval_s is not None:
+            return time.monotonic() - self._last_send >= self._min_interval_s
+        return False
+
     async def start(self) -> None:
         if self._bus is not None:
             raise CanPublisherError("CAN publisher already started")

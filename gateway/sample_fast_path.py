@@ -53,8 +53,8 @@ R_LOST = 11  # samples lost (seq gaps) …
 R_GAPS = 12  # … in how many gaps
 R_INVALID = 13
 R_SATURATED = 14
-R_ANY_LOST = 15  # 1: some sample had samples lost right before it
-R_ANY_SATURATED = 16
+R_LAST_LOST = 15  # which sample of the run (0-based) last had samples lost before it, −1: none
+R_LAST_SATURATED = 16  # which sample of the run was last clipped, −1: none
 R_ENTRY = 17  # 1: some step began a standstill
 N_SLOTS = 18
 
@@ -92,8 +92,8 @@ def run_chunk(buf, st, x, P, m, ring_z, ring_ok, snap, prm, gain, out):
     gaps = 0
     invalid = 0
     saturated_n = 0
-    any_lost = False
-    any_saturated = False
+    last_lost = -1
+    last_saturated = -1
     entry = False
     while True:
         seq, t1x, t1y, t2, flags = sample_at(buf, pos)
@@ -135,9 +135,9 @@ def run_chunk(buf, st, x, P, m, ring_z, ring_ok, snap, prm, gain, out):
             if saturated:
                 saturated_n += 1
         if lost:
-            any_lost = True
+            last_lost = n - 1
         if saturated:
-            any_saturated = True
+            last_saturated = n - 1
         # estimator
         K.step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, acc if ok else 0.0, ok, lost, out)
         if np.int64(out[_O_FLAGS]) & _F_ENTRY:
@@ -151,8 +151,8 @@ def run_chunk(buf, st, x, P, m, ring_z, ring_ok, snap, prm, gain, out):
     st[R_GAPS] = gaps
     st[R_INVALID] = invalid
     st[R_SATURATED] = saturated_n
-    st[R_ANY_LOST] = 1.0 if any_lost else 0.0
-    st[R_ANY_SATURATED] = 1.0 if any_saturated else 0.0
+    st[R_LAST_LOST] = last_lost
+    st[R_LAST_SATURATED] = last_saturated
     st[R_ENTRY] = 1.0 if entry else 0.0
     return pos
 
@@ -170,8 +170,8 @@ class SampleFastPath:
         self._st = np.zeros(N_SLOTS)
         # the results of the last take, as the daemon reads them
         self.samples = 0
-        self.any_lost = False
-        self.any_saturated = False
+        self.last_lost = -1  # the sample of the run (0-based) that last had a gap before it, −1: none
+        self.last_saturated = -1  # … that was last clipped
         self.entered_standstill = False
         # compile (or load from numba's cache) now, before the daemon reports READY
         run_chunk(np.zeros(0, np.uint8), np.zeros(N_SLOTS), *link.kernel_args, link.kernel_out)
@@ -201,7 +201,7 @@ class SampleFastPath:
         st[S_AXIS_Y] = 1.0 if use_y else 0.0
         link = self.link
         taken = run_chunk(np.frombuffer(data, np.uint8), st, *link.kernel_args, link.kernel_out)
-        (n, lost, gaps, invalid, saturated, any_lost, any_saturated, entry) = st[R_SAMPLES:N_SLOTS].tolist()
+        (n, lost, gaps, invalid, saturated, last_lost, last_saturated, entry) = st[R_SAMPLES:N_SLOTS].tolist()
         n = int(n)
         self.samples = n
         if not n:
@@ -212,7 +212,7 @@ class SampleFastPath:
         counters.samples += n
         counters.samples_invalid += int(invalid)
         counters.samples_saturated += int(saturated)
-        self.any_lost = any_lost > 0.0
-        self.any_saturated = any_saturated > 0.0
+        self.last_lost = int(last_lost)
+        self.last_saturated = int(last_saturated)
         self.entered_standstill = entry > 0.0
         return taken

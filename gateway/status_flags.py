@@ -13,7 +13,7 @@ from drivers.published_values import StatusBits
 EVENT_HOLD_S = 10.0
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # not frozen: built for every published snapshot, and frozen init is slow
 class GatewayCondition:
     now_s: float
     have_estimate: bool
