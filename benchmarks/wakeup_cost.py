@@ -1,0 +1,196 @@
+"""What being woken 500 times a second costs here, and what the gateway adds to it.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py [--seconds 8] [--repeat 5]
+
+Several readers of the board's stream run at the same time, each on its own pty with
+its own writer process playing the board (500 SAMPLE frames/s, one write per frame,
+as daemon_benchmark.py), so that all see the same state of the shared host — between
+runs minutes apart it moves the numbers by more than the differences asked about.
+CPU is utime+stime of each reader process over the run, % of one core:
+
+- asyncio reader: an event loop with a reader callback that calls os.read — the
+  floor of daemon_benchmark.py, what the gateway's loop pays per wakeup before work;
+- thread reader: a plain blocking os.read loop, no event loop — what a dedicated
+  board thread would pay;
+- gateway without CAN, and the gateway with its default config (CAN every 10 ms on
+  python-can's virtual bus), no Modbus client;
+
+and, after them, how long Gateway.handle_frames takes for the first chunk
+after a wakeup compared with the same call on a second gateway right after it
+(same code, now in cache), with and without the compiled sample path.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import multiprocessing as mp
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.daemon_benchmark import board_frames, cpu_seconds, writer  # noqa: E402
+from benchmarks.machine_info import machine  # noqa: E402
+from drivers.pty_port import PtyPort  # noqa: E402
+
+ASYNCIO_READER = """
+import asyncio, os, signal, tty
+async def main():
+    fd = os.open({link!r}, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    tty.setraw(fd)
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+    loop.add_signal_handler(signal.SIGTERM, done.set_result, None)
+    loop.add_reader(fd, lambda: os.read(fd, 4096))
+    await done
+asyncio.run(main())
+"""
+
+THREAD_READER = """
+import os, signal, tty
+signal.signal(signal.SIGTERM, lambda *_: os._exit(0))
+fd = os.open({link!r}, os.O_RDWR | os.O_NOCTTY)
+tty.setraw(fd)
+while True:
+    os.read(fd, 4096)
+"""
+
+GATEWAY = """
+import asyncio, sys, tempfile
+sys.path.insert(0, {root!r})
+from gateway.config import validate
+from gateway.daemon import Gateway
+tmp = tempfile.mkdtemp(prefix="adxlgw-wake-")
+cfg = validate({{"serial": {{"port": {link!r}}}, "modbus": {{"port": 0}},
+                 "can": {{"enabled": {can}, "interface": "virtual", "channel": "wake-" + tmp[-8:]}},
+                 "state": {{"path": tmp + "/state.json"}}, "service": {{"log_level": "error"}}}}, "<bench>")
+asyncio.run(Gateway(cfg).run())
+"""
+
+PROBE = """
+import asyncio, os, signal, sys, tempfile, time, tty
+sys.path.insert(0, {root!r})
+from gateway.config import validate
+from gateway.daemon import Gateway
+
+def gateway(compiled):
+    tmp = tempfile.mkdtemp(prefix="adxlgw-wake-")
+    cfg = validate({{"serial": {{"port": tmp + "/none"}}, "can": {{"enabled": False}},
+                     "state": {{"path": tmp + "/state.json"}}}}, "<bench>")
+    return Gateway(cfg, compiled_samples=compiled)
+
+first, second = gateway({compiled}), gateway({compiled})
+spent = [0.0, 0.0, 0]
+clock = time.perf_counter
+
+def on_readable():
+    data = os.read(fd, 4096)
+    t0 = clock()
+    first.handle_frames(data)
+    t1 = clock()
+    second.handle_frames(data)
+    t2 = clock()
+    spent[0] += t1 - t0
+    spent[1] += t2 - t1
+    spent[2] += 1
+
+async def main():
+    global fd
+    fd = os.open({link!r}, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    tty.setraw(fd)
+    loop = asyncio.get_running_loop()
+    done = loop.create_future()
+    loop.add_signal_handler(signal.SIGTERM, done.set_result, None)
+    loop.add_reader(fd, on_readable)
+    await done
+    n = max(spent[2], 1)
+    print(f"{{spent[0] / n * 1e6:.1f}} {{spent[1] / n * 1e6:.1f}} {{spent[2]}}", flush=True)
+asyncio.run(main())
+"""
+
+VARIANTS = {
+    "asyncio reader (the floor)": lambda link: ASYNCIO_READER.format(link=link),
+    "thread reader (blocking os.read)": lambda link: THREAD_READER.format(link=link),
+    "gateway without CAN": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=False),
+    "gateway, default config": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=True),
+}
+PROBES = {
+    "compiled sample path": lambda link: PROBE.format(root=str(ROOT), link=link, compiled=True),
+    "Python sample path": lambda link: PROBE.format(root=str(ROOT), link=link, compiled=False),
+}
+
+
+def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[float], list[str]]:
+    """Start every reader on its own pty, play the board to all at once; CPU % each."""
+    readers = []
+    for code in codes:
+        pty = PtyPort(Path(tempfile.mkdtemp(prefix="adxlgw-wake-")) / "board")
+        proc = subprocess.Popen([sys.executable, "-c", code(str(pty.link))], cwd=ROOT,
+                                stdout=subprocess.PIPE if capture else subprocess.DEVNULL, text=True)
+        readers.append((pty, proc))
+    for pty, proc in readers:
+        if not pty.wait_for_reader(120):
+            for _, p in readers:
+                p.kill()
+            raise SystemExit("a reader never opened its pty")
+    frames = board_frames(seconds)
+    start_ns = time.monotonic_ns() + int(2e9)  # the gateways are up (Modbus, CAN) by then
+    ctx = mp.get_context("fork")
+    writers = []
+    for pty, _ in readers:
+        done, sent = ctx.Pipe(False)
+        w = ctx.Process(target=writer, args=(pty.master_fd, frames, start_ns, sent))
+        w.start()
+        writers.append((done, w))
+    while time.monotonic_ns() < start_ns:
+        time.sleep(0.01)
+    cpu0, wall0 = [cpu_seconds(p.pid) for _, p in readers], time.monotonic()
+    for done, _ in writers:
+        done.recv()
+    cpu1, wall1 = [cpu_seconds(p.pid) for _, p in readers], time.monotonic()
+    outputs = []
+    for (_, w), (pty, proc) in zip(writers, readers):
+        w.join()
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=20)
+        outputs.append(out or "")
+        pty.close(remove_link=True)
+    return [100.0 * (b - a) / (wall1 - wall0) for a, b in zip(cpu0, cpu1)], outputs
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seconds", type=float, default=8.0)
+    ap.add_argument("--repeat", type=int, default=5)
+    args = ap.parse_args()
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
+          f"--repeat {args.repeat}")
+    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    names = list(VARIANTS)
+    cpu = {name: [] for name in names}
+    for _ in range(args.repeat):
+        got, _ = together([VARIANTS[n] for n in names], args.seconds)
+        for name, value in zip(names, got):
+            cpu[name].append(value)
+    print(f"CPU at 500 samples/s, one write per frame, {args.repeat} runs of {args.seconds:g} s, all side by side:")
+    for name in names:
+        v = cpu[name]
+        print(f"  {name:36s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %")
+    probe_names = list(PROBES)
+    _, outs = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
+    print("Gateway.handle_frames after each wakeup (µs per chunk, mean), and the same call on a second")
+    print("gateway right after it:")
+    for name, out in zip(probe_names, outs):
+        first_us, second_us, calls = out.split()
+        print(f"  {name:22s} first {float(first_us):5.1f} µs   second {float(second_us):5.1f} µs   ({calls} chunks)")
+
+
+if __name__ == "__main__":
+    main()
