@@ -210,6 +210,8 @@ class Gateway:
         now = self.clock()
         inbox = self._inbox
         inbox.append((now, data))
+        if self.modbus is not None:
+            self.modbus.update(self._values_source)  # its next read asks for the values: runs the batch
         if (now - inbox[0][0] >= MAX_DEFER_S or len(inbox) >= MAX_DEFER_CHUNKS
                 or (self.can is not None and self.can.update_due())):
             self._drain(now)

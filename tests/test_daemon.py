@@ -155,3 +155,35 @@ def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board, m
             client.close()
 
     run(scenario())
+
+
+def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
+    """Received bytes wait (Gateway.receive) until something needs the numbers; a Modbus
+    read is such a need: it must show every sample received before it."""
+    from drivers.board_protocol import encode_hello, encode_sample
+    from drivers.pty_port import PtyPort
+
+    pty = PtyPort(tmp_path / "board")  # the gateway opens it; the bytes are handed over below
+    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
+            await client.connect()
+            try:
+                before = (await read_inputs(client))["SAMPLE_COUNTER"]
+                gw.receive(encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0))
+                for seq in range(3):
+                    gw.receive(encode_sample(seq, 900, 900, 1843))
+                assert gw._inbox, "the bytes were handled at once: nothing to check"
+                assert gw.counters.samples == before
+                regs = await read_inputs(client)
+                assert regs["SAMPLE_COUNTER"] == before + 3
+                assert not gw._inbox
+            finally:
+                client.close()
+
+    try:
+        run(scenario())
+    finally:
+        pty.close(remove_link=True)
