@@ -36,22 +36,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.daemon_benchmark import board_frames, cpu_seconds, writer  # noqa: E402
+from benchmarks.daemon_benchmark import FLOOR_READER, board_frames, cpu_seconds, writer  # noqa: E402
 from benchmarks.machine_info import machine  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
-
-ASYNCIO_READER = """
-import asyncio, os, signal, tty
-async def main():
-    fd = os.open({link!r}, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-    tty.setraw(fd)
-    loop = asyncio.get_running_loop()
-    done = loop.create_future()
-    loop.add_signal_handler(signal.SIGTERM, done.set_result, None)
-    loop.add_reader(fd, lambda: os.read(fd, 4096))
-    await done
-asyncio.run(main())
-"""
 
 THREAD_READER = """
 import os, signal, tty
@@ -116,7 +103,7 @@ asyncio.run(main())
 """
 
 VARIANTS = {
-    "asyncio reader (the floor)": lambda link: ASYNCIO_READER.format(link=link),
+    "asyncio reader (the floor)": lambda link: FLOOR_READER.format(link=link),
     "thread reader (blocking os.read)": lambda link: THREAD_READER.format(link=link),
     "gateway without CAN": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=False),
     "gateway, default config": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=True),

@@ -135,6 +135,24 @@ def same(a: float, b: float) -> bool:
     return a == b or (a != a and b != b)
 
 
+def command_at_standstill(tested: Gateway, reference: Gateway, k: int, command_at: int, commanded: bool) -> bool:
+    """From chunk `command_at` on, at the first standstill: a bias re-estimation to both
+    (accepted, and the next standstill must end it on both). True once it was sent."""
+    if commanded or k < command_at or reference._estimate is None or not reference._estimate.standstill:
+        return commanded
+    assert tested.on_command(Command.REESTIMATE_BIAS, "test")
+    assert reference.on_command(Command.REESTIMATE_BIAS, "test")
+    return True
+
+
+def assert_same_values(a, b, where, skip: tuple[str, ...] = ()) -> None:
+    for field in a.__dataclass_fields__:
+        if field in skip:
+            continue
+        x, y = getattr(a, field), getattr(b, field)
+        assert same(x, y) if isinstance(x, float) else x == y, (where, field, x, y)
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_compiled_and_python_paths_publish_the_same(tmp_path, seed):
     now = [100.0]
@@ -157,15 +175,8 @@ def test_compiled_and_python_paths_publish_the_same(tmp_path, seed):
         now[0] += 0.002
         fast.handle_frames(chunk)
         slow.handle_frames(chunk)
-        if k >= command_at and not commanded and slow._estimate is not None and slow._estimate.standstill:
-            # at standstill: accepted, and the next standstill must end it on both
-            assert fast.on_command(Command.REESTIMATE_BIAS, "test")
-            assert slow.on_command(Command.REESTIMATE_BIAS, "test")
-            commanded = True
-        a, b = fast.values, slow.values
-        for field in a.__dataclass_fields__:
-            x, y = getattr(a, field), getattr(b, field)
-            assert same(x, y) if isinstance(x, float) else x == y, (k, field, x, y)
+        commanded = command_at_standstill(fast, slow, k, command_at, commanded)
+        assert_same_values(fast.values, slow.values, k)
         if fast._estimate is not None:
             assert fast._estimate.bias_estimating == slow._estimate.bias_estimating
             assert fast._estimate.standstill == slow._estimate.standstill
@@ -212,18 +223,11 @@ def test_deferred_batches_publish_what_immediate_handling_publishes(tmp_path, se
         now[0] += 0.002
         deferred.receive(chunk)
         at_once.handle_frames(chunk)
-        if k >= command_at and not commanded and at_once._estimate is not None and at_once._estimate.standstill:
-            assert deferred.on_command(Command.REESTIMATE_BIAS, "test")
-            assert at_once.on_command(Command.REESTIMATE_BIAS, "test")
-            commanded = True
+        commanded = command_at_standstill(deferred, at_once, k, command_at, commanded)
         if rng.random() < 0.05 or k == len(chunks) - 1:  # a Modbus read, now and then
             looks += 1
-            a, b = deferred.values, at_once.values
-            for field in a.__dataclass_fields__:
-                if field == "heartbeat":  # one publish per batch instead of per chunk
-                    continue
-                x, y = getattr(a, field), getattr(b, field)
-                assert same(x, y) if isinstance(x, float) else x == y, (k, field, x, y)
+            # the heartbeat counts publishes: one per batch instead of one per chunk
+            assert_same_values(deferred.values, at_once.values, k, skip=("heartbeat",))
             for name in ("_last_sample_s", "_lost_at", "_saturated_until", "_board_reset_at"):
                 assert getattr(deferred, name) == getattr(at_once, name), (k, name)
     assert commanded and looks > 50
