@@ -359,6 +359,10 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="with --cpu-only: runs, then median and range")
     args = ap.parse_args()
     if args.cpu_only:
+        print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_benchmark.py --cpu-only "
+              f"--seconds {args.seconds:g} --repeat {args.repeat}")
+        print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
+        print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
         runs, floors = [], []
         for _ in range(args.repeat):  # interleaved: the machine's load drifts between runs
             runs.append(one_run(args.seconds, -1, instrumented=False, poll=False)["cpu_pct"])

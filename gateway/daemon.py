@@ -247,7 +247,7 @@ class Gateway:
         sampled = False
         fast = self._fast
         while batch:
-            if fast is not None:
+            if fast is not None and fast.ready:  # else joining the rest would be work for nothing
                 data = batch[0][1] if len(batch) == 1 else b"".join([chunk for _, chunk in batch])
                 taken = fast.take(data)
                 if taken:

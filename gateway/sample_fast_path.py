@@ -176,13 +176,19 @@ class SampleFastPath:
         # compile (or load from numba's cache) now, before the daemon reports READY
         run_chunk(np.zeros(0, np.uint8), np.zeros(N_SLOTS), *link.kernel_args, link.kernel_out)
 
+    @property
+    def ready(self) -> bool:
+        """False while the Python path must go on: bytes buffered in the decoder (a
+        frame split across chunks), or the board's tick rate not known yet."""
+        return self.session.tick_hz is not None and not self.decoder.buffered_bytes
+
     def take(self, data: bytes) -> int:
         """Bytes of `data` taken (whole SAMPLE frames from its start); 0: none, the
-        Python path has it all (bytes buffered in the decoder, tick rate unknown)."""
+        Python path has it all (see `ready`)."""
+        if not self.ready:
+            return 0
         session = self.session
         decoder = self.decoder
-        if session.tick_hz is None or decoder.buffered_bytes:
-            return 0
         st = self._st
         st[S_LAST_SEQ] = decoder.last_seq
         timeline = session.timeline.state
