@@ -16,6 +16,12 @@ have arrived, without blocking its caller:
   (``chunks()`` registers and unregisters the reader, creates a future and resumes a
   task per chunk, and pyserial's ``read`` adds a ``select`` per call).
 
+With ``SerialSettings(wake_min_bytes=N)`` a tty port (a device or a pty, not a URL)
+is set up so that the kernel reports it readable only once N bytes are waiting
+(termios VMIN, with VTIME 0): ``deliver()`` is then woken once per N bytes instead of
+once per arrival. ``read_pending()`` takes whatever has arrived meanwhile, never
+blocking, for a caller that needs the newest bytes before the wakeup comes.
+
 When the port disappears (read fails or reports EOF: adapter unplugged, pty closed)
 the source logs it, records it in :class:`SerialSourceState`, closes the port and
 reopens it with exponential back-off until it is back. With
@@ -38,6 +44,7 @@ import errno
 import logging
 import os
 import select
+import termios
 import time
 from collections.abc import AsyncIterator, Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -74,6 +81,9 @@ class SerialSettings:
     read_chunk_bytes: int = 4096
     #: Read timeout of the worker thread used for ports without a file descriptor (loop://).
     thread_poll_s: float = 0.05
+    #: A tty is reported readable only once this many bytes wait (termios VMIN, 1–255);
+    #: 1 wakes the reader at every arrival. No effect on pyserial URLs.
+    wake_min_bytes: int = 1
 
     def __post_init__(self) -> None:
         if not self.port:
@@ -84,6 +94,8 @@ class SerialSettings:
             raise ValueError("reconnect_multiplier must be >= 1")
         if self.read_chunk_bytes < 1 or self.thread_poll_s <= 0:
             raise ValueError("read_chunk_bytes and thread_poll_s must be positive")
+        if not 1 <= self.wake_min_bytes <= 255:
+            raise ValueError("wake_min_bytes must be within 1..255 (termios VMIN)")
 
 
 def reconnect_delays_s(settings: SerialSettings) -> Iterator[float]:
@@ -156,6 +168,7 @@ class SerialSource:
         self._fd: int | None = None
         #: The open port is a POSIX device whose descriptor deliver() reads with os.read.
         self._direct_fd = False
+        self._wake_min_bytes = 1
         #: The running deliver(): (loop, descriptor, its end).
         self._delivery: tuple[asyncio.AbstractEventLoop, int, asyncio.Future[None]] | None = None
         self._wanted_open = False
@@ -199,6 +212,12 @@ class SerialSource:
         return self._port is not None
 
     @property
+    def wake_min_bytes(self) -> int:
+        """How many bytes wake ``deliver()`` on the open port: ``settings.wake_min_bytes``
+        where it could be set (a tty), else 1 (every arrival)."""
+        return self._wake_min_bytes
+
+    @property
     def last_data_monotonic_s(self) -> float | None:
         """Same as ``state.last_data_monotonic_s``, without building a snapshot."""
         return self._last_data_s
@@ -222,9 +241,27 @@ class SerialSource:
         except (OSError, AttributeError):  # loop:// and friends have no descriptor
             self._fd = None
         self._direct_fd = self._fd is not None and _PosixSerial is not None and isinstance(port, _PosixSerial)
+        self._wake_min_bytes = 1
+        if self._direct_fd and self.settings.wake_min_bytes > 1:
+            self._set_wake_min_bytes(port_name)
         self._wanted_open = True
         self._given_up = False
         self._delays = reconnect_delays_s(self.settings)
+
+    def _set_wake_min_bytes(self, port_name: str) -> None:
+        # pyserial leaves VMIN = VTIME = 0 (readable at the first byte). With VMIN = N and
+        # VTIME = 0 the tty line discipline reports readiness only once N bytes wait; a
+        # non-blocking read still returns whatever is there (read_pending).
+        assert self._fd is not None
+        try:
+            attrs = termios.tcgetattr(self._fd)
+            attrs[6][termios.VMIN] = self.settings.wake_min_bytes
+            attrs[6][termios.VTIME] = 0
+            termios.tcsetattr(self._fd, termios.TCSANOW, attrs)
+        except termios.error as err:  # not a tty after all: wake at every arrival
+            logger.debug("%s: cannot set VMIN (%s); woken at every arrival", port_name, err)
+            return
+        self._wake_min_bytes = self.settings.wake_min_bytes
 
     def close(self) -> None:
         """Close on purpose (a chunks() loop then ends); the next read opens afresh."""
@@ -235,6 +272,7 @@ class SerialSource:
         self._end_delivery()  # unregister the descriptor before it is closed (its number may be reused)
         port, self._port, self._fd = self._port, None, None
         self._direct_fd = False
+        self._wake_min_bytes = 1
         if port is not None:
             try:
                 port.close()
@@ -296,6 +334,19 @@ class SerialSource:
             if self._port is None:
                 return b""
         return self._read_now(max_bytes or self.settings.read_chunk_bytes)
+
+    def read_pending(self) -> bytes:
+        """Whatever the port holds right now; b"" when nothing or the port is not open.
+
+        Never blocks and never (re)opens the port: for a caller in the event loop that
+        wants the newest bytes before ``deliver()`` is woken (see ``wake_min_bytes``).
+        A failed read is a loss, as in ``deliver()``.
+        """
+        if self._port is None:
+            return b""
+        max_bytes = self.settings.read_chunk_bytes
+        # not known to be readable: no bytes is not an end of file (VMIN 0 reads return 0)
+        return self._read_fd(max_bytes, readable=False) if self._direct_fd else self._read_now(max_bytes)
 
     def _read_now(self, max_bytes: int) -> bytes:
         assert self._port is not None
@@ -445,8 +496,8 @@ class SerialSource:
             if not ended.done():
                 ended.set_result(None)
 
-    def _read_fd(self, max_bytes: int) -> bytes:
-        """os.read on a POSIX serial descriptor that the loop reported readable.
+    def _read_fd(self, max_bytes: int, readable: bool = True) -> bytes:
+        """os.read on a POSIX serial descriptor (that the loop reported `readable`).
 
         What pyserial's ``read`` does with timeout 0, minus its ``select`` and timeout
         objects: EAGAIN is nothing to read; an error, or end of file on a readable
@@ -462,8 +513,9 @@ class SerialSource:
             self._lose(serial.SerialException(f"read failed: {err}"))
             return b""
         if not data:
-            self._lose(serial.SerialException(
-                "device reports readiness to read but returned no data (device disconnected?)"))
+            if readable:
+                self._lose(serial.SerialException(
+                    "device reports readiness to read but returned no data (device disconnected?)"))
             return b""
         self._bytes_read += len(data)
         self._last_data_s = time.monotonic()

@@ -9,9 +9,12 @@ would make thousands).
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import itertools
 import os
 import socket
+import struct
+import termios
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -367,6 +370,92 @@ def test_port_lost_backs_off_then_reconnects_when_the_symlink_returns(make_pty, 
     assert (final.is_open, final.losses, final.reconnects) == (True, 1, 1)
 
 
+def waiting_in(pty: Pty) -> int:
+    """Bytes the pty's tty holds, not yet read by anyone (FIONREAD)."""
+    return struct.unpack("i", fcntl.ioctl(pty.slave, termios.FIONREAD, b"\0" * 4))[0]
+
+
+def test_wake_min_bytes_wakes_deliver_per_batch_and_read_pending_takes_the_rest(make_pty, tmp_path: Path):
+    """With wake_min_bytes = 3 frames a tty wakes deliver() once 3 frames' bytes wait;
+    fewer stay in the kernel until read_pending() takes them. A port reopened after a
+    loss batches again."""
+    link = tmp_path / "ttyBOARD"
+    first = make_pty()
+    link.symlink_to(first.path)
+    frame = len(wire(frames(range(1))))
+    settings = SerialSettings(port=str(link), wake_min_bytes=3 * frame, **FAST_BACKOFF)
+
+    async def scenario():
+        source = SerialSource(settings)
+        chunks: list[bytes] = []
+        task = asyncio.create_task(source.deliver(chunks.append))
+        await wait_until(lambda: source.is_open, "port open")
+        assert source.wake_min_bytes == 3 * frame
+        assert termios.tcgetattr(first.slave)[6][termios.VMIN] == 3 * frame
+        os.write(first.master, wire(frames(range(0, 2))))
+        await wait_until(lambda: waiting_in(first) == 2 * frame, "two frames in the tty")
+        await asyncio.sleep(0.1)
+        assert chunks == []  # below the batch: not woken
+        taken = source.read_pending()
+        assert source.read_pending() == b""  # nothing left: no bytes, and not a loss
+        os.write(first.master, wire(frames(range(2, 5))))
+        await wait_until(lambda: chunks, "woken by a whole batch")
+
+        link.unlink()
+        first.unplug()
+        second = make_pty()
+        link.symlink_to(second.path)
+        await wait_until(lambda: source.state.reconnects == 1, "reconnect")
+        vmin_again = termios.tcgetattr(second.slave)[6][termios.VMIN]
+        os.write(second.master, wire(frames(range(5, 6))))
+        await wait_until(lambda: waiting_in(second) == frame, "a frame in the new tty")
+        await asyncio.sleep(0.1)
+        woken_for_one = len(chunks) > 1
+        late = source.read_pending()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        source.close()
+        return taken, chunks, vmin_again, woken_for_one, late, source.state
+
+    taken, chunks, vmin_again, woken_for_one, late, state = asyncio.run(scenario())
+    assert taken == wire(frames(range(0, 2)))
+    assert chunks == [wire(frames(range(2, 5)))]
+    assert vmin_again == 3 * frame and not woken_for_one
+    assert late == wire(frames(range(5, 6)))
+    assert (state.losses, state.reconnects) == (1, 1)
+
+
+def test_read_pending_on_a_quiet_tty_is_no_loss(make_pty):
+    """pyserial leaves VMIN 0: a non-blocking read with nothing waiting returns no
+    bytes instead of EAGAIN — which after a readiness report would mean end of file."""
+    pty = make_pty()
+    source = SerialSource(SerialSettings(port=pty.path))
+    source.open()
+    assert source.wake_min_bytes == 1
+    assert source.read_pending() == b""
+    os.write(pty.master, wire(frames(range(1))))
+    deadline = time.monotonic() + DEADLINE_S
+    got = b""
+    while not got and time.monotonic() < deadline:
+        got = source.read_pending()
+    assert got == wire(frames(range(1)))
+    assert (source.state.losses, source.is_open) == (0, True)
+    source.close()
+
+
+def test_wake_min_bytes_is_one_where_the_port_is_no_tty():
+    opener = RecordingOpener()
+    source = SerialSource(SerialSettings(port="loop://", wake_min_bytes=45), opener=opener)
+    assert source.read_pending() == b""  # not open: nothing, and it stays closed
+    source.open()
+    assert source.wake_min_bytes == 1
+    opener.ports[0].write(wire(frames(range(2))))
+    assert source.read_pending() == wire(frames(range(2)))
+    assert source.read_pending() == b""
+    source.close()
+
+
 def test_thread_reader_does_not_spin_while_the_port_is_away(make_pty, tmp_path: Path):
     link = tmp_path / "ttyBOARD"
     pty = make_pty()
@@ -448,6 +537,9 @@ def test_settings_are_validated():
         SerialSettings(port="")
     with pytest.raises(ValueError):
         SerialSettings(port="loop://", reconnect_initial_s=1.0, reconnect_max_s=0.5)
+    for wake in (0, 256):
+        with pytest.raises(ValueError, match="wake_min_bytes"):
+            SerialSettings(port="loop://", wake_min_bytes=wake)
     with pytest.raises(ValueError, match="unknown serial settings: baud"):
         SerialSource.from_config({"port": "loop://", "baud": 9600})
     assert SerialSource.from_config({"port": "loop://", "baudrate": 9600}).settings.baudrate == 9600
