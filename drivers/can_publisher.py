@@ -9,11 +9,17 @@ alive counter advances by exactly one per frame and a receiver's profile 1 check
 
 How a due time turns into a transmission (`CanPublisherConfig`):
 
-- `sync_to_updates` (the default): at the first `update()` at or after the due time,
-  inside that call, so the frames carry the values the moment they arrive (the daemon
-  updates once per board sample); if none comes within half a period, a timer sends
-  the values it has. On average one frame pair per period; a gap between two is
-  0.5–1.5 periods, and with samples every 2 ms and 10 ms periods it stays within 8–12 ms.
+- `sync_to_updates` (the default): at the first `update()` from a quarter period
+  before the due time on, inside that call, so the frames carry the values the moment
+  they arrive; if none comes within half a period after the due time, a timer sends
+  the values it has. The next due time is one period on, or three quarters of a period
+  after this transmission if that is later. So with updates more often than the period
+  (the daemon woken per board sample) it is one frame pair per period, gaps within
+  8–12 ms at 2 ms updates and 10 ms periods; with updates once per period (the daemon
+  woken per batch of samples, see serial.batch_frames) the cycle locks onto them
+  whatever their phase, each update sends, and the timer never fires — where a due
+  time exactly at the update would have sent every other cycle from the timer. Gaps
+  are 0.5–1.75 periods, on average one period.
 - otherwise on the timer alone, exactly at the due time (strictly cyclic).
 - `min_interval_ms` (either way): `update()` also sends at once when at least that long
   has passed since the last transmission, and the cycle restarts from that
@@ -79,9 +85,9 @@ class CanPublisherConfig:
     #: socketcan takes it from `ip link`).
     bitrate: int | None = None
     period_ms: float = 10.0
-    #: Each cycle's frames go out at the first update() at or after their due time
-    #: (a timer sends them half a period later if none comes); False: exactly on the
-    #: timer.
+    #: Each cycle's frames go out at the first update() from a quarter period before
+    #: their due time (a timer sends them half a period after it if none comes);
+    #: False: exactly on the timer.
     sync_to_updates: bool = True
     #: None: one transmission per period. A number: update() also transmits at once
     #: when at least this long has passed since the last transmission.
@@ -228,12 +234,15 @@ class CanPublisher:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._running = False
+        self._in_cycle = False  # building the values of a transmission (see update)
         self._period_s = config.period_ms / 1000.0
         self._min_interval_s = None if config.min_interval_ms is None else config.min_interval_ms / 1000.0
         # update() sends when the cycle is due (not in mixed mode: it has its own rule)
         self._sync = config.sync_to_updates and self._min_interval_s is None
-        # how long after the due time the timer waits for an update() to send
+        # how long after the due time the timer waits for an update() to send, and how
+        # long before it an update() already sends (see the module doc)
         self._timer_lag_s = self._period_s / 2 if self._sync else 0.0
+        self._early_s = self._period_s / 4 if self._sync else 0.0
         self._next_due = 0.0
         self._last_send = -float("inf")
         self._last_error_log = -float("inf")
@@ -263,11 +272,13 @@ class CanPublisher:
         May transmit them right here (see the module doc); never blocks.
         """
         self._values = values
-        if not self._running:
+        if not self._running or self._in_cycle:
+            # (an update from inside a transmission — its values source drained newer
+            # data — is already carried by it; it must not start a second one)
             return
         if self._sync:
             now = time.monotonic()
-            if now >= self._next_due:
+            if now >= self._next_due - self._early_s:
                 self._transmit(now)
         elif self._min_interval_s is not None:
             now = time.monotonic()
@@ -287,7 +298,7 @@ class CanPublisher:
         if not self._running:
             return False
         if self._sync:
-            return time.monotonic() >= self._next_due
+            return time.monotonic() >= self._next_due - self._early_s
         if self._min_interval_s is not None:
             return time.monotonic() - self._last_send >= self._min_interval_s
         return False
@@ -359,6 +370,10 @@ class CanPublisher:
             missed = int((now - self._next_due) / self._period_s) + 1
             self._bump(cycles_late=missed)
             self._next_due = now + self._period_s
+        elif self._sync:
+            # never sooner than half a period after this transmission; an update that
+            # comes late in its window moves the schedule onto the updates' phase
+            self._next_due = max(self._next_due, now + self._period_s - self._early_s)
         self._arm_timer()
 
     def _cycle_failed(self, now: float) -> None:
@@ -369,7 +384,12 @@ class CanPublisher:
     def _send_cycle(self, now: float) -> None:
         alive = self._alive
         pos_id, vel_id = POSITION_FRAME.frame_id, VELOCITY_FRAME.frame_id
-        pos_payload, vel_payload = self._encoder.encode(current(self._values), alive[pos_id], alive[vel_id])
+        self._in_cycle = True
+        try:
+            values = current(self._values)
+        finally:
+            self._in_cycle = False
+        pos_payload, vel_payload = self._encoder.encode(values, alive[pos_id], alive[vel_id])
         self._send(pos_id, pos_payload)
         self._send(vel_id, vel_payload)
         self._last_send = now

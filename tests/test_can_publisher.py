@@ -324,6 +324,62 @@ def test_frames_follow_the_updates_once_per_period_with_the_newest_values(channe
     assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
 
 
+@pytest.mark.parametrize("offset", [0.0, 0.25, 0.5, 0.75])
+def test_updates_once_per_period_lock_the_cycle_whatever_their_phase(channel: str, offset: float) -> None:
+    """The daemon woken once per batch of samples updates about once per period. Each
+    update must carry a cycle, whatever its phase against the schedule; a due time
+    just after the updates would otherwise leave every cycle to the timer (a wakeup
+    of its own) and the frames half a period old."""
+    period_s = 0.040
+
+    async def scenario() -> tuple[list, float]:
+        config = virtual_config(channel, period_ms=period_s * 1000)
+        async with publishing(config, bus_factory=recording_factory) as (publisher, _):
+            await asyncio.sleep(period_s * (2 + offset))
+            next_at = time.monotonic()
+            for k in range(40):  # strictly periodic: no drift to unlock a bad phase
+                await asyncio.sleep(max(0.0, next_at - time.monotonic()))
+                RecordingBus.inside_update = True
+                publisher.update(PublishedValues(position_m=(k + 1) / 1000, status=StatusBits.VALID))
+                RecordingBus.inside_update = False
+                next_at += period_s
+            return RecordingBus.sends, next_at - 40 * period_s
+
+    sends, started = run(scenario())
+    locked = [s for s in sends if s[0] >= started + 4 * period_s]  # a few cycles to lock on
+    assert len(locked) >= 30, sends
+    assert sum(on_update for _, on_update, _, _ in locked) >= 0.9 * len(locked), locked
+    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
+    assert min(gaps) >= period_s / 2 - 0.002, gaps
+    elapsed = sends[-1][0] - sends[0][0]
+    assert len(sends) <= elapsed / period_s + 2, (len(sends), elapsed)
+
+
+def test_an_update_from_inside_a_transmission_starts_no_second_one(channel: str) -> None:
+    """The daemon's values function may take newer board bytes and publish them —
+    update() from inside the transmission that asked for the values. That update is
+    carried by this transmission; it must not start another (nor recurse)."""
+    async def scenario() -> list:
+        config = virtual_config(channel, period_ms=20)
+        async with publishing(config, bus_factory=recording_factory) as (publisher, _):
+            built = [0]
+
+            def build() -> PublishedValues:
+                built[0] += 1
+                publisher.update(build)  # what Gateway.values does when it finds new bytes
+                return PublishedValues(position_m=built[0] / 1000, status=StatusBits.VALID)
+
+            for _ in range(100):
+                publisher.update(build)
+                await asyncio.sleep(0.002)
+            return RecordingBus.sends
+
+    sends = run(scenario())
+    assert 5 <= len(sends) <= 0.2 / 0.020 * 1.5 + 2, sends
+    counters = [c for *_, c in sends]
+    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+
+
 def test_without_updates_the_timer_keeps_the_cycle_and_the_counter_going(channel: str) -> None:
     async def scenario() -> tuple[list, float, float]:
         config = virtual_config(channel, period_ms=20)
