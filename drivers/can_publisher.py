@@ -321,8 +321,10 @@ class CanPublisher:
                 f"cannot open CAN bus {cfg.interface}:{cfg.channel}: {err}"
             ) from err
         loop = self._loop = asyncio.get_running_loop()
-        # Short timeout: a thread-based reader (virtual bus) notices stop() quickly.
-        self._notifier = can.Notifier(self._bus, [self._on_message], timeout=0.05, loop=loop)
+        # A bus with a descriptor (socketcan) is read from the loop; one without (virtual)
+        # by a thread whose receive timeout is only how soon it notices stop(): each
+        # timeout is a wakeup, so not too short (stop() waits for it, well within 1 s).
+        self._notifier = can.Notifier(self._bus, [self._on_message], timeout=0.25, loop=loop)
         self._running = True
         self._next_due = time.monotonic()
         self._arm_timer()

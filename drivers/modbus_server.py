@@ -33,7 +33,7 @@ import dataclasses
 import ipaddress
 import logging
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from pymodbus.constants import ExcCodes
@@ -166,9 +166,17 @@ class ModbusServer:
     the daemon has new values, `await stop()` at the end.
     """
 
-    def __init__(self, config: ModbusServerConfig, on_command: CommandCallback | None = None) -> None:
+    def __init__(
+        self,
+        config: ModbusServerConfig,
+        on_command: CommandCallback | None = None,
+        before_read: Callable[[], object] | None = None,
+    ) -> None:
         self.config = config
         self._on_command = on_command
+        # called before each read of the input registers: the daemon takes the bytes
+        # the board sent since its last wakeup (and calls update() if there were any)
+        self._before_read = before_read
         self._networks = config.allowed_networks()
         self._counters = ModbusCounters()
         self._command_counter = 0
@@ -316,6 +324,8 @@ class ModbusServer:
         if function_code == READ_INPUT:
             # One slice assignment from the current image, then the live server rows;
             # no await until pymodbus slices the answer out of this list.
+            if self._before_read is not None:
+                self._before_read()
             if self._pending is not None:
                 self._image = encode_input_registers(current(self._pending), word_order=self.config.word_order)
                 self._pending = None

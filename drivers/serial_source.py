@@ -345,8 +345,23 @@ class SerialSource:
         if self._port is None:
             return b""
         max_bytes = self.settings.read_chunk_bytes
-        # not known to be readable: no bytes is not an end of file (VMIN 0 reads return 0)
-        return self._read_fd(max_bytes, readable=False) if self._direct_fd else self._read_now(max_bytes)
+        if not self._direct_fd:
+            return self._read_now(max_bytes)
+        return self._read_all(max_bytes)
+
+    def _read_all(self, max_bytes: int, at_least: int | None = None) -> bytes:
+        """Read until the port has nothing more (or `at_least` bytes were read): a tty
+        hands out at most 64 bytes per read on Linux 5.11 and later."""
+        parts = []
+        got = 0
+        while self._port is not None and (at_least is None or got < at_least):
+            # not known to be readable: no bytes is not an end of file (VMIN 0 reads return 0)
+            chunk = self._read_fd(max_bytes, readable=False)
+            if not chunk:
+                break
+            parts.append(chunk)
+            got += len(chunk)
+        return parts[0] if len(parts) == 1 else b"".join(parts)
 
     def _read_now(self, max_bytes: int) -> bytes:
         assert self._port is not None
@@ -468,12 +483,17 @@ class SerialSource:
         ended: asyncio.Future[None] = loop.create_future()
         read = self._read_fd if self._direct_fd else self._read_now
         max_bytes = self.settings.read_chunk_bytes
+        batch = self._wake_min_bytes
         failed: list[Exception] = []
 
         def on_readable() -> None:
             try:
                 data = read(max_bytes)
                 if data:
+                    if len(data) < batch:
+                        # woken with a whole batch waiting, handed part of it: Linux (5.11
+                        # on) reads a tty through a 64-byte buffer, one buffer per read
+                        data += self._read_all(max_bytes, batch - len(data))
                     consume(data)
             except Exception as err:  # SerialPortError (no reconnect), or consume failed
                 failed.append(err)

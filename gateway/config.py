@@ -71,6 +71,12 @@ SCHEMA: tuple[Key, ...] = (
     Key("serial", "baudrate", 115200, int, "Line speed of the board (8N1).", _range(1200, 4_000_000)),
     Key("serial", "reconnect_min_s", 0.2, float, "First wait before reopening a lost port, s.", _range(0.01, 60)),
     Key("serial", "reconnect_max_s", 5.0, float, "Longest wait between reopen attempts, s.", _range(0.01, 600)),
+    Key("serial", "batch_frames", 5, int,
+        "The kernel wakes the gateway once this many SAMPLE frames' worth of bytes (15 each) have "
+        "arrived (termios VMIN; a device or pty, not a pyserial URL). Whatever reads the values — a "
+        "Modbus read, a CAN cycle, a command — first takes the bytes that came meanwhile, so no wire "
+        "shows older numbers; fewer wakeups cost less CPU (docs/daemon.md). 1: woken at every arrival.",
+        _range(1, 17)),
     Key("serial", "stale_after_ms", 100, int,
         "No sample for this long: the values are stale (status bit STALE).", _range(5, 60_000)),
     Key("serial", "lost_after_ms", 2000, int,
@@ -104,9 +110,10 @@ SCHEMA: tuple[Key, ...] = (
     Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).", _range(10_000, 1_000_000)),
     Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames (ms).", _range(1, 10_000)),
     Key("can", "sync_to_updates", True, bool,
-        "Send each cycle's frames with the first new values (one per board sample) at or after the "
-        "cycle is due, so they carry that sample at once; none within half a period: send anyway. "
-        "Still one frame pair per period_ms on average. false: exactly on the timer."),
+        "Send each cycle's frames with the first new values (one per batch of board samples) from "
+        "a quarter period before the cycle is due, so they carry those samples at once; none within "
+        "half a period after: send anyway. Still one frame pair per period_ms on average. false: "
+        "exactly on the timer."),
     Key("can", "min_interval_ms", -1, int,
         "Also send at once whenever new values arrive, at most this often (ms): more frames than one "
         "per period (0: one per sample, ~500/s per frame). -1: off.", _range(-1, 10_000)),

@@ -5,16 +5,21 @@ One asyncio task tree under one supervisor coroutine. Signals: SIGTERM/SIGINT st
 READY once the board's port is open and the servers listen, WATCHDOG only while
 samples flow, STOPPING at the end.
 
-The hot path is one event-loop callback per arrival of bytes on the serial port
-(`SerialSource.deliver` → `Gateway.receive`): the bytes are kept with their arrival
-time until something needs the numbers (a Modbus read, a due CAN cycle, a command) or
-MAX_DEFER_S has passed; then the batch is decoded and estimated (runs of SAMPLE frames
-in one compiled call, gateway/sample_fast_path.py) and published once (the values are
-built only when a Modbus read or a CAN frame needs them); the CAN frames of a due
-cycle go out from inside that publish. Nothing else wakes the process while samples
-flow: the publishing tick is a timer that the batches keep pushing back, and fires
-only once the board has been quiet for PUBLISH_TICK_S to 2 × PUBLISH_TICK_S (then
-every PUBLISH_TICK_S).
+The hot path is one event-loop callback per wakeup by the serial port
+(`SerialSource.deliver` → `Gateway.receive`). The kernel wakes the process only once
+`serial.batch_frames` SAMPLE frames' bytes have arrived (termios VMIN; 5 frames, 10 ms
+at 500 samples/s), and whatever reads the values — a Modbus read, a CAN cycle, a
+command, the view — first takes the bytes that came since (`SerialSource.read_pending`),
+so no wire shows older numbers than with a wakeup per frame. Where the port cannot
+batch (a pyserial URL, batch_frames = 1) the bytes are kept with their arrival time
+until something needs the numbers or MAX_DEFER_S has passed. Either way a batch is
+decoded and estimated (runs of SAMPLE frames in one compiled call,
+gateway/sample_fast_path.py) and published once (the values are built only when a
+Modbus read or a CAN frame needs them); the CAN frames of a due cycle go out from
+inside that publish, locked onto the wakeups (drivers/can_publisher.py). Nothing else
+wakes the process while samples flow: the publishing tick is a timer that the batches
+keep pushing back, and fires only once the board has been quiet for PUBLISH_TICK_S to
+2 × PUBLISH_TICK_S (then every PUBLISH_TICK_S).
 """
 from __future__ import annotations
 
@@ -152,6 +157,8 @@ class Gateway:
         self.reference_offset_m = -self.saved.last_position_m if self.saved.last_position_m else 0.0
         self.referenced = False  # after a restart, never trust an old reference
         self._inbox: list[tuple[float, bytes]] = []  # received, not yet decoded (see receive)
+        self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
+        self._port_just_read = False
         self._values = PublishedValues()
         self._values_built = True  # False: published since, build on the next read
         self._published_at = clock()
@@ -198,37 +205,46 @@ class Gateway:
     def receive(self, data: bytes) -> None:
         """Bytes from the board as they arrive (the serial port's reader callback).
 
-        They wait, with their arrival time, until something needs the numbers — a
-        Modbus read, a due CAN cycle, a command, the view, the state file — or until
-        the oldest has waited MAX_DEFER_S; then the whole batch is decoded and
-        estimated at once (`_drain`). Nothing a wire shows changes: every reader drains
-        first, and each sample keeps its arrival time. Why: at 500 samples/s the
-        process is woken every 2 ms, and on a VM the work after each wakeup runs
-        cold; doing it once per CAN cycle instead of once per sample saves about a
-        third of the daemon's CPU (benchmarks/wakeup_cost.py, docs/daemon.md).
+        Where the kernel batches them (serial.batch_frames > 1 on a tty) each wakeup
+        is one batch, handled now. Else they wait, with their arrival time, until
+        something needs the numbers — a Modbus read, a due CAN cycle, a command, the
+        view, the state file — or until the oldest has waited MAX_DEFER_S. Nothing a
+        wire shows changes: every reader drains first, and each sample keeps the time
+        the gateway got it. Why: on a VM the work after each wakeup runs cold, and
+        at 500 samples/s a wakeup per sample was most of the daemon's CPU
+        (benchmarks/wakeup_cost.py, docs/daemon.md).
         """
         now = self.clock()
         inbox = self._inbox
         inbox.append((now, data))
-        if self.modbus is not None:
-            self.modbus.update(self._values_source)  # its next read asks for the values: runs the batch
-        if (now - inbox[0][0] >= MAX_DEFER_S or len(inbox) >= MAX_DEFER_CHUNKS
+        if (self._kernel_batches or now - inbox[0][0] >= MAX_DEFER_S or len(inbox) >= MAX_DEFER_CHUNKS
                 or (self.can is not None and self.can.update_due())):
-            self._drain(now)
+            # the port was just read dry: the CAN cycle's values need not read it again
+            self._port_just_read = True
+            try:
+                self._drain(now, take_waiting=False)
+            finally:
+                self._port_just_read = False
 
     def handle_frames(self, data: bytes) -> None:
         """Bytes from the board, handled now: every sample through the estimator, then
         one publish (what `receive` does for a batch)."""
         now = self.clock()
         self._inbox.append((now, data))
-        self._drain(now)
+        self._drain(now, take_waiting=False)
 
-    def _drain(self, now: float) -> None:
+    def _drain(self, now: float, take_waiting: bool = True) -> None:
         """Everything received so far through the estimator, then one publish.
 
-        One publish per batch, not per sample: the newest estimate is what every wire
-        shows (saturation and lost samples are held for a while, so none is missed).
+        With `take_waiting`, first the bytes waiting in the serial port (arrived since
+        its last wakeup). One publish per batch, not per sample: the newest estimate
+        is what every wire shows (saturation and lost samples are held for a while, so
+        none is missed).
         """
+        if take_waiting and self.source is not None:
+            waiting = self.source.read_pending()
+            if waiting:
+                self._inbox.append((self.clock(), waiting))
         batch, self._inbox = self._inbox, []
         if batch and self._ingest(batch):
             # as of the newest sample's arrival, as if each chunk had been handled then
@@ -342,15 +358,18 @@ class Gateway:
     @property
     def values(self) -> PublishedValues:
         """What the wires show: the snapshot of the last publish (after everything
-        received so far went through the estimator)."""
-        if self._inbox:
-            self._drain(self.clock())
+        received so far, the bytes waiting in the port included, went through the
+        estimator)."""
+        self._drain(self.clock(), take_waiting=not self._port_just_read)
         if not self._values_built:
             self._build_values()
         return self._values
 
     def _current_values(self) -> PublishedValues:
         return self.values
+
+    def _drain_now(self) -> None:
+        self._drain(self.clock())
 
     def _build_values(self) -> None:
         now = self._published_at
@@ -401,7 +420,8 @@ class Gateway:
         s = self.cfg.serial
         self.source = SerialSource(SerialSettings(port=port, baudrate=s.baudrate,
                                                   reconnect_initial_s=s.reconnect_min_s,
-                                                  reconnect_max_s=s.reconnect_max_s))
+                                                  reconnect_max_s=s.reconnect_max_s,
+                                                  wake_min_bytes=s.batch_frames * SAMPLE_FRAME_LENGTH))
         delays = reconnect_delays_s(self.source.settings)
         while True:
             try:
@@ -415,7 +435,12 @@ class Gateway:
 
     async def _board_task(self) -> None:
         # receive runs inside the loop's reader callback: no task switch per chunk
-        await self.source.deliver(self.receive)
+        await self.source.deliver(self._receive_from_port)
+
+    def _receive_from_port(self, data: bytes) -> None:
+        # known per open port (a reopened one may not batch), read per wakeup: cheap
+        self._kernel_batches = self.source.wake_min_bytes > 1
+        self.receive(data)
 
     def _arm_tick(self, now: float, delay: float = 2 * PUBLISH_TICK_S) -> None:
         """(Re)schedule the quiet tick `delay` from now.
@@ -476,7 +501,9 @@ class Gateway:
                 self.counters.watchdog_pings += 1
 
     async def _start_servers(self) -> None:
-        self.modbus = ModbusServer(modbus_config_from(self.cfg), on_command=self.on_command)
+        # a read first takes the bytes waiting in the port (they may hold newer samples)
+        self.modbus = ModbusServer(modbus_config_from(self.cfg), on_command=self.on_command,
+                                   before_read=self._drain_now)
         try:
             await self.modbus.start()
         except ModbusServerError as err:

@@ -212,10 +212,10 @@ def test_deferred_batches_publish_what_immediate_handling_publishes(tmp_path, se
     looks = batches = 0
     drain = deferred._drain
 
-    def counting_drain(t):
+    def counting_drain(t, take_waiting=True):
         nonlocal batches
         batches += bool(deferred._inbox)
-        drain(t)
+        drain(t, take_waiting)
 
     deferred._drain = counting_drain
     commanded = False

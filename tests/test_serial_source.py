@@ -376,29 +376,30 @@ def waiting_in(pty: Pty) -> int:
 
 
 def test_wake_min_bytes_wakes_deliver_per_batch_and_read_pending_takes_the_rest(make_pty, tmp_path: Path):
-    """With wake_min_bytes = 3 frames a tty wakes deliver() once 3 frames' bytes wait;
-    fewer stay in the kernel until read_pending() takes them. A port reopened after a
-    loss batches again."""
+    """With wake_min_bytes = 5 frames a tty wakes deliver() once 5 frames' bytes wait,
+    and hands them over as one chunk (Linux gives a tty's bytes out 64 per read); fewer
+    stay in the kernel until read_pending() takes them. A port reopened after a loss
+    batches again."""
     link = tmp_path / "ttyBOARD"
     first = make_pty()
     link.symlink_to(first.path)
     frame = len(wire(frames(range(1))))
-    settings = SerialSettings(port=str(link), wake_min_bytes=3 * frame, **FAST_BACKOFF)
+    settings = SerialSettings(port=str(link), wake_min_bytes=5 * frame, **FAST_BACKOFF)
 
     async def scenario():
         source = SerialSource(settings)
         chunks: list[bytes] = []
         task = asyncio.create_task(source.deliver(chunks.append))
         await wait_until(lambda: source.is_open, "port open")
-        assert source.wake_min_bytes == 3 * frame
-        assert termios.tcgetattr(first.slave)[6][termios.VMIN] == 3 * frame
-        os.write(first.master, wire(frames(range(0, 2))))
-        await wait_until(lambda: waiting_in(first) == 2 * frame, "two frames in the tty")
+        assert source.wake_min_bytes == 5 * frame > 64
+        assert termios.tcgetattr(first.slave)[6][termios.VMIN] == 5 * frame
+        os.write(first.master, wire(frames(range(0, 4))))
+        await wait_until(lambda: waiting_in(first) == 4 * frame, "four frames in the tty")
         await asyncio.sleep(0.1)
         assert chunks == []  # below the batch: not woken
         taken = source.read_pending()
         assert source.read_pending() == b""  # nothing left: no bytes, and not a loss
-        os.write(first.master, wire(frames(range(2, 5))))
+        os.write(first.master, wire(frames(range(4, 9))))
         await wait_until(lambda: chunks, "woken by a whole batch")
 
         link.unlink()
@@ -407,7 +408,7 @@ def test_wake_min_bytes_wakes_deliver_per_batch_and_read_pending_takes_the_rest(
         link.symlink_to(second.path)
         await wait_until(lambda: source.state.reconnects == 1, "reconnect")
         vmin_again = termios.tcgetattr(second.slave)[6][termios.VMIN]
-        os.write(second.master, wire(frames(range(5, 6))))
+        os.write(second.master, wire(frames(range(9, 10))))
         await wait_until(lambda: waiting_in(second) == frame, "a frame in the new tty")
         await asyncio.sleep(0.1)
         woken_for_one = len(chunks) > 1
@@ -419,10 +420,10 @@ def test_wake_min_bytes_wakes_deliver_per_batch_and_read_pending_takes_the_rest(
         return taken, chunks, vmin_again, woken_for_one, late, source.state
 
     taken, chunks, vmin_again, woken_for_one, late, state = asyncio.run(scenario())
-    assert taken == wire(frames(range(0, 2)))
-    assert chunks == [wire(frames(range(2, 5)))]
-    assert vmin_again == 3 * frame and not woken_for_one
-    assert late == wire(frames(range(5, 6)))
+    assert taken == wire(frames(range(0, 4)))
+    assert chunks == [wire(frames(range(4, 9)))]
+    assert vmin_again == 5 * frame and not woken_for_one
+    assert late == wire(frames(range(9, 10)))
     assert (state.losses, state.reconnects) == (1, 1)
 
 
