@@ -12,8 +12,9 @@ CPU is utime+stime of each reader process over the run, % of one core:
   floor of daemon_benchmark.py, what the gateway's loop pays per wakeup before work;
 - thread reader: a plain blocking os.read loop, no event loop — what a dedicated
   board thread would pay;
-- gateway without CAN, and the gateway with its default config (CAN every 10 ms on
-  python-can's virtual bus), no Modbus client;
+- the gateway woken at every frame (serial.batch_frames = 1), without and with CAN
+  (every 10 ms on python-can's virtual bus), and with its default config (woken once
+  per 5 frames, termios VMIN; CAN on), no Modbus client;
 
 and, after them, how long Gateway.handle_frames takes for the first chunk
 after a wakeup compared with the same call on a second gateway right after it
@@ -55,7 +56,7 @@ sys.path.insert(0, {root!r})
 from gateway.config import validate
 from gateway.daemon import Gateway
 tmp = tempfile.mkdtemp(prefix="adxlgw-wake-")
-cfg = validate({{"serial": {{"port": {link!r}}}, "modbus": {{"port": 0}},
+cfg = validate({{"serial": {{"port": {link!r}, "batch_frames": {batch}}}, "modbus": {{"port": 0}},
                  "can": {{"enabled": {can}, "interface": "virtual", "channel": "wake-" + tmp[-8:]}},
                  "state": {{"path": tmp + "/state.json"}}, "service": {{"log_level": "error"}}}}, "<bench>")
 asyncio.run(Gateway(cfg).run())
@@ -105,8 +106,9 @@ asyncio.run(main())
 VARIANTS = {
     "asyncio reader (the floor)": lambda link: FLOOR_READER.format(link=link),
     "thread reader (blocking os.read)": lambda link: THREAD_READER.format(link=link),
-    "gateway without CAN": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=False),
-    "gateway, default config": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=True),
+    "gateway, woken per frame, no CAN": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=False, batch=1),
+    "gateway, woken per frame": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=True, batch=1),
+    "gateway, default config": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=True, batch=5),
 }
 PROBES = {
     "compiled sample path": lambda link: PROBE.format(root=str(ROOT), link=link, compiled=True),
