@@ -75,7 +75,8 @@ SCHEMA: tuple[Key, ...] = (
         "The kernel wakes the gateway once this many SAMPLE frames' worth of bytes (15 each) have "
         "arrived (termios VMIN; a device or pty, not a pyserial URL). Whatever reads the values — a "
         "Modbus read, a CAN cycle, a command — first takes the bytes that came meanwhile, so no wire "
-        "shows older numbers; fewer wakeups cost less CPU (docs/daemon.md). 1: woken at every arrival.",
+        "shows older numbers; fewer wakeups cost less CPU (docs/daemon.md). 1: woken at every arrival "
+        "(also what can.min_interval_ms ≥ 0 implies: frames per sample need a wakeup per sample).",
         _range(1, 17)),
     Key("serial", "stale_after_ms", 100, int,
         "No sample for this long: the values are stale (status bit STALE).", _range(5, 60_000)),

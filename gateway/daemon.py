@@ -91,6 +91,15 @@ def can_config_from(cfg: Config) -> CanPublisherConfig:
     )
 
 
+def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
+    s = cfg.serial
+    batch = s.batch_frames
+    if cfg.can.enabled and cfg.can.min_interval_ms >= 0:
+        batch = 1  # CAN frames per sample (mixed mode) need a wakeup per sample
+    return SerialSettings(port=port, baudrate=s.baudrate, reconnect_initial_s=s.reconnect_min_s,
+                          reconnect_max_s=s.reconnect_max_s, wake_min_bytes=batch * SAMPLE_FRAME_LENGTH)
+
+
 def _arrival(batch: list[tuple[float, bytes]], byte_index: int) -> float:
     """Arrival time of the chunk that holds byte `byte_index` of the joined batch."""
     end = 0
@@ -417,11 +426,7 @@ class Gateway:
             self.emulated = EmulatedBoard()
             port = await self.emulated.start()
         self._serial_path = port
-        s = self.cfg.serial
-        self.source = SerialSource(SerialSettings(port=port, baudrate=s.baudrate,
-                                                  reconnect_initial_s=s.reconnect_min_s,
-                                                  reconnect_max_s=s.reconnect_max_s,
-                                                  wake_min_bytes=s.batch_frames * SAMPLE_FRAME_LENGTH))
+        self.source = SerialSource(serial_settings_from(self.cfg, port))
         delays = reconnect_delays_s(self.source.settings)
         while True:
             try:
@@ -563,7 +568,8 @@ class Gateway:
             log.info("reload: restarting Modbus and CAN with the new settings")
             await self._stop_servers()
             await self._start_servers()
-        if old.serial.as_tuple() != new.serial.as_tuple():
+        if (old.serial.as_tuple() != new.serial.as_tuple()
+                or serial_settings_from(old, "-").wake_min_bytes != serial_settings_from(new, "-").wake_min_bytes):
             log.info("reload: reopening the board port")
             self._restart_board = True
             self._board_runner.cancel()

@@ -37,6 +37,7 @@ def test_default_text_is_complete_valid_toml_with_every_key_commented():
         ("[can]\nperiod_ms = 10\nmin_interval_ms = 20\n", "can.min_interval_ms must not exceed can.period_ms"),
         ("[calibration]\nsensitivity_x = 0.0\n", "calibration.sensitivity_x = 0.0 must be > 0.0"),
         ("[serial]\nreconnect_min_s = 9.0\nreconnect_max_s = 1.0\n", "must not exceed serial.reconnect_max_s"),
+        ("[serial]\nbatch_frames = 18\n", "serial.batch_frames = 18 must be ≤ 17"),
         ("[serial\n", "not valid TOML"),
     ],
 )

@@ -102,3 +102,21 @@ def test_estimator_link_fast_path_matches_the_public_step_bit_for_bit():
         assert got.holding == bool(want.flags & (4 | 64))
         initialised += want.initialised
     assert initialised > 3000  # the run went through standstills and motion
+
+
+def test_the_board_port_batches_unless_can_sends_per_sample(tmp_path):
+    """serial.batch_frames sets how many SAMPLE frames' bytes wake the daemon; CAN's
+    mixed mode (min_interval_ms ≥ 0, a frame pair per sample) needs a wakeup per sample."""
+    from drivers.board_protocol import SAMPLE_FRAME_LENGTH
+    from gateway.config import validate
+    from gateway.daemon import serial_settings_from
+
+    def wake(**sections):
+        cfg = validate({"state": {"path": str(tmp_path / "s.json")}, **sections}, "<test>")
+        return serial_settings_from(cfg, "/dev/ttyUSB0").wake_min_bytes
+
+    assert wake() == 5 * SAMPLE_FRAME_LENGTH
+    assert wake(serial={"batch_frames": 1}) == SAMPLE_FRAME_LENGTH
+    assert wake(serial={"batch_frames": 17}) == 255
+    assert wake(can={"min_interval_ms": 0}) == SAMPLE_FRAME_LENGTH
+    assert wake(can={"min_interval_ms": 0, "enabled": False}) == 5 * SAMPLE_FRAME_LENGTH
