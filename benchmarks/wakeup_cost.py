@@ -116,8 +116,20 @@ PROBES = {
 }
 
 
-def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[float], list[str]]:
-    """Start every reader on its own pty, play the board to all at once; CPU % each."""
+def wakeups(pid: int) -> int:
+    """Times the process's threads were put to sleep and woken again so far (voluntary
+    context switches): each is one wakeup, whether Python ran after it or not."""
+    total = 0
+    for status in Path(f"/proc/{pid}/task").glob("*/status"):
+        for line in status.read_text().splitlines():
+            if line.startswith("voluntary_ctxt_switches:"):
+                total += int(line.split()[1])
+    return total
+
+
+def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[float], list[str], list[float]]:
+    """Start every reader on its own pty, play the board to all at once; CPU % and
+    wakeups per second of each."""
     readers = []
     for code in codes:
         pty = PtyPort(Path(tempfile.mkdtemp(prefix="adxlgw-wake-")) / "board")
@@ -140,10 +152,12 @@ def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[f
         writers.append((done, w))
     while time.monotonic_ns() < start_ns:
         time.sleep(0.01)
+    woken0 = [wakeups(p.pid) for _, p in readers]
     cpu0, wall0 = [cpu_seconds(p.pid) for _, p in readers], time.monotonic()
     for done, _ in writers:
         done.recv()
     cpu1, wall1 = [cpu_seconds(p.pid) for _, p in readers], time.monotonic()
+    woken1 = [wakeups(p.pid) for _, p in readers]
     outputs = []
     for (_, w), (pty, proc) in zip(writers, readers):
         w.join()
@@ -151,7 +165,8 @@ def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[f
         out, _ = proc.communicate(timeout=20)
         outputs.append(out or "")
         pty.close(remove_link=True)
-    return [100.0 * (b - a) / (wall1 - wall0) for a, b in zip(cpu0, cpu1)], outputs
+    return ([100.0 * (b - a) / (wall1 - wall0) for a, b in zip(cpu0, cpu1)], outputs,
+            [(b - a) / (wall1 - wall0) for a, b in zip(woken0, woken1)])
 
 
 def main() -> None:
@@ -164,16 +179,20 @@ def main() -> None:
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
     names = list(VARIANTS)
     cpu = {name: [] for name in names}
+    woken = {name: [] for name in names}
     for _ in range(args.repeat):
-        got, _ = together([VARIANTS[n] for n in names], args.seconds)
-        for name, value in zip(names, got):
+        got, _, rates = together([VARIANTS[n] for n in names], args.seconds)
+        for name, value, rate in zip(names, got, rates):
             cpu[name].append(value)
-    print(f"CPU at 500 samples/s, one write per frame, {args.repeat} runs of {args.seconds:g} s, all side by side:")
+            woken[name].append(rate)
+    print(f"CPU at 500 samples/s, one write per frame, {args.repeat} runs of {args.seconds:g} s, all side by side")
+    print("(wakeups: voluntary context switches of all the process's threads):")
     for name in names:
         v = cpu[name]
-        print(f"  {name:36s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %")
+        print(f"  {name:36s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %   "
+              f"wakeups {np.median(woken[name]):4.0f}/s")
     probe_names = list(PROBES)
-    _, outs = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
+    _, outs, _ = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
     print("Gateway.handle_frames after each wakeup (µs per chunk, mean), and the same call on a second")
     print("gateway right after it:")
     for name, out in zip(probe_names, outs):
