@@ -157,13 +157,12 @@ def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board, m
     run(scenario())
 
 
-def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
-    """Received bytes wait (Gateway.receive) until something needs the numbers; a Modbus
-    read is such a need: it must show every sample received before it."""
-    from drivers.board_protocol import encode_hello, encode_sample
+def on_a_quiet_pty(tmp_path, body) -> None:
+    """Run `await body(gw, client, pty)`: a gateway (CAN off) on a pty that nobody plays
+    unless the test writes to it, and a Modbus client connected to it."""
     from drivers.pty_port import PtyPort
 
-    pty = PtyPort(tmp_path / "board")  # the gateway opens it; the bytes are handed over below
+    pty = PtyPort(tmp_path / "board")
     cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
 
     async def scenario():
@@ -171,15 +170,7 @@ def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
             client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
             await client.connect()
             try:
-                before = (await read_inputs(client))["SAMPLE_COUNTER"]
-                gw.receive(encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0))
-                for seq in range(3):
-                    gw.receive(encode_sample(seq, 900, 900, 1843))
-                assert gw._inbox, "the bytes were handled at once: nothing to check"
-                assert gw.counters.samples == before
-                regs = await read_inputs(client)
-                assert regs["SAMPLE_COUNTER"] == before + 3
-                assert not gw._inbox
+                await body(gw, client, pty)
             finally:
                 client.close()
 
@@ -189,21 +180,37 @@ def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
         pty.close(remove_link=True)
 
 
+def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
+    """Where the port cannot batch, received bytes wait (Gateway.receive) until
+    something needs the numbers; a Modbus read is such a need: it must show every
+    sample received before it."""
+    from drivers.board_protocol import encode_hello, encode_sample
+
+    async def body(gw, client, pty):
+        before = (await read_inputs(client))["SAMPLE_COUNTER"]
+        gw.receive(encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0))
+        for seq in range(3):
+            gw.receive(encode_sample(seq, 900, 900, 1843))
+        assert gw._inbox, "the bytes were handled at once: nothing to check"
+        assert gw.counters.samples == before
+        regs = await read_inputs(client)
+        assert regs["SAMPLE_COUNTER"] == before + 3
+        assert not gw._inbox
+
+    on_a_quiet_pty(tmp_path, body)
+
+
 def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
-    """The kernel wakes the gateway only once serial.batch_frames frames' bytes wait
-    (termios VMIN). A Modbus read must not show older numbers than a wakeup per frame
-    would: it takes the bytes waiting in the port first."""
+    """The kernel wakes the gateway only once serial.batch_frames (default 5) frames'
+    bytes wait (termios VMIN). A Modbus read must not show older numbers than a wakeup
+    per frame would: it takes the bytes waiting in the port first."""
     import fcntl
     import os
     import struct
     import termios
 
     from drivers.board_protocol import SAMPLE_FRAME_LENGTH, encode_hello, encode_sample
-    from drivers.pty_port import PtyPort
 
-    pty = PtyPort(tmp_path / "board")
-    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
-    assert cfg.serial.batch_frames == 5  # the default
     data = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
     data += b"".join(encode_sample(seq, 900, 900, 1843) for seq in range(3))
     assert len(data) < 5 * SAMPLE_FRAME_LENGTH  # less than one batch: no wakeup
@@ -211,26 +218,18 @@ def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
     def waiting(gw) -> int:
         return struct.unpack("i", fcntl.ioctl(gw.source._fd, termios.FIONREAD, b"\0" * 4))[0]
 
-    async def scenario():
-        async with running_gateway(cfg) as gw:
-            # nothing else may take the bytes meanwhile: no quiet tick
-            gw._tick_handle.cancel()
-            gw._tick_handle = None
-            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
-            await client.connect()
-            try:
-                before = (await read_inputs(client))["SAMPLE_COUNTER"]
-                os.write(pty.master_fd, data)
-                await wait_for(lambda: waiting(gw) == len(data), what="the bytes in the gateway's tty")
-                await asyncio.sleep(0.05)
-                assert gw.counters.samples == before and waiting(gw) == len(data), "woken below a batch"
-                regs = await read_inputs(client)
-                assert regs["SAMPLE_COUNTER"] == before + 3
-                assert waiting(gw) == 0
-            finally:
-                client.close()
+    async def body(gw, client, pty):
+        assert gw.source.wake_min_bytes == 5 * SAMPLE_FRAME_LENGTH
+        # nothing else may take the bytes meanwhile: no quiet tick
+        gw._tick_handle.cancel()
+        gw._tick_handle = None
+        before = (await read_inputs(client))["SAMPLE_COUNTER"]
+        os.write(pty.master_fd, data)
+        await wait_for(lambda: waiting(gw) == len(data), what="the bytes in the gateway's tty")
+        await asyncio.sleep(0.05)
+        assert gw.counters.samples == before and waiting(gw) == len(data), "woken below a batch"
+        regs = await read_inputs(client)
+        assert regs["SAMPLE_COUNTER"] == before + 3
+        assert waiting(gw) == 0
 
-    try:
-        run(scenario())
-    finally:
-        pty.close(remove_link=True)
+    on_a_quiet_pty(tmp_path, body)
