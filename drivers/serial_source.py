@@ -11,16 +11,19 @@ have arrived, without blocking its caller:
   polling with a short timeout, so a coroutine never blocks on the port;
 * ``await source.deliver(consume)`` does the same but calls ``consume(chunk)`` straight
   from the event loop's reader callback, with the descriptor registered once per open
-  port. That is one wakeup and one ``read`` per arrival and no task switch: what the
-  daemon uses, since at 500 frames/s the per-arrival overhead is most of its CPU use
-  (``chunks()`` registers and unregisters the reader, creates a future and resumes a
-  task per chunk, and pyserial's ``read`` adds a ``select`` per call).
+  port. That is one wakeup and one ``read`` per arrival (or per batch, below) and no
+  task switch: what the daemon uses, since at 500 frames/s the per-wakeup overhead is
+  most of its CPU use (``chunks()`` registers and unregisters the reader, creates a
+  future and resumes a task per chunk, and pyserial's ``read`` adds a ``select`` per
+  call).
 
 With ``SerialSettings(wake_min_bytes=N)`` a tty port (a device or a pty, not a URL)
 is set up so that the kernel reports it readable only once N bytes are waiting
 (termios VMIN, with VTIME 0): ``deliver()`` is then woken once per N bytes instead of
-once per arrival. ``read_pending()`` takes whatever has arrived meanwhile, never
-blocking, for a caller that needs the newest bytes before the wakeup comes.
+once per arrival, and hands them over as one chunk (Linux reads a tty 64 bytes at a
+time, so that may take more than one read). ``read_pending()`` takes whatever has
+arrived meanwhile, never blocking, for a caller that needs the newest bytes before the
+wakeup comes.
 
 When the port disappears (read fails or reports EOF: adapter unplugged, pty closed)
 the source logs it, records it in :class:`SerialSourceState`, closes the port and
