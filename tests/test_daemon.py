@@ -157,13 +157,13 @@ def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board, m
     run(scenario())
 
 
-def on_a_quiet_pty(tmp_path, body) -> None:
-    """Run `await body(gw, client, pty)`: a gateway (CAN off) on a pty that nobody plays
-    unless the test writes to it, and a Modbus client connected to it."""
+def on_a_quiet_pty(tmp_path, body, can=None) -> None:
+    """Run `await body(gw, client, pty)`: a gateway (CAN off unless `can` says) on a pty
+    that nobody plays unless the test writes to it, and a Modbus client connected to it."""
     from drivers.pty_port import PtyPort
 
     pty = PtyPort(tmp_path / "board")
-    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
+    cfg = gateway_config(tmp_path, str(pty.link), can=can or {"enabled": False})
 
     async def scenario():
         async with running_gateway(cfg) as gw:
@@ -200,23 +200,34 @@ def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
     on_a_quiet_pty(tmp_path, body)
 
 
+def board_bytes_below_one_batch() -> bytes:
+    from drivers.board_protocol import SAMPLE_FRAME_LENGTH, encode_hello, encode_sample
+
+    data = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
+    data += b"".join(encode_sample(seq, 900, 900, 1843) for seq in range(3))  # 3 samples
+    assert len(data) < 5 * SAMPLE_FRAME_LENGTH  # less than one batch: no wakeup
+    return data
+
+
+def bytes_waiting(gw) -> int:
+    """Bytes in the gateway's tty that nobody has read yet (FIONREAD)."""
+    import fcntl
+    import struct
+    import termios
+
+    return struct.unpack("i", fcntl.ioctl(gw.source._fd, termios.FIONREAD, b"\0" * 4))[0]
+
+
 def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
     """The kernel wakes the gateway only once serial.batch_frames (default 5) frames'
     bytes wait (termios VMIN). A Modbus read must not show older numbers than a wakeup
     per frame would: it takes the bytes waiting in the port first."""
-    import fcntl
     import os
-    import struct
-    import termios
 
-    from drivers.board_protocol import SAMPLE_FRAME_LENGTH, encode_hello, encode_sample
+    from drivers.board_protocol import SAMPLE_FRAME_LENGTH
 
-    data = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
-    data += b"".join(encode_sample(seq, 900, 900, 1843) for seq in range(3))
-    assert len(data) < 5 * SAMPLE_FRAME_LENGTH  # less than one batch: no wakeup
-
-    def waiting(gw) -> int:
-        return struct.unpack("i", fcntl.ioctl(gw.source._fd, termios.FIONREAD, b"\0" * 4))[0]
+    data = board_bytes_below_one_batch()
+    waiting = bytes_waiting
 
     async def body(gw, client, pty):
         assert gw.source.wake_min_bytes == 5 * SAMPLE_FRAME_LENGTH
@@ -233,3 +244,23 @@ def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
         assert waiting(gw) == 0
 
     on_a_quiet_pty(tmp_path, body)
+
+
+def test_a_can_cycle_takes_the_samples_still_waiting_in_the_port(tmp_path):
+    """Strictly cyclic CAN (sync_to_updates = false): the frames go out on the
+    publisher's timer, not with a batch; each must carry what has arrived by then."""
+    import os
+
+    data = board_bytes_below_one_batch()
+
+    async def body(gw, client, pty):
+        gw._tick_handle.cancel()  # nothing but the CAN cycle may take the bytes
+        gw._tick_handle = None
+        sent = gw.can.counters.frames_sent
+        before = gw.counters.samples
+        os.write(pty.master_fd, data)
+        await wait_for(lambda: gw.counters.samples == before + 3, what="a CAN cycle taking the bytes")
+        assert bytes_waiting(gw) == 0
+        assert gw.can.counters.frames_sent > sent
+
+    on_a_quiet_pty(tmp_path, body, can={"sync_to_updates": False})
