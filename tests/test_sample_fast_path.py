@@ -145,6 +145,21 @@ def command_at_standstill(tested: Gateway, reference: Gateway, k: int, command_a
     return True
 
 
+def play_to_both(seed: int, now: list[float], tested: Gateway, feed_tested, reference: Gateway):
+    """The board stream of `seed`, a chunk every 2 ms of `now`: to `tested` through
+    `feed_tested`, to `reference` handled at once, and a bias re-estimation to both at
+    the first standstill after the stream's command point. Yields, after each chunk,
+    its index, whether it was the last, and whether the command was sent by then."""
+    chunks, command_at = board_stream(seed)
+    commanded = False
+    for k, chunk in enumerate(chunks):
+        now[0] += 0.002
+        feed_tested(chunk)
+        reference.handle_frames(chunk)
+        commanded = command_at_standstill(tested, reference, k, command_at, commanded)
+        yield k, k == len(chunks) - 1, commanded
+
+
 def assert_same_values(a, b, where, skip: tuple[str, ...] = ()) -> None:
     for field in a.__dataclass_fields__:
         if field in skip:
@@ -169,13 +184,7 @@ def test_compiled_and_python_paths_publish_the_same(tmp_path, seed):
         return got
 
     fast._fast.take = counting_take
-    chunks, command_at = board_stream(seed)
-    commanded = False
-    for k, chunk in enumerate(chunks):
-        now[0] += 0.002
-        fast.handle_frames(chunk)
-        slow.handle_frames(chunk)
-        commanded = command_at_standstill(fast, slow, k, command_at, commanded)
+    for k, _, commanded in play_to_both(seed, now, fast, fast.handle_frames, slow):
         assert_same_values(fast.values, slow.values, k)
         if fast._estimate is not None:
             assert fast._estimate.bias_estimating == slow._estimate.bias_estimating
@@ -208,7 +217,6 @@ def test_deferred_batches_publish_what_immediate_handling_publishes(tmp_path, se
     deferred = gateway(tmp_path, "deferred", True, clock)
     at_once = gateway(tmp_path, "at-once", False, clock)
     rng = random.Random(seed)
-    chunks, command_at = board_stream(seed)
     looks = batches = 0
     drain = deferred._drain
 
@@ -218,13 +226,8 @@ def test_deferred_batches_publish_what_immediate_handling_publishes(tmp_path, se
         drain(t, take_waiting)
 
     deferred._drain = counting_drain
-    commanded = False
-    for k, chunk in enumerate(chunks):
-        now[0] += 0.002
-        deferred.receive(chunk)
-        at_once.handle_frames(chunk)
-        commanded = command_at_standstill(deferred, at_once, k, command_at, commanded)
-        if rng.random() < 0.05 or k == len(chunks) - 1:  # a Modbus read, now and then
+    for k, last, commanded in play_to_both(seed, now, deferred, deferred.receive, at_once):
+        if rng.random() < 0.05 or last:  # a Modbus read, now and then
             looks += 1
             # the heartbeat counts publishes: one per batch instead of one per chunk
             assert_same_values(deferred.values, at_once.values, k, skip=("heartbeat",))
@@ -234,4 +237,4 @@ def test_deferred_batches_publish_what_immediate_handling_publishes(tmp_path, se
     assert deferred.counters == at_once.counters
     assert deferred.decoder.counters == at_once.decoder.counters
     # batches of several chunks really happened (MAX_DEFER_S at 2 ms per chunk: ~5 each)
-    assert batches < len(chunks) / 3
+    assert batches < (k + 1) / 3
