@@ -91,13 +91,17 @@ def can_config_from(cfg: Config) -> CanPublisherConfig:
     )
 
 
+def batch_frames_for(cfg: Config) -> int:
+    """How many SAMPLE frames wake the gateway: serial.batch_frames, but 1 when CAN
+    sends a frame pair per sample (mixed mode), which needs a wakeup per sample."""
+    return 1 if cfg.can.enabled and cfg.can.min_interval_ms >= 0 else cfg.serial.batch_frames
+
+
 def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
     s = cfg.serial
-    batch = s.batch_frames
-    if cfg.can.enabled and cfg.can.min_interval_ms >= 0:
-        batch = 1  # CAN frames per sample (mixed mode) need a wakeup per sample
     return SerialSettings(port=port, baudrate=s.baudrate, reconnect_initial_s=s.reconnect_min_s,
-                          reconnect_max_s=s.reconnect_max_s, wake_min_bytes=batch * SAMPLE_FRAME_LENGTH)
+                          reconnect_max_s=s.reconnect_max_s,
+                          wake_min_bytes=batch_frames_for(cfg) * SAMPLE_FRAME_LENGTH)
 
 
 def _arrival(batch: list[tuple[float, bytes]], byte_index: int) -> float:
@@ -568,8 +572,7 @@ class Gateway:
             log.info("reload: restarting Modbus and CAN with the new settings")
             await self._stop_servers()
             await self._start_servers()
-        if (old.serial.as_tuple() != new.serial.as_tuple()
-                or serial_settings_from(old, "-").wake_min_bytes != serial_settings_from(new, "-").wake_min_bytes):
+        if old.serial.as_tuple() != new.serial.as_tuple() or batch_frames_for(old) != batch_frames_for(new):
             log.info("reload: reopening the board port")
             self._restart_board = True
             self._board_runner.cancel()
