@@ -7,7 +7,7 @@ S = 0…19 (data-sheet noise), read back as `adxlgw estimate` reads it; errors a
 recording's reference at the last sample of each stop. Methods: raw, paper, realtime,
 smoothed, and the noise floor (the realtime filter fed z − b_true and told the bias is
 exactly zero).
-Part 2 — the real recordings ../shared/datasets/airbrakes-imu/{zplus,zminus}.csv,
+Part 2 — the real recordings datasets/airbrakes-imu/{zplus,zminus}.csv,
 imported with `adxlgw import` (Z axis, X as second axis), settings from their own
 initial rest; they end where they began, so the final position is the error. The
 recordings' gyroscope (not part of the one-axis recording) tells how much of that
@@ -44,7 +44,7 @@ from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
 from gateway.recording import read_recording, to_acceleration  # noqa: E402
 
 METHODS = ("raw", "paper", "realtime", "smoothed", "floor")
-DATASETS = REPO.parent / "shared" / "datasets" / "airbrakes-imu"
+DATASETS = REPO / "datasets" / "airbrakes-imu"
 
 
 def quiet_adxlgw(argv: list[str]) -> int:

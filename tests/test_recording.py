@@ -10,8 +10,8 @@ from gateway.core.simulator import simulate
 from gateway.errors import RecordingError
 from gateway.recording import parse_recording, read_recording, to_acceleration, write_recording
 
-SHARED = Path(__file__).resolve().parents[1] / ".." / "shared"
-AIRBRAKES = SHARED / "datasets" / "airbrakes-imu"
+REPO = Path(__file__).resolve().parents[1]
+AIRBRAKES = REPO / "datasets" / "airbrakes-imu"
 
 
 def adxlgw(*args, cwd=None):
