@@ -97,10 +97,9 @@ def main() -> int:
           f"{per_step * 500 * 100:.2f} % of one core at 500 samples/s")
     prm = settings.kernel_params()
     state = K.new_state(prm)
-    x, P, m, rz, rok, snap, gain, out = state
     start = time.perf_counter()
     for k in range(n):
-        K.step(x, P, m, rz, rok, snap, prm, gain, t[k], z[k], True, 0, out)
+        K.step(state, prm, t[k], z[k], True, 0)
     kernel = (time.perf_counter() - start) / n
     print(f"  of which the kernel call itself: {kernel * 1e6:.2f} µs/sample (the rest builds the Estimate)")
     # without numba: the same code as plain Python, in a fresh interpreter

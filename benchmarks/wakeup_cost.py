@@ -16,9 +16,13 @@ CPU is utime+stime of each reader process over the run, % of one core:
   (every 10 ms on python-can's virtual bus), and with its default config (woken once
   per 5 frames, termios VMIN; CAN on), no Modbus client;
 
-and, after them, how long Gateway.handle_frames takes for the first chunk
-after a wakeup compared with the same call on a second gateway right after it
-(same code, now in cache), with and without the compiled sample path.
+and, after them, how long SamplePipeline.feed takes for the first chunk after a
+wakeup compared with the same call on a second pipeline right after it (same code,
+now in cache).
+
+With `--compare DIR` (a checkout of another commit, e.g. `git worktree add /tmp/old
+HEAD~5`), that checkout's gateway runs beside this one's with its default config, in the
+same runs: a change measured side by side with the code before it.
 """
 from __future__ import annotations
 
@@ -65,25 +69,20 @@ asyncio.run(Gateway(cfg).run())
 PROBE = """
 import asyncio, os, signal, sys, tempfile, time, tty
 sys.path.insert(0, {root!r})
-from gateway.config import validate
-from gateway.daemon import Gateway
+from gateway.core.conversion import Calibration
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.sample_pipeline import SamplePipeline
 
-def gateway(compiled):
-    tmp = tempfile.mkdtemp(prefix="adxlgw-wake-")
-    cfg = validate({{"serial": {{"port": tmp + "/none"}}, "can": {{"enabled": False}},
-                     "state": {{"path": tmp + "/state.json"}}}}, "<bench>")
-    return Gateway(cfg, compiled_samples=compiled)
-
-first, second = gateway({compiled}), gateway({compiled})
+first, second = (SamplePipeline(Calibration(), from_sensor_model()) for _ in range(2))
 spent = [0.0, 0.0, 0]
 clock = time.perf_counter
 
 def on_readable():
     data = os.read(fd, 4096)
     t0 = clock()
-    first.handle_frames(data)
+    first.feed(data)
     t1 = clock()
-    second.handle_frames(data)
+    second.feed(data)
     t2 = clock()
     spent[0] += t1 - t0
     spent[1] += t2 - t1
@@ -111,8 +110,7 @@ VARIANTS = {
     "gateway, default config": lambda link: GATEWAY.format(root=str(ROOT), link=link, can=True, batch=5),
 }
 PROBES = {
-    "compiled sample path": lambda link: PROBE.format(root=str(ROOT), link=link, compiled=True),
-    "Python sample path": lambda link: PROBE.format(root=str(ROOT), link=link, compiled=False),
+    "sample pipeline": lambda link: PROBE.format(root=str(ROOT), link=link),
 }
 
 
@@ -173,15 +171,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--compare", metavar="DIR", help="another checkout whose gateway runs beside this one's")
     args = ap.parse_args()
+    variants = dict(VARIANTS)
+    if args.compare:
+        other = str(Path(args.compare).resolve())
+        variants[f"gateway @ {args.compare}, default config"] = (
+            lambda link: GATEWAY.format(root=other, link=link, can=True, batch=5))
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
-          f"--repeat {args.repeat}")
+          f"--repeat {args.repeat}" + (f" --compare {args.compare}" if args.compare else ""))
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
-    names = list(VARIANTS)
+    names = list(variants)
     cpu = {name: [] for name in names}
     woken = {name: [] for name in names}
     for _ in range(args.repeat):
-        got, _, rates = together([VARIANTS[n] for n in names], args.seconds)
+        got, _, rates = together([variants[n] for n in names], args.seconds)
         for name, value, rate in zip(names, got, rates):
             cpu[name].append(value)
             woken[name].append(rate)
@@ -189,12 +193,12 @@ def main() -> None:
     print("(wakeups: voluntary context switches of all the process's threads):")
     for name in names:
         v = cpu[name]
-        print(f"  {name:36s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %   "
+        print(f"  {name:44s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %   "
               f"wakeups {np.median(woken[name]):4.0f}/s")
     probe_names = list(PROBES)
     _, outs, _ = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
-    print("Gateway.handle_frames after each wakeup (µs per chunk, mean), and the same call on a second")
-    print("gateway right after it:")
+    print("SamplePipeline.feed after each wakeup (µs per chunk, mean), and the same call on a second")
+    print("pipeline right after it:")
     for name, out in zip(probe_names, outs):
         first_us, second_us, calls = out.split()
         print(f"  {name:22s} first {float(first_us):5.1f} µs   second {float(second_us):5.1f} µs   ({calls} chunks)")

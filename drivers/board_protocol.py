@@ -20,7 +20,7 @@ import struct
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from types import MappingProxyType
-from typing import Final, Mapping, Union
+from typing import Final, Mapping, Protocol, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -66,14 +66,58 @@ SEQ_MODULUS: Final = 1 << 16
 
 _SAMPLE_PAYLOAD = struct.Struct(">HHHHB")
 _REPORT_PAYLOAD = struct.Struct(">HIIhBB")  # STATUS and HELLO share one layout
-# Payload and CRC read in one call in the decoder's hot path.
-_SAMPLE_PAYLOAD_CRC = struct.Struct(">HHHHBH")
+# Payload and CRC read in one call for reports
 _REPORT_PAYLOAD_CRC = struct.Struct(">HIIhBBH")
 
 
 def crc16_ccitt_false(data: bytes | bytearray | memoryview) -> int:
     """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final XOR)."""
     return binascii.crc_hqx(data, CRC_INITIAL)
+
+
+# The CRC by table for `sample_at`, each entry from the reference above (binascii). A
+# tuple: numba keeps it as a constant, plain Python indexes it fast.
+CRC16_TABLE: Final = tuple(binascii.crc_hqx(bytes((b,)), 0) for b in range(256))
+_SAMPLE_TYPE_BYTE = 0x01
+_SAMPLE_N = 9
+
+
+def sample_at(buf, pos):
+    """The SAMPLE decoder: (seq, t1x, t1y, t2, flags) of the SAMPLE frame starting at
+    `pos`, or seq −1 when none starts there (no sync, another type or N, fewer than 15
+    bytes left, or a CRC mismatch). Big-endian integers (shared spec).
+
+    The only place a SAMPLE frame is decoded. Written in the subset of Python that
+    numba compiles: the gateway's sample pipeline compiles it into its per-chunk loop
+    (on a numpy uint8 array); `StreamDecoder` runs it as it is (on bytes).
+    """
+    end = pos + 15
+    if end > len(buf) or buf[pos] != 0xA5 or buf[pos + 1] != 0x5A:
+        return -1, 0, 0, 0, 0
+    if buf[pos + 2] != _SAMPLE_TYPE_BYTE or buf[pos + 3] != _SAMPLE_N:
+        return -1, 0, 0, 0, 0
+    # every byte as an int64 first: numba types int(uint8) as uint64 (a uint64 beside
+    # the int64 of the "no frame" return makes every field a float), and numpy's uint8
+    # overflows in plain Python
+    i64 = np.int64
+    crc = 0xFFFF
+    for i in range(pos + 2, end - 2):
+        crc = ((crc << 8) & 0xFFFF) ^ CRC16_TABLE[((crc >> 8) ^ i64(buf[i])) & 0xFF]
+    if crc != (i64(buf[end - 2]) << 8 | i64(buf[end - 1])):
+        return -1, 0, 0, 0, 0
+    seq = i64(buf[pos + 4]) << 8 | i64(buf[pos + 5])
+    t1x = i64(buf[pos + 6]) << 8 | i64(buf[pos + 7])
+    t1y = i64(buf[pos + 8]) << 8 | i64(buf[pos + 9])
+    t2 = i64(buf[pos + 10]) << 8 | i64(buf[pos + 11])
+    return seq, t1x, t1y, t2, i64(buf[pos + 12])
+
+
+def samples_lost(last_seq, seq):
+    """Samples missing between the SAMPLE (or HELLO) with `last_seq` and one with `seq`
+    (mod 65536); 0 when `last_seq` is −1 (nothing seen yet). Numba-compilable."""
+    if last_seq < 0:
+        return 0
+    return (seq - last_seq - 1) & 0xFFFF
 
 
 # --- decoded frames -------------------------------------------------------------------
@@ -354,6 +398,23 @@ class DecoderCounters:
     board_resets: int = 0
 
 
+class SampleSink(Protocol):
+    """Where a `StreamDecoder` hands the frames it finds, instead of returning them.
+
+    The gateway's sample pipeline is one: it takes whole runs of SAMPLE frames in one
+    compiled call (decode, time, convert, estimate), and each report in order, so that
+    a HELLO between two samples resets what follows it.
+    """
+
+    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int]:
+        """Take the run of whole, CRC-valid SAMPLE frames from `buf[pos]` on (using
+        `sample_at` and `samples_lost`): (end, samples, last seq, samples lost, gaps).
+        0 samples: the frame at `pos` is not a good one."""
+        ...
+
+    def on_report(self, frame: "Status | Hello") -> None: ...
+
+
 class StreamDecoder:
     """Turns serial bytes, in any chunking, into frames; never raises on bytes.
 
@@ -366,13 +427,17 @@ class StreamDecoder:
     Decisions depend only on the bytes from a candidate sync to the end of its frame,
     and an incomplete candidate waits for more bytes, so splitting a stream into
     chunks never changes the result.
+
+    With a `sink`, frames go there as they are found (SAMPLE runs to
+    `sink.take_samples`, reports to `sink.on_report`) and `feed` returns nothing.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, sink: SampleSink | None = None) -> None:
         self._pending = b""
         self._counters = DecoderCounters()
-        self._last_seq: int | None = None
+        self._last_seq = -1
         self._in_bad_run = False
+        self._sink = sink
 
     @property
     def counters(self) -> DecoderCounters:
@@ -395,28 +460,7 @@ class StreamDecoder:
     @property
     def last_seq(self) -> int:
         """seq of the last SAMPLE (or HELLO), −1 before any: what the next gap is counted from."""
-        return -1 if self._last_seq is None else self._last_seq
-
-    def account_samples(self, nbytes: int, samples: int, last_seq: int, lost: int, gaps: int) -> None:
-        """Record a run of good SAMPLE frames that a caller decoded itself, as `feed`
-        would have: `nbytes` bytes of `samples` frames, the newest with `last_seq`, and
-        the seq gaps and samples lost among them (counted from `last_seq` as it was).
-
-        For `drivers.sample_scan.sample_at` in compiled code, which only ever takes
-        whole SAMPLE frames from the start of a chunk while nothing is buffered here;
-        the rest of the chunk then goes to `feed`.
-        """
-        if self._pending:
-            raise RuntimeError("account_samples with bytes buffered: feed them first")
-        counters = self._counters
-        counters.bytes_received += nbytes
-        if samples:
-            self._last_seq = last_seq
-            self._in_bad_run = False
-            counters.frames_decoded += samples
-            counters.samples_decoded += samples
-            counters.samples_lost += lost
-            counters.seq_gaps += gaps
+        return self._last_seq
 
     def _skip(self, count: int) -> None:
         counters = self._counters
@@ -426,16 +470,17 @@ class StreamDecoder:
             self._in_bad_run = True
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
-        """Add bytes from the line; return the frames completed by them, in order."""
+        """Add bytes from the line; return the frames completed by them, in order
+        (none with a sink: they went there)."""
         buf = self._pending + bytes(data) if self._pending else bytes(data)
         counters = self._counters
         counters.bytes_received += len(data)
         size = len(buf)
         frames: list[Frame] = []
-        append = frames.append
+        sink = self._sink
+        array = None  # buf as numpy, made once per feed for the sink
         find = buf.find
         crc_hqx = binascii.crc_hqx
-        unpack_sample = _SAMPLE_PAYLOAD_CRC.unpack_from
         unpack_report = _REPORT_PAYLOAD_CRC.unpack_from
         last_seq = self._last_seq
         samples = reports = hellos = lost_total = gaps = 0
@@ -459,26 +504,30 @@ class StreamDecoder:
             frame_type = buf[pos + 2]
             length = buf[pos + 3]
 
-            if frame_type == 0x01 and length == 9:  # SAMPLE, the hot path
-                end = pos + SAMPLE_FRAME_LENGTH
-                if end > size:
+            if frame_type == 0x01 and length == 9:  # SAMPLE
+                if pos + SAMPLE_FRAME_LENGTH > size:
                     break
-                seq, t1x, t1y, t2, flags, crc = unpack_sample(buf, pos + 4)
-                if crc_hqx(buf[pos + 2 : end - 2], CRC_INITIAL) != crc:
+                if sink is not None:
+                    if array is None:
+                        array = np.frombuffer(buf, np.uint8)
+                    end, taken, last_seq, lost, run_gaps = sink.take_samples(array, pos, last_seq)
+                else:
+                    seq, t1x, t1y, t2, flags = map(int, sample_at(buf, pos))
+                    taken = seq >= 0
+                    if taken:
+                        lost = int(samples_lost(last_seq, seq))
+                        run_gaps = 1 if lost else 0
+                        last_seq = seq
+                        frames.append(Sample(seq, t1x, t1y, t2, flags, lost))
+                        end = pos + SAMPLE_FRAME_LENGTH
+                if not taken:
                     counters.crc_errors += 1
                     self._skip(1)
                     pos += 1
                     continue
-                if last_seq is None:
-                    lost = 0
-                else:
-                    lost = (seq - last_seq - 1) & 0xFFFF
-                    if lost:
-                        lost_total += lost
-                        gaps += 1
-                last_seq = seq
-                append(Sample(seq, t1x, t1y, t2, flags, lost))
-                samples += 1
+                samples += taken
+                lost_total += lost
+                gaps += run_gaps
                 self._in_bad_run = False
                 pos = end
                 continue
@@ -496,14 +545,18 @@ class StreamDecoder:
                 if temp == TEMP_NO_SENSOR_RAW:
                     temp = None
                 if frame_type == 0x03:
-                    append(Hello(seq, uptime_s, tick_hz, temp, fw_major, fw_minor))
+                    report: Frame = Hello(seq, uptime_s, tick_hz, temp, fw_major, fw_minor)
                     hellos += 1
                     # The board restarted: continuity restarts from the HELLO's seq
                     # (0xFFFF), so the next SAMPLE is expected to be seq 0.
                     last_seq = seq
                 else:
-                    append(Status(seq, uptime_s, tick_hz, temp, fw_major, fw_minor))
+                    report = Status(seq, uptime_s, tick_hz, temp, fw_major, fw_minor)
                     reports += 1
+                if sink is not None:
+                    sink.on_report(report)
+                else:
+                    frames.append(report)
                 self._in_bad_run = False
                 pos = end
                 continue

@@ -44,9 +44,11 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import errno
+import fcntl
 import logging
 import os
 import select
+import struct
 import termios
 import time
 from collections.abc import AsyncIterator, Callable, Iterator, Mapping
@@ -337,6 +339,18 @@ class SerialSource:
             if self._port is None:
                 return b""
         return self._read_now(max_bytes or self.settings.read_chunk_bytes)
+
+    def bytes_waiting(self) -> int:
+        """Bytes the port holds that nobody has read yet (FIONREAD); 0 when not open.
+
+        How far the reader lags the line: with `wake_min_bytes` up to one batch waits
+        here by design."""
+        if self._fd is None:
+            return 0
+        try:
+            return struct.unpack("i", fcntl.ioctl(self._fd, termios.FIONREAD, b"\0" * 4))[0]
+        except OSError:
+            return 0
 
     def read_pending(self) -> bytes:
         """Whatever the port holds right now; b"" when nothing or the port is not open.

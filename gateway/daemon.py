@@ -12,9 +12,9 @@ at 500 samples/s), and whatever reads the values — a Modbus read, a CAN cycle,
 command, the view — first takes the bytes that came since (`SerialSource.read_pending`),
 so no wire shows older numbers than with a wakeup per frame. Where the port cannot
 batch (a pyserial URL, batch_frames = 1) the bytes are kept with their arrival time
-until something needs the numbers or MAX_DEFER_S has passed. Either way a batch is
-decoded and estimated (runs of SAMPLE frames in one compiled call,
-gateway/sample_fast_path.py) and published once (the values are built only when a
+until something needs the numbers or MAX_DEFER_S has passed. Either way a batch goes
+through the sample pipeline (runs of SAMPLE frames in one compiled call,
+gateway/sample_pipeline.py; events and snapshots in gateway/board_intake.py) and published once (the values are built only when a
 Modbus read or a CAN frame needs them); the CAN frames of a due cycle go out from
 inside that publish, locked onto the wakeups (drivers/can_publisher.py). Nothing else
 wakes the process while samples flow: the publishing tick is a timer that the batches
@@ -29,26 +29,28 @@ import logging
 import math
 import signal
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
-from drivers.board_protocol import SAMPLE_FRAME_LENGTH, Hello, Sample, Status, StreamDecoder
-from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError
+from drivers.board_protocol import SAMPLE_FRAME_LENGTH
+import can
+
+from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherConfig, CanPublisherError
 from drivers.errors import SerialPortError
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import Command, PublishedValues
 from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
-from gateway.board_session import BoardSession
-from gateway.config import Config, load_config
+from gateway.board_intake import BoardIntake, LinkHealth
+from gateway.config import Config
 from gateway.core.conversion import AxisCalibration, Calibration
+from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
+from gateway.core.sensor_model import SensorParams
+from gateway.drift_model_file import load_drift_model
 from gateway.emulated_board import EmulatedBoard
 from gateway.errors import ConfigError, DeviceError, InputError
-from gateway.drift_model_file import load_drift_model
-from gateway.estimation_link import EstimatorLink
-from gateway.sample_fast_path import SampleFastPath
+from gateway.sample_pipeline import SamplePipeline
 from gateway.sd_notify import SystemdNotifier
 from gateway.state_store import PersistentState, StateStore
-from gateway.status_flags import GatewayCondition, status_bits
 from gateway.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
@@ -58,8 +60,7 @@ PUBLISH_TICK_S = 0.01  # staleness, heartbeat and republishing while no samples 
 # and estimated, if nothing needs the numbers sooner (see Gateway.receive).
 MAX_DEFER_S = PUBLISH_TICK_S
 MAX_DEFER_CHUNKS = 64
-HOUSEKEEPING_S = 0.25  # terminal view, periodic state save
-SATURATION_HOLD_S = 1.0
+HOUSEKEEPING_S = 0.25  # terminal view, state save when something changed
 STATE_SAVE_EVERY_S = 60.0
 
 
@@ -104,28 +105,19 @@ def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
                           wake_min_bytes=batch_frames_for(cfg) * SAMPLE_FRAME_LENGTH)
 
 
-def _arrival(batch: list[tuple[float, bytes]], byte_index: int) -> float:
-    """Arrival time of the chunk that holds byte `byte_index` of the joined batch."""
-    end = 0
-    for arrived_s, chunk in batch:
-        end += len(chunk)
-        if byte_index < end:
-            return arrived_s
-    return batch[-1][0]
-
-
-def _after(batch: list[tuple[float, bytes]], taken: int) -> list[tuple[float, bytes]]:
-    """The batch without its first `taken` bytes (a chunk cut in two keeps its time)."""
-    for k, (arrived_s, chunk) in enumerate(batch):
-        if taken < len(chunk):
-            return [(arrived_s, chunk[taken:])] + batch[k + 1:] if taken else batch[k:]
-        taken -= len(chunk)
-    return []
+def estimator_settings_from(cfg: Config) -> EstimatorSettings:
+    """The estimator's settings from the sensor model, with the fitted drift model if one is configured."""
+    drift = None
+    if cfg.estimator.drift_model:
+        try:
+            drift = load_drift_model(cfg.estimator.drift_model)
+        except InputError as err:
+            raise ConfigError(f"{cfg.source}: estimator.drift_model: {err}") from err
+    return from_sensor_model(SensorParams(), drift_fit=drift, axis=cfg.calibration.axis)
 
 
 @dataclass
 class Counters:
-    samples: int = 0
     config_reloads: int = 0
     config_reload_errors: int = 0
     can_start_failures: int = 0
@@ -133,6 +125,10 @@ class Counters:
 
 
 class Gateway:
+    """The supervisor. Use as an async context manager (`async with Gateway(cfg) as gw:`
+    starts it, leaving the block stops it), or `await gw.run()` as the command does
+    (signals: SIGTERM/SIGINT stop, SIGHUP reloads). `stop()` is idempotent."""
+
     def __init__(
         self,
         cfg: Config,
@@ -140,53 +136,38 @@ class Gateway:
         reload: Callable[[], Config] | None = None,
         notifier: SystemdNotifier | None = None,
         clock: Callable[[], float] = time.monotonic,
-        compiled_samples: bool = True,
+        publish_tick_s: float = PUBLISH_TICK_S,
+        can_bus_factory: BusFactory = can.Bus,
     ):
         self.cfg = cfg
         self._reload = reload
         self.notifier = notifier or SystemdNotifier()
         self.clock = clock
+        self.publish_tick_s = publish_tick_s  # how often to republish while the board is quiet
+        self._can_bus_factory = can_bus_factory  # python-can's Bus, or a wrapper of it
         self.counters = Counters()
         self.state_store = StateStore(cfg.state.path)
-        self.saved = self.state_store.load()
-        self.session = BoardSession(calibration_from(cfg), cfg.calibration.axis)
-        drift = None
-        if cfg.estimator.drift_model:
-            try:
-                drift = load_drift_model(cfg.estimator.drift_model)
-            except InputError as err:
-                raise ConfigError(f"{cfg.source}: estimator.drift_model: {err}") from err
-        self.estimator = EstimatorLink(drift=drift, axis=cfg.calibration.axis)
-        self.decoder = StreamDecoder()
-        # SAMPLE frames by one compiled call per chunk when numba is there (same numbers)
-        self._fast = (SampleFastPath(self.decoder, self.session, self.estimator)
-                      if compiled_samples and SampleFastPath.available else None)
+        saved = self.state_store.load()
+        # the last published position is where we continue from, flagged NOT_REFERENCED
+        # (the axis may have moved while the gateway was down): a prior, not a fact
+        self.pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
+                                       start_position_m=saved.last_position_m or 0.0)
+        self.intake = BoardIntake(self.pipeline)
         self.source: SerialSource | None = None
         self.modbus: ModbusServer | None = None
         self.can: CanPublisher | None = None
         self.emulated: EmulatedBoard | None = None
         self.view = TerminalView() if cfg.service.view else None
-        # position reference: published = estimator position − offset
-        self.reference_offset_m = -self.saved.last_position_m if self.saved.last_position_m else 0.0
-        self.referenced = False  # after a restart, never trust an old reference
-        self._inbox: list[tuple[float, bytes]] = []  # received, not yet decoded (see receive)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
-        self._values = PublishedValues()
-        self._values_built = True  # False: published since, build on the next read
-        self._published_at = clock()
-        self._values_source = self._current_values  # handed to the publishers
-        self._estimate = None
-        self._last_sample_s: float | None = None
-        self._saturated_until = -1.0
-        self._board_reset_at: float | None = None
-        self._lost_at: float | None = None
         self._reloaded_at: float | None = None
-        self._heartbeat = 0
-        self._stop = asyncio.Event()
-        self._ready_sent = False
+        self._stop_requested = asyncio.Event()
+        self._ready = asyncio.Event()
+        self._started = False
+        self._stopped = False
         self._serial_path: str | None = None
         self._tasks: list[asyncio.Task] = []
+        self._board_task: asyncio.Task | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tick_handle: asyncio.TimerHandle | None = None
         self._tick_due = -math.inf
@@ -194,27 +175,100 @@ class Gateway:
         self._last_saved_s = clock()
         self._state_dirty = False
 
+    # ------------------------------------------------------------ lifecycle --
+    async def __aenter__(self) -> Gateway:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        await self.stop()
+
+    async def start(self) -> None:
+        """Servers listening, the board port being opened (READY once it is: `wait_ready`)."""
+        if self._started:
+            return
+        self._started = True
+        self._loop = asyncio.get_running_loop()
+        await self._start_servers()
+        self._arm_tick(self.clock(), self.publish_tick_s)
+        self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
+        self._board_task = asyncio.create_task(self._board_supervisor(), name="board")
+
+    @property
+    def ready(self) -> bool:
+        """The board's port is open and the servers listen (systemd has heard READY)."""
+        return self._ready.is_set()
+
+    async def wait_ready(self, timeout_s: float | None = None) -> None:
+        """Until READY; a board supervisor that failed raises its error here."""
+        waiter = asyncio.create_task(self._ready.wait())
+        try:
+            done, _ = await asyncio.wait({waiter, self._board_task}, timeout=timeout_s,
+                                         return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            waiter.cancel()
+        if self._board_task in done and not self.ready:
+            self._board_task.result()
+            raise DeviceError("the board supervisor ended before READY")
+        if not done:
+            raise TimeoutError(f"not ready within {timeout_s} s")
+
+    def request_stop(self) -> None:
+        """Ask `run` to stop (what SIGTERM does)."""
+        self._stop_requested.set()
+
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        loop.add_signal_handler(signal.SIGTERM, self.request_stop)
+        loop.add_signal_handler(signal.SIGINT, self.request_stop)
+        loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self.reload())))
+        async with self:
+            stopper = asyncio.create_task(self._stop_requested.wait())
+            await asyncio.wait({stopper, self._board_task}, return_when=asyncio.FIRST_COMPLETED)
+            stopper.cancel()
+            if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
+                raise self._board_task.exception()
+        return 0
+
+    async def stop(self) -> None:
+        """Cancel, then gather; close the port and servers; save the state."""
+        if not self._started or self._stopped:
+            return
+        self._stopped = True
+        self.notifier.stopping()
+        tick, self._tick_handle = self._tick_handle, None
+        if tick is not None:
+            tick.cancel()
+        tasks = [t for t in [*self._tasks, self._board_task] if t is not None]
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if self.source is not None:
+            self.source.close()
+        await self._stop_servers()
+        if self.emulated is not None:
+            await self.emulated.stop()
+        self.state_store.save(self._state_to_save())
+        log.info("stopped")
+
     # ------------------------------------------------------------- commands --
     def on_command(self, command: Command, source: str) -> bool:
         self._drain(self.clock())  # act on the newest estimate
         if command == Command.TARE:
-            if self._estimate is None:
+            if not self.pipeline.tare():
                 log.warning("tare from %s declined: no estimate yet", source)
                 return False
-            self.reference_offset_m = self._estimate.pos_m
-            self.referenced = True
             self._state_dirty = True
             log.info("tare from %s: position := 0", source)
-            self.publish(self.clock())  # the reply's next read already shows it
-            self._save_state()
+            self._publish(self.clock())  # the reply's next read already shows it
             return True
         if command == Command.REESTIMATE_BIAS:
-            ok = self.estimator.request_bias_reestimate(bool(self._estimate and self._estimate.standstill))
+            ok = self.pipeline.request_bias_reestimate()
             log.info("bias re-estimation from %s: %s", source, "accepted" if ok else "declined (not at standstill)")
             return ok
         return False
 
-    # --------------------------------------------------------------- frames --
+    # ------------------------------------------------------------- hot path --
     def receive(self, data: bytes) -> None:
         """Bytes from the board as they arrive (the serial port's reader callback).
 
@@ -228,10 +282,10 @@ class Gateway:
         (benchmarks/wakeup_cost.py, docs/daemon.md).
         """
         now = self.clock()
-        inbox = self._inbox
-        inbox.append((now, data))
-        if (self._kernel_batches or now - inbox[0][0] >= MAX_DEFER_S or len(inbox) >= MAX_DEFER_CHUNKS
-                or (self.can is not None and self.can.update_due())):
+        intake = self.intake
+        intake.receive(now, data)
+        if (self._kernel_batches or now - intake.waiting_since_s >= MAX_DEFER_S
+                or intake.waiting_chunks >= MAX_DEFER_CHUNKS or (self.can is not None and self.can.update_due())):
             # the port was just read dry: the CAN cycle's values need not read it again
             self._port_just_read = True
             try:
@@ -239,15 +293,8 @@ class Gateway:
             finally:
                 self._port_just_read = False
 
-    def handle_frames(self, data: bytes) -> None:
-        """Bytes from the board, handled now: every sample through the estimator, then
-        one publish (what `receive` does for a batch)."""
-        now = self.clock()
-        self._inbox.append((now, data))
-        self._drain(now, take_waiting=False)
-
     def _drain(self, now: float, take_waiting: bool = True) -> None:
-        """Everything received so far through the estimator, then one publish.
+        """Everything received so far through the pipeline, then one publish.
 
         With `take_waiting`, first the bytes waiting in the serial port (arrived since
         its last wakeup). One publish per batch, not per sample: the newest estimate
@@ -257,237 +304,150 @@ class Gateway:
         if take_waiting and self.source is not None:
             waiting = self.source.read_pending()
             if waiting:
-                self._inbox.append((self.clock(), waiting))
-        batch, self._inbox = self._inbox, []
-        if batch and self._ingest(batch):
+                self.intake.receive(self.clock(), waiting)
+        if self.intake.waiting_chunks and self.intake.drain():
             # as of the newest sample's arrival, as if each chunk had been handled then
-            self.publish(self._last_sample_s)
+            self._publish(self.intake.events.last_sample_s)
             # push the quiet tick back, about once per tick (not per batch)
-            if self._tick_handle is not None and self._tick_due - now < PUBLISH_TICK_S:
+            if self._tick_handle is not None and self._tick_due - now < self.publish_tick_s:
                 self._arm_tick(now)
 
-    def _ingest(self, batch: list[tuple[float, bytes]]) -> bool:
-        """Decode and estimate (arrival time, bytes) chunks in order; True if any sample.
-
-        Runs of whole SAMPLE frames go through the compiled path in one call (their
-        chunks joined); whatever it does not take, chunk by chunk through the Python
-        path. A sample's events carry the arrival time of the chunk its frame ended in.
-        """
-        sampled = False
-        fast = self._fast
-        while batch:
-            if fast is not None and fast.ready:  # else joining the rest would be work for nothing
-                data = batch[0][1] if len(batch) == 1 else b"".join([chunk for _, chunk in batch])
-                taken = fast.take(data)
-                if taken:
-                    sampled = True
-                    self.counters.samples += fast.samples
-                    self._last_sample_s = _arrival(batch, taken - 1)
-                    if fast.last_lost >= 0:
-                        self._lost_at = _arrival(batch, (fast.last_lost + 1) * SAMPLE_FRAME_LENGTH - 1)
-                    if fast.last_saturated >= 0:
-                        self._saturated_until = (_arrival(batch, (fast.last_saturated + 1) * SAMPLE_FRAME_LENGTH - 1)
-                                                 + SATURATION_HOLD_S)
-                    self._estimate = self.estimator.latest(fast.entered_standstill)
-                    batch = _after(batch, taken)
-                    if not batch:
-                        break
-            now, data = batch[0]
-            batch = batch[1:]
-            sampled = self._ingest_frames(data, now) or sampled
-        return sampled
-
-    def _ingest_frames(self, data: bytes, now: float) -> bool:
-        """One chunk through the Python path (StreamDecoder.feed, frame by frame)."""
-        sampled = False
-        for frame in self.decoder.feed(data):
-            if isinstance(frame, Sample):
-                sample = self.session.on_sample(frame)
-                if sample is None:
-                    continue
-                self.counters.samples += 1
-                sampled = True
-                if sample.lost_before:
-                    self._lost_at = now
-                if sample.saturated:
-                    self._saturated_until = now + SATURATION_HOLD_S
-                self._estimate = self.estimator.step(sample.t_s, sample.acc_mps2, sample.lost_before)
-            elif isinstance(frame, (Status, Hello)):
-                if self.session.on_report(frame):
-                    log.warning("board reset: continuity lost, position not referenced until the next tare")
-                    self._board_reset_at = now
-                    self._lose_reference()
-        if sampled:
-            self._last_sample_s = now
-        return sampled
-
-    def _lose_reference(self) -> None:
-        if not self._values_built:
-            self._build_values()  # the numbers published until now, kept while unreferenced
-        if self._estimate is not None:
-            # keep the published position continuous; it is just no longer trusted
-            self.reference_offset_m -= self._estimate.pos_m
-        self.estimator.reset()
-        self._estimate = None
-        self.referenced = False
-
-    # -------------------------------------------------------------- publish --
-    def condition(self, now: float) -> GatewayCondition:
-        est = self._estimate
-        source = self.source
-        return GatewayCondition(
-            now_s=now,
-            have_estimate=est is not None,
-            port_open=source is not None and source.is_open,
-            last_sample_s=self._last_sample_s,
-            last_byte_s=None if source is None else source.last_data_monotonic_s,
-            stale_after_s=self.cfg.serial.stale_after_ms / 1000,
-            lost_after_s=self.cfg.serial.lost_after_ms / 1000,
-            referenced=self.referenced,
-            standstill=bool(est and est.standstill),
-            estimator_fault=bool(est and est.fault),
-            holding=bool(est and (est.holding or est.initialising)),
-            saturated_until_s=self._saturated_until,
-            board_reset_at_s=self._board_reset_at,
-            samples_lost_at_s=self._lost_at,
-            config_reloaded_at_s=self._reloaded_at,
-            bias_estimating=bool(est and est.bias_estimating),
-        )
-
-    def publish(self, now: float) -> None:
-        """New values as of `now`: the heartbeat moves and every wire will show them.
-
-        The snapshot itself is built only when something reads it (a Modbus read, a
-        CAN transmission, `values`): per sample this is a few assignments.
-        """
-        self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
-        self._published_at = now
-        self._values_built = False
+    def _publish(self, now: float) -> None:
+        """New values as of `now`: the heartbeat moves and every wire will show them
+        (the snapshot is built only when a Modbus read or a CAN frame needs it)."""
+        self.intake.publish(now)
         if self.modbus:
-            self.modbus.update(self._values_source)
+            self.modbus.update(self.fresh_values)
         if self.can:
-            self.can.update(self._values_source)
+            self.can.update(self.fresh_values)
 
-    @property
-    def values(self) -> PublishedValues:
-        """What the wires show: the snapshot of the last publish (after everything
-        received so far, the bytes waiting in the port included, went through the
-        estimator)."""
+    def fresh_values(self) -> PublishedValues:
+        """What the wires show, after everything received so far — the bytes waiting in
+        the port included — went through the pipeline. Every reader calls this."""
         self._drain(self.clock(), take_waiting=not self._port_just_read)
-        if not self._values_built:
-            self._build_values()
-        return self._values
+        return self.intake.snapshot(self._health())
 
-    def _current_values(self) -> PublishedValues:
-        return self.values
+    def _health(self) -> LinkHealth:
+        source = self.source
+        serial = self.cfg.serial
+        return LinkHealth(
+            port_open=source is not None and source.is_open,
+            last_byte_s=None if source is None else source.last_data_monotonic_s,
+            stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
+            config_reloaded_at_s=self._reloaded_at,
+            can_send_errors=self.can.send_errors if self.can else 0,
+        )
 
     def _drain_now(self) -> None:
         self._drain(self.clock())
 
-    def _build_values(self) -> None:
-        now = self._published_at
-        est = self._estimate
-        c = self.decoder.live_counters
-        if est is not None:
-            pos = est.pos_m - self.reference_offset_m
-            vel, acc, bias, pos_std = est.vel_mps, est.acc_mps2, est.bias_mps2, est.pos_std_m
-        else:  # nothing estimated since start or reset: last published numbers, flagged
-            last = self._values
-            pos, vel, acc = last.position_m, last.velocity_mps, last.acceleration_mps2
-            bias, pos_std = last.bias_estimate_mps2, last.position_std_m
-        self._values_built = True
-        self._values = PublishedValues(
-            position_m=pos, velocity_mps=vel, acceleration_mps2=acc,
-            status=status_bits(self.condition(now)),
-            heartbeat=self._heartbeat,
-            sample_counter=self.counters.samples,
-            last_sample_age_ms=None if self._last_sample_s is None else (now - self._last_sample_s) * 1000,
-            bias_estimate_mps2=bias, position_std_m=pos_std,
-            board_temp_c=self.session.temp_c,
-            lost_samples=c.samples_lost, crc_errors=c.crc_errors,
-            board_resets=self.session.counters.resets_announced + self.session.counters.resets_inferred,
-            can_send_errors=self.can.send_errors if self.can else 0,
-        )
+    def _arm_tick(self, now: float, delay: float | None = None) -> None:
+        """(Re)schedule the quiet tick `delay` (default two ticks) from now.
 
-    # ---------------------------------------------------------------- state --
-    def _save_state(self) -> None:
-        self._drain(self.clock())
-        est = self._estimate
-        self.saved = PersistentState(
-            tare_offset_m=self.reference_offset_m,
-            bias_estimate_mps2=None if est is None or not math.isfinite(est.bias_mps2) else est.bias_mps2,
-            last_position_m=None if not math.isfinite(self.values.position_m) else self.values.position_m,
-            saved_at_unix_s=time.time(),
-        )
-        self.state_store.save(self.saved)
-        self._last_saved_s = self.clock()
-        self._state_dirty = False
-
-    # ---------------------------------------------------------------- tasks --
-    async def _open_board(self) -> None:
-        port = self.cfg.serial.port
-        if port == "emulated":
-            self.emulated = EmulatedBoard()
-            port = await self.emulated.start()
-        self._serial_path = port
-        self.source = SerialSource(serial_settings_from(self.cfg, port))
-        delays = reconnect_delays_s(self.source.settings)
-        while True:
-            try:
-                await asyncio.to_thread(self.source.open)
-                log.info("board port %s open", port)
-                return
-            except SerialPortError as err:
-                delay = next(delays)
-                log.warning("%s; retrying in %.1f s", err, delay)
-                await asyncio.sleep(delay)
-
-    async def _board_task(self) -> None:
-        # receive runs inside the loop's reader callback: no task switch per chunk
-        await self.source.deliver(self._receive_from_port)
-
-    def _receive_from_port(self, data: bytes) -> None:
-        # known per open port (a reopened one may not batch), read per wakeup: cheap
-        self._kernel_batches = self.source.wake_min_bytes > 1
-        self.receive(data)
-
-    def _arm_tick(self, now: float, delay: float = 2 * PUBLISH_TICK_S) -> None:
-        """(Re)schedule the quiet tick `delay` from now.
-
-        While samples flow, each chunk pushes it back to 2 ticks ahead once less than
-        one is left, so it fires 10–20 ms after the last sample (as a plain 10 ms tick
-        that skips when a sample came within the last 10 ms did), without waking the
+        While samples flow, each batch pushes it back to 2 ticks ahead once less than
+        one is left, so it fires 1–2 ticks after the last sample without waking the
         process while samples flow.
         """
+        if delay is None:
+            delay = 2 * self.publish_tick_s
         if self._tick_handle is not None:
             self._tick_handle.cancel()
         self._tick_due = now + delay
         self._tick_handle = self._loop.call_later(delay, self._quiet_tick)
 
     def _quiet_tick(self) -> None:
-        """While no samples come: publish every PUBLISH_TICK_S, so the heartbeat, the
-        sample age and the STALE/BOARD_LOST bits keep moving (on Modbus and CAN)."""
+        """While no samples come: publish every tick, so the heartbeat, the sample age
+        and the STALE/BOARD_LOST bits keep moving (on Modbus and CAN)."""
         self._tick_handle = None
         now = self.clock()
         try:
             self._drain(now)
-            self.publish(now)
+            self._publish(now)
         except Exception:
             if not self._tick_failed:  # a bug; say it once, keep ticking
                 log.exception("publishing tick failed")
                 self._tick_failed = True
         finally:
-            if self._tick_handle is None:
-                self._arm_tick(now, PUBLISH_TICK_S)
+            if self._tick_handle is None and not self._stopped:
+                self._arm_tick(now, self.publish_tick_s)
+
+    # ---------------------------------------------------------------- state --
+    def _state_to_save(self) -> PersistentState:
+        values = self.fresh_values()
+        est = self.pipeline.latest()
+        return PersistentState(
+            tare_offset_m=self.pipeline.reference_offset_m,
+            bias_estimate_mps2=None if est is None or not math.isfinite(est.bias_mps2) else est.bias_mps2,
+            last_position_m=values.position_m if math.isfinite(values.position_m) else None,
+            saved_at_unix_s=time.time(),
+        )
+
+    async def _save_state(self) -> None:
+        # fsyncs take milliseconds to seconds on a busy disk: not on the event loop
+        state = self._state_to_save()
+        self._state_dirty = False
+        self._last_saved_s = self.clock()
+        await asyncio.to_thread(self.state_store.save, state)
+
+    # ---------------------------------------------------------------- tasks --
+    async def _open_board(self) -> None:
+        port = self.cfg.serial.port
+        if port == "emulated" and self.emulated is None:
+            self.emulated = EmulatedBoard()
+            self._serial_path = await self.emulated.start()
+        elif port != "emulated":
+            self._serial_path = port
+        self.source = SerialSource(serial_settings_from(self.cfg, self._serial_path))
+        delays = reconnect_delays_s(self.source.settings)
+        while True:
+            try:
+                await asyncio.to_thread(self.source.open)
+                log.info("board port %s open", self._serial_path)
+                return
+            except SerialPortError as err:
+                delay = next(delays)
+                log.warning("%s; retrying in %.1f s", err, delay)
+                await asyncio.sleep(delay)
+
+    def _receive_from_port(self, data: bytes) -> None:
+        # known per open port (a reopened one may not batch), read per wakeup: cheap
+        self._kernel_batches = self.source.wake_min_bytes > 1
+        self.receive(data)
+
+    async def _board_supervisor(self) -> None:
+        """Open the port (READY then), read it, reopen it when a reload asks."""
+        await self._open_board()
+        self._tasks.append(asyncio.create_task(self._watchdog_task(), name="watchdog"))
+        self.notifier.ready(f"board {self._serial_path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
+        self._ready.set()
+        log.info("ready: board %s, Modbus TCP %s:%s, CAN %s", self._serial_path, self.cfg.modbus.host,
+                 self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off")
+        while True:
+            self._reopen_board = asyncio.Event()
+            reader = asyncio.create_task(self.source.deliver(self._receive_from_port), name="board-reader")
+            reopen = asyncio.create_task(self._reopen_board.wait())
+            try:
+                await asyncio.wait({reader, reopen}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                reader.cancel()
+                reopen.cancel()
+                await asyncio.gather(reader, reopen, return_exceptions=True)
+            if reader.done() and not reader.cancelled() and reader.exception() is not None:
+                log.error("board reader failed: %s", reader.exception())
+            if self._reopen_board.is_set():
+                self.source.close()
+                await self._open_board()
+            else:
+                await asyncio.sleep(1.0)  # reader ended unexpectedly: start it again
 
     async def _housekeeping_task(self) -> None:
         while True:
             await asyncio.sleep(HOUSEKEEPING_S)
             now = self.clock()
             if self.view:
-                self.view.draw(self.values, self._view_extra())
+                self.view.draw(self.fresh_values(), self._view_extra())
             if self._state_dirty or now - self._last_saved_s >= STATE_SAVE_EVERY_S:
-                self._save_state()
+                await self._save_state()
 
     def _view_extra(self) -> str:
         parts = [f"board {self._serial_path}"]
@@ -504,8 +464,9 @@ class Gateway:
         while True:
             await asyncio.sleep(interval / 2)
             now = self.clock()
-            flowing = self._last_sample_s is not None and now - self._last_sample_s < self.cfg.serial.lost_after_ms / 1000
-            if flowing:  # a hung board must let systemd's watchdog fire
+            last = self.intake.events.last_sample_s
+            if last is not None and now - last < self.cfg.serial.lost_after_ms / 1000:
+                # samples flow: a hung board must let systemd's watchdog fire
                 self.notifier.watchdog()
                 self.counters.watchdog_pings += 1
 
@@ -517,10 +478,13 @@ class Gateway:
             await self.modbus.start()
         except ModbusServerError as err:
             raise DeviceError(f"Modbus server: {err}") from err
+        self.modbus.update(self.fresh_values)  # from the first read on, what the gateway knows
         if self.cfg.can.enabled:
-            self.can = CanPublisher(can_config_from(self.cfg), on_command=self.on_command)
+            self.can = CanPublisher(can_config_from(self.cfg), on_command=self.on_command,
+                                bus_factory=self._can_bus_factory)
             try:
                 await self.can.start()
+                self.can.update(self.fresh_values)
             except CanPublisherError as err:
                 # Modbus keeps serving; CAN is retried in the background
                 self.counters.can_start_failures += 1
@@ -531,9 +495,11 @@ class Gateway:
     async def _retry_can(self) -> None:
         while self.can is None:
             await asyncio.sleep(5)
-            publisher = CanPublisher(can_config_from(self.cfg), on_command=self.on_command)
+            publisher = CanPublisher(can_config_from(self.cfg), on_command=self.on_command,
+                                bus_factory=self._can_bus_factory)
             try:
                 await publisher.start()
+                publisher.update(self.fresh_values)
                 self.can = publisher
                 log.info("CAN publisher started")
             except CanPublisherError as err:
@@ -565,77 +531,14 @@ class Gateway:
         self.counters.config_reloads += 1
         self._reloaded_at = self.clock()
         logging.getLogger().setLevel(new.service.log_level.upper())
-        self.session.set_calibration(calibration_from(new), new.calibration.axis)
-        if old.calibration.axis != new.calibration.axis:
-            self._lose_reference()
+        self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
         if old.modbus.as_tuple() != new.modbus.as_tuple() or old.can.as_tuple() != new.can.as_tuple():
             log.info("reload: restarting Modbus and CAN with the new settings")
             await self._stop_servers()
             await self._start_servers()
-        if old.serial.as_tuple() != new.serial.as_tuple() or batch_frames_for(old) != batch_frames_for(new):
+        if (old.serial.as_tuple() != new.serial.as_tuple() or batch_frames_for(old) != batch_frames_for(new)) \
+                and self._board_task is not None and self.ready:
             log.info("reload: reopening the board port")
-            self._restart_board = True
-            self._board_runner.cancel()
+            self._reopen_board.set()
         log.info("config reloaded from %s", new.source)
         self.notifier.ready()
-
-    # ------------------------------------------------------------ supervisor --
-    async def run(self) -> int:
-        loop = asyncio.get_running_loop()
-        loop.add_signal_handler(signal.SIGTERM, self._stop.set)
-        loop.add_signal_handler(signal.SIGINT, self._stop.set)
-        loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self.reload())))
-        self._loop = loop
-        try:
-            await self._start_servers()
-            self._arm_tick(self.clock(), PUBLISH_TICK_S)
-            self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
-            opener = asyncio.create_task(self._open_board(), name="open-board")
-            stopper = asyncio.create_task(self._stop.wait())
-            await asyncio.wait({opener, stopper}, return_when=asyncio.FIRST_COMPLETED)
-            if self._stop.is_set():
-                opener.cancel()
-                return 0
-            stopper.cancel()
-            self._tasks.append(asyncio.create_task(self._watchdog_task(), name="watchdog"))
-            self.notifier.ready(f"board {self._serial_path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
-            self._ready_sent = True
-            log.info("ready: board %s, Modbus TCP %s:%s, CAN %s", self._serial_path, self.cfg.modbus.host,
-                     self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off")
-            while not self._stop.is_set():
-                self._restart_board = False
-                self._board_runner = asyncio.create_task(self._board_task(), name="board")
-                stopper = asyncio.create_task(self._stop.wait())
-                await asyncio.wait({self._board_runner, stopper}, return_when=asyncio.FIRST_COMPLETED)
-                stopper.cancel()
-                if self._board_runner.done() and not self._board_runner.cancelled():
-                    exc = self._board_runner.exception()
-                    if exc is not None:
-                        log.error("board reader failed: %s", exc)
-                if self._restart_board and not self._stop.is_set():
-                    self._board_runner.cancel()
-                    self.source.close()
-                    await self._open_board()
-                elif not self._stop.is_set():
-                    await asyncio.sleep(1.0)  # reader ended unexpectedly: start it again
-            return 0
-        finally:
-            self.notifier.stopping()
-            await self._shutdown()
-
-    async def _shutdown(self) -> None:
-        tick, self._tick_handle = self._tick_handle, None
-        if tick is not None:
-            tick.cancel()
-        runner = getattr(self, "_board_runner", None)
-        tasks = [t for t in [*self._tasks, runner] if t is not None]
-        for task in tasks:
-            task.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        if self.source is not None:
-            self.source.close()
-        await self._stop_servers()
-        if self.emulated is not None:
-            await self.emulated.stop()
-        self._save_state()
-        log.info("stopped")

@@ -64,16 +64,9 @@ async def wait_for(predicate, timeout_s: float = 10.0, poll_s: float = 0.02, wha
 async def running_gateway(cfg, **kwargs):
     from gateway.daemon import Gateway
 
-    gw = Gateway(cfg, **kwargs)
-    task = asyncio.create_task(gw.run())
-    try:
-        await wait_for(lambda: gw._ready_sent or task.done(), 30, what="READY")
-        if task.done():
-            task.result()
+    async with Gateway(cfg, **kwargs) as gw:
+        await gw.wait_ready(30)
         yield gw
-    finally:
-        gw._stop.set()
-        await asyncio.wait_for(task, timeout=5)
 
 
 async def read_inputs(client: AsyncModbusTcpClient, word_order: WordOrder = WordOrder.ABCD) -> dict:

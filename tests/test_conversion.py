@@ -3,7 +3,7 @@ import pytest
 
 from gateway.core.conversion import (
     AxisCalibration,
-    SampleTimeline,
+    advance_sample_time,
     acceleration_mps2,
     axis_valid,
     lost_before_from_seq,
@@ -66,21 +66,17 @@ def test_sample_time_ignores_host_arrival_and_survives_bad_periods():
     assert t.tolist() == pytest.approx([0.0, 0.002, 0.004, 0.006])
 
 
-def test_streaming_timeline_equals_vectorised_form():
-    rng = np.random.default_rng(3)
-    n = 5000
-    t2 = rng.integers(1800, 1900, n)
-    t2[rng.integers(1, n, 20)] = 0  # unusable counts after the first
-    lost = np.where(rng.uniform(size=n) < 0.01, rng.integers(1, 5, n), 0)
-    lost[0] = 0
-    tl = SampleTimeline()
-    streamed = np.array([tl.advance(int(a), 921600.0, int(b)) for a, b in zip(t2, lost)])
-    np.testing.assert_allclose(streamed, sample_times_s(t2, 921600.0, lost), rtol=0, atol=1e-9)
+def test_a_board_reset_starts_time_over():
+    # advance_sample_time is what the daemon's pipeline calls per sample; `timed` False
+    # (the first sample, or the first after a reset) is t = 0 whatever came before
+    t, next_t, period = advance_sample_time(False, 5.0, 0.002, 1843, 921600.0, 0)
+    assert t == 0.0 and next_t == period == 1843 / 921600.0
+    t, _, _ = advance_sample_time(True, next_t, period, 1843, 921600.0, 2)
+    assert t == pytest.approx(3 * 1843 / 921600.0)
 
 
-def test_timeline_restarts_after_board_reset():
-    tl = SampleTimeline()
-    tl.advance(1843, 921600.0)
-    assert tl.advance(1843, 921600.0) > 0
-    tl.reset()
-    assert tl.advance(1843, 921600.0) == 0.0
+def test_unusable_counts_take_the_last_period_and_none_at_all_is_an_error():
+    t = sample_times_s(np.array([0, 2000, 0, 2000]), 1e6)
+    assert t.tolist() == pytest.approx([0.0, 0.0, 0.002, 0.004])  # no period known before the first
+    with pytest.raises(ValueError):
+        sample_times_s(np.zeros(5), 1e6)

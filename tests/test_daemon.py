@@ -35,9 +35,9 @@ def test_board_to_modbus_and_can(tmp_path, board):
         async with running_gateway(cfg) as gw:
             client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
             await client.connect()
-            await wait_for(lambda: gw.counters.samples > 1000, 20, what="1000 samples")
+            await wait_for(lambda: gw.pipeline.counters.samples > 1000, 20, what="1000 samples")
             # the estimator holds its outputs until the bias is measured at the first standstill
-            await wait_for(lambda: StatusBits.VALID in gw.values.status, 30, what="VALID")
+            await wait_for(lambda: StatusBits.VALID in gw.fresh_values().status, 30, what="VALID")
             regs = await read_inputs(client)
             status = StatusBits(regs["STATUS"])
             assert StatusBits.VALID in status and StatusBits.NOT_REFERENCED in status
@@ -69,7 +69,7 @@ def test_board_to_modbus_and_can(tmp_path, board):
                 bus.shutdown()
 
             # tare over Modbus: position := 0 here, reference gained
-            await wait_for(lambda: gw._estimate is not None and gw._estimate.standstill, 20, what="a standstill")
+            await wait_for(lambda: StatusBits.STANDSTILL in gw.fresh_values().status, 20, what="a standstill")
             wr = await client.write_register(0, 1)
             assert not wr.isError()
             regs = await read_inputs(client)
@@ -93,7 +93,7 @@ def test_keeps_serving_through_faults_and_says_what_happened(tmp_path):
             port = gw.modbus.tcp_port
             client = AsyncModbusTcpClient("127.0.0.1", port=port)
             await client.connect()
-            await wait_for(lambda: gw.source.state.reconnects >= 1 and gw.counters.samples > 2000, 30,
+            await wait_for(lambda: gw.source.state.reconnects >= 1 and gw.pipeline.counters.samples > 2000, 30,
                            what="a reconnect after the pty vanished")
             # clients that connect and drop, and malformed requests, between good reads
             for junk in (b"\x00\x01\x00\x00\x00\x06\x01\x04\x00", b"\xff" * 40,
@@ -103,10 +103,10 @@ def test_keeps_serving_through_faults_and_says_what_happened(tmp_path):
             regs = await read_inputs(client)
             assert regs["LOST_SAMPLES"] > 0
             assert regs["BOARD_RESETS"] >= 1
-            await wait_for(lambda: gw.decoder.counters.bytes_skipped > 0, 10, what="garbage skipped")
+            await wait_for(lambda: gw.pipeline.decoder_counters.bytes_skipped > 0, 10, what="garbage skipped")
             status = StatusBits(regs["STATUS"])
             assert StatusBits.SAMPLES_LOST in status
-            await wait_for(lambda: StatusBits.VALID in gw.values.status, 10, what="VALID again")
+            await wait_for(lambda: StatusBits.VALID in gw.fresh_values().status, 10, what="VALID again")
             assert (await read_inputs(client))["SAMPLE_COUNTER"] > regs["SAMPLE_COUNTER"] - 1
             client.close()
 
@@ -121,34 +121,44 @@ def test_board_lost_is_flagged_and_recovered(tmp_path, board):
 
     async def scenario():
         async with running_gateway(cfg) as gw:
-            await wait_for(lambda: StatusBits.VALID in gw.values.status, 20, what="VALID")
+            await wait_for(lambda: StatusBits.VALID in gw.fresh_values().status, 20, what="VALID")
             board.proc.send_signal(19)  # SIGSTOP: the board falls silent, the port stays
             try:
-                await wait_for(lambda: StatusBits.STALE in gw.values.status, 5, what="STALE")
-                await wait_for(lambda: StatusBits.BOARD_LOST in gw.values.status, 5, what="BOARD_LOST")
-                assert StatusBits.VALID not in gw.values.status
+                await wait_for(lambda: StatusBits.STALE in gw.fresh_values().status, 5, what="STALE")
+                await wait_for(lambda: StatusBits.BOARD_LOST in gw.fresh_values().status, 5, what="BOARD_LOST")
+                assert StatusBits.VALID not in gw.fresh_values().status
             finally:
                 board.proc.send_signal(18)  # SIGCONT
-            await wait_for(lambda: StatusBits.VALID in gw.values.status, 10, what="VALID again")
+            await wait_for(lambda: StatusBits.VALID in gw.fresh_values().status, 10, what="VALID again")
 
     run(scenario())
 
 
-def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board, monkeypatch):
+def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board):
     cfg = gateway_config(tmp_path, str(board.link))
 
-    async def scenario():
-        async with running_gateway(cfg) as gw:
-            await wait_for(lambda: gw.can is not None and gw.can.counters.frames_sent > 5, 20, what="CAN frames")
+    class FlakyBus(can.interfaces.virtual.VirtualBus):
+        """A virtual bus whose sends fail once told to (as a full SocketCAN queue does)."""
 
-            def broken_send(msg, timeout=None):
+        broken = False
+
+        def send(self, msg, timeout=None):
+            if FlakyBus.broken:
                 raise can.CanOperationError("No buffer space available [Error Code 105]")
+            super().send(msg, timeout)
 
-            monkeypatch.setattr(gw.can._bus, "send", broken_send)
-            await wait_for(lambda: gw.values.can_send_errors > 10, 5, what="send errors counted")
-            samples = gw.counters.samples
+    def flaky_bus(**kwargs):
+        kwargs.pop("interface", None)
+        return FlakyBus(**kwargs)
+
+    async def scenario():
+        async with running_gateway(cfg, can_bus_factory=flaky_bus) as gw:
+            await wait_for(lambda: gw.can is not None and gw.can.counters.frames_sent > 5, 20, what="CAN frames")
+            FlakyBus.broken = True
+            await wait_for(lambda: gw.fresh_values().can_send_errors > 10, 5, what="send errors counted")
+            samples = gw.pipeline.counters.samples
             await asyncio.sleep(0.3)
-            assert gw.counters.samples > samples  # the board side is unaffected
+            assert gw.pipeline.counters.samples > samples  # the board side is unaffected
             client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
             await client.connect()
             assert (await read_inputs(client))["CAN_SEND_ERRORS"] > 10
@@ -159,14 +169,15 @@ def test_can_send_failures_are_counted_and_publishing_goes_on(tmp_path, board, m
 
 def on_a_quiet_pty(tmp_path, body, can=None) -> None:
     """Run `await body(gw, client, pty)`: a gateway (CAN off unless `can` says) on a pty
-    that nobody plays unless the test writes to it, and a Modbus client connected to it."""
+    that nobody plays unless the test writes to it, and a Modbus client connected to it.
+    Its quiet tick is an hour: nothing but what a test checks may take the bytes."""
     from drivers.pty_port import PtyPort
 
     pty = PtyPort(tmp_path / "board")
     cfg = gateway_config(tmp_path, str(pty.link), can=can or {"enabled": False})
 
     async def scenario():
-        async with running_gateway(cfg) as gw:
+        async with running_gateway(cfg, publish_tick_s=3600.0) as gw:
             client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
             await client.connect()
             try:
@@ -191,11 +202,11 @@ def test_a_modbus_read_shows_samples_that_wait_in_a_batch(tmp_path):
         gw.receive(encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0))
         for seq in range(3):
             gw.receive(encode_sample(seq, 900, 900, 1843))
-        assert gw._inbox, "the bytes were handled at once: nothing to check"
-        assert gw.counters.samples == before
+        assert gw.intake.waiting_chunks, "the bytes were handled at once: nothing to check"
+        assert gw.pipeline.counters.samples == before
         regs = await read_inputs(client)
         assert regs["SAMPLE_COUNTER"] == before + 3
-        assert not gw._inbox
+        assert not gw.intake.waiting_chunks
 
     on_a_quiet_pty(tmp_path, body)
 
@@ -210,12 +221,8 @@ def board_bytes_below_one_batch() -> bytes:
 
 
 def bytes_waiting(gw) -> int:
-    """Bytes in the gateway's tty that nobody has read yet (FIONREAD)."""
-    import fcntl
-    import struct
-    import termios
-
-    return struct.unpack("i", fcntl.ioctl(gw.source._fd, termios.FIONREAD, b"\0" * 4))[0]
+    """Bytes in the gateway's tty that nobody has read yet."""
+    return gw.source.bytes_waiting()
 
 
 def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
@@ -231,14 +238,11 @@ def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
 
     async def body(gw, client, pty):
         assert gw.source.wake_min_bytes == 5 * SAMPLE_FRAME_LENGTH
-        # nothing else may take the bytes meanwhile: no quiet tick
-        gw._tick_handle.cancel()
-        gw._tick_handle = None
         before = (await read_inputs(client))["SAMPLE_COUNTER"]
         os.write(pty.master_fd, data)
         await wait_for(lambda: waiting(gw) == len(data), what="the bytes in the gateway's tty")
         await asyncio.sleep(0.05)
-        assert gw.counters.samples == before and waiting(gw) == len(data), "woken below a batch"
+        assert gw.pipeline.counters.samples == before and waiting(gw) == len(data), "woken below a batch"
         regs = await read_inputs(client)
         assert regs["SAMPLE_COUNTER"] == before + 3
         assert waiting(gw) == 0
@@ -254,12 +258,10 @@ def test_a_can_cycle_takes_the_samples_still_waiting_in_the_port(tmp_path):
     data = board_bytes_below_one_batch()
 
     async def body(gw, client, pty):
-        gw._tick_handle.cancel()  # nothing but the CAN cycle may take the bytes
-        gw._tick_handle = None
         sent = gw.can.counters.frames_sent
-        before = gw.counters.samples
+        before = gw.pipeline.counters.samples
         os.write(pty.master_fd, data)
-        await wait_for(lambda: gw.counters.samples == before + 3, what="a CAN cycle taking the bytes")
+        await wait_for(lambda: gw.pipeline.counters.samples == before + 3, what="a CAN cycle taking the bytes")
         assert bytes_waiting(gw) == 0
         assert gw.can.counters.frames_sent > sent
 

@@ -105,13 +105,13 @@ def _recording(seed, bad=True):
 def _forward_with_records(settings, t, z, ok, lost):
     prm = settings.kernel_params()
     n = t.size
-    x, P, m, rz, rok, snap, gain, out = K.new_state(prm)
+    state = K.new_state(prm)
     cols = [np.empty(n) for _ in range(10)]
     flags = np.empty(n, np.int32)
     st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
     st_trans, st_zaru = np.empty(n, np.int8), np.empty((n, 2))
     zi, zd = np.empty(n, np.int64), np.empty((n, 5))
-    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, x, P, m, rz, rok, snap, gain, out, *cols, flags,
+    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, state, *cols, flags,
                        True, st_x, st_p, st_trans, st_zaru, zi, zd)
     return prm, st_x.copy(), st_p.copy(), st_trans, st_zaru, zi[:nz], zd[:nz], flags
 
@@ -262,10 +262,10 @@ def test_compiled_loop_equals_the_plain_python_step():
     settings = from_sensor_model(sensor)
     compiled = estimate_series(t, z, ok, method="realtime", settings=settings, lost_before=lost)
     prm = settings.kernel_params()
-    x, P, m, rz, rok, snap, gain, out = K.new_state(prm)
+    state = K.new_state(prm)
     py_step = K.step.py_func
     pos = np.empty(t.size)
     for k in range(t.size):
-        py_step(x, P, m, rz, rok, snap, prm, gain, t[k], z[k] if ok[k] else 0.0, bool(ok[k]), int(lost[k]), out)
-        pos[k] = out[K.O_POS]
+        py_step(state, prm, t[k], z[k] if ok[k] else 0.0, bool(ok[k]), int(lost[k]))
+        pos[k] = state.out[K.O_POS]
     np.testing.assert_allclose(pos, compiled.pos_m, rtol=0, atol=1e-12)

@@ -61,49 +61,6 @@ def test_unwritable_state_is_reported_not_raised(tmp_path):
     assert "cannot save state" in store.last_error
 
 
-def test_estimator_link_fast_path_matches_the_public_step_bit_for_bit():
-    """EstimatorLink calls the kernel directly (no full Estimate per sample); the numbers
-    must be those of RealtimeEstimator.step, through standstills, motion, invalid and
-    lost samples, time going backwards and a bias re-estimation."""
-    import math
-    import random
-
-    from gateway.core.estimator import RealtimeEstimator
-    from gateway.estimation_link import EstimatorLink
-
-    link = EstimatorLink()
-    assert link.kernel_out is link.estimator.kernel_state[-1]  # both step one filter
-    reference = RealtimeEstimator(link.settings)
-    rng = random.Random(3)
-    t = 0.0
-    initialised = 0
-    for k in range(6000):
-        t += 0.002
-        phase = (k // 700) % 3  # rest, stroke, rest, …
-        acc = rng.gauss(0.0, 0.02) + (3.0 * math.sin(2 * math.pi * (k % 700) / 700) if phase == 1 else 0.0)
-        lost = 0
-        if k % 997 == 0:
-            acc = None
-        elif k % 1301 == 0:
-            acc = math.nan
-        elif k % 1511 == 0:
-            lost = 3
-            t += 3 * 0.002
-        sample_t = t - 0.004 if k % 2203 == 0 else t  # time not advancing now and then
-        if k == 4000:
-            link.estimator.request_bias_reestimate()
-            reference.request_bias_reestimate()
-        got = link.step(sample_t, acc, lost)
-        want = reference.step(sample_t, acc, lost)
-        for name in ("pos_m", "vel_mps", "acc_mps2", "bias_mps2", "pos_std_m", "standstill"):
-            a, b = getattr(got, name), getattr(want, name)
-            assert a == b or (a != a and b != b), (k, name, a, b)
-        assert got.initialising == (not want.initialised)
-        assert got.holding == bool(want.flags & (4 | 64))
-        initialised += want.initialised
-    assert initialised > 3000  # the run went through standstills and motion
-
-
 def test_the_board_port_batches_unless_can_sends_per_sample(tmp_path):
     """serial.batch_frames sets how many SAMPLE frames' bytes wake the daemon; CAN's
     mixed mode (min_interval_ms ≥ 0, a frame pair per sample) needs a wakeup per sample."""

@@ -2,11 +2,7 @@ import math
 
 import pytest
 
-from drivers.board_protocol import Hello, Sample, Status
 from drivers.published_values import StatusBits
-from gateway.board_session import BoardSession
-from gateway.core.conversion import AxisCalibration, Calibration
-from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
 
 
@@ -49,42 +45,3 @@ def test_events_stay_visible_for_the_hold_time():
     later = 100.0 + EVENT_HOLD_S
     assert status_bits(cond(now_s=later, last_sample_s=later, last_byte_s=later, board_reset_at_s=95.0,
                             saturated_until_s=100.5)) == StatusBits.VALID
-
-
-REPORT = dict(uptime_s=0, tick_hz=921_600, temp_centi_c=2512, fw_major=1, fw_minor=0)
-
-
-def test_session_waits_for_the_tick_rate_then_times_and_converts():
-    s = BoardSession(Calibration())
-    assert s.on_sample(Sample(0, 921, 925, 1843)) is None
-    assert s.counters.samples_without_tick_rate == 1
-    assert s.on_report(Status(seq=0, **REPORT)) is False
-    a = s.on_sample(Sample(1, 921, 925, 1843))
-    b = s.on_sample(Sample(4, 921, 925, 1843, lost_before=2))
-    assert a.t_s == 0.0
-    assert b.t_s == pytest.approx(3 * 1843 / 921_600)
-    assert a.acc_mps2 == pytest.approx((921 / 1843 - 0.5) / 0.125 * STANDARD_GRAVITY_MPS2)
-    assert s.temp_c == pytest.approx(25.12)
-
-
-def test_session_axis_and_calibration_and_flags():
-    s = BoardSession(Calibration(y=AxisCalibration(0.51, 0.12)), axis="y")
-    s.on_report(Hello(seq=0xFFFF, **REPORT))
-    got = s.on_sample(Sample(0, 100, 1843 * 0.63, 1843))
-    assert got.acc_mps2 == pytest.approx((0.63 - 0.51) / 0.12 * STANDARD_GRAVITY_MPS2, rel=1e-3)
-    flagged = s.on_sample(Sample(1, 921, 925, 1843, flags=0x02))
-    assert flagged.acc_mps2 is None and flagged.saturated
-    clipped = s.on_sample(Sample(2, 921, int(1843 * 0.76), 1843))
-    assert clipped.saturated
-
-
-def test_first_hello_is_power_on_later_ones_and_uptime_going_back_are_resets():
-    s = BoardSession(Calibration())
-    assert s.on_report(Hello(seq=0xFFFF, **REPORT)) is False
-    s.on_report(Status(seq=10, **{**REPORT, "uptime_s": 50}))
-    s.on_sample(Sample(11, 921, 925, 1843))
-    assert s.on_report(Hello(seq=0xFFFF, **REPORT)) is True
-    s.on_report(Status(seq=10, **{**REPORT, "uptime_s": 60}))
-    assert s.on_report(Status(seq=10, **{**REPORT, "uptime_s": 3})) is True  # HELLO lost on the line
-    assert (s.counters.resets_announced, s.counters.resets_inferred) == (1, 1)
-    assert s.on_sample(Sample(0, 921, 925, 1843)).t_s == 0.0

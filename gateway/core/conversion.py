@@ -1,7 +1,9 @@
 """Board counts to physical units: duty cycle → acceleration, T2 sums → sample time.
 
-Every function here has a vectorised form (for recordings) and the streaming wrapper
-``SampleTimeline`` (for the daemon) is tested against it.
+Each rule is written once as a scalar function in the subset of Python that numba
+compiles (`duty_to_mps2`, `advance_sample_time`): the daemon's sample pipeline calls them
+per sample from compiled code, and the vectorised forms for recordings
+(`acceleration_mps2`, `sample_times_s`) are built on the very same functions.
 """
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gateway.core.jit import jit
 from gateway.core.units import SEQ_MODULUS, STANDARD_GRAVITY_MPS2
 
 FLAG_X_TIMEOUT = 0x01
@@ -41,6 +44,12 @@ class Calibration:
     y: AxisCalibration = AxisCalibration()
 
 
+@jit
+def duty_to_mps2(duty, zero_g_duty, sensitivity_duty_per_g):
+    """a = (T1/T2 − zero-g duty) / sensitivity · g (ADXL202 data sheet); scalars or arrays."""
+    return (duty - zero_g_duty) / sensitivity_duty_per_g * STANDARD_GRAVITY_MPS2
+
+
 def acceleration_mps2(t1_ticks, t2_ticks, cal: AxisCalibration):
     """Acceleration of one axis; NaN where the period is not a usable count."""
     t1 = np.asarray(t1_ticks, dtype=float)
@@ -48,7 +57,7 @@ def acceleration_mps2(t1_ticks, t2_ticks, cal: AxisCalibration):
     with np.errstate(divide="ignore", invalid="ignore"):
         duty = np.where(t2 > 0, t1 / t2, np.nan)
     duty = np.where((duty >= 0.0) & (duty <= 1.0), duty, np.nan)
-    return (duty - cal.zero_g_duty) / cal.sensitivity_duty_per_g * STANDARD_GRAVITY_MPS2
+    return duty_to_mps2(duty, cal.zero_g_duty, cal.sensitivity_duty_per_g)
 
 
 def axis_valid(flags, t1_ticks, t2_ticks, axis: str):
@@ -69,66 +78,38 @@ def lost_before_from_seq(seq) -> np.ndarray:
     return lost
 
 
-def period_s(t2_ticks, tick_hz: float) -> np.ndarray:
-    """Each sample's own period; an unusable count (0) takes the last good period."""
-    t2 = np.asarray(t2_ticks, dtype=float)
-    good = t2 > 0
-    if not good.any():
-        raise ValueError("no sample has a usable period count (t2 > 0)")
-    # forward-fill bad counts with the previous good one (the first good for a leading run)
-    idx = np.where(good, np.arange(t2.size), 0)
-    np.maximum.accumulate(idx, out=idx)
-    filled = t2[idx]
-    first_good = t2[np.argmax(good)]
-    filled = np.where(good | (np.arange(t2.size) > np.argmax(good)), filled, first_good)
-    return filled / float(tick_hz)
+@jit
+def advance_sample_time(timed, next_t_s, last_period_s, t2_ticks, tick_hz, lost_before):
+    """One sample's time and the timeline after it: (t_s, next_t_s, last_period_s).
+
+    The board has no clock (spec): sample k's time is the sum of the periods before it,
+    each sample's own period (T2) follows it. `timed`: a sample was timed before (else
+    this one is t = 0, as after a board reset). Lost samples still took their time,
+    each the period of the last sample received before the gap. An unusable count
+    (T2 = 0) takes the last period (0 before any).
+    """
+    period = t2_ticks / tick_hz if t2_ticks > 0 else last_period_s
+    t_s = next_t_s + lost_before * last_period_s if timed else 0.0
+    return t_s, t_s + period, period
+
+
+@jit
+def _sample_times(t2, tick_hz, lost, out):
+    timed = False
+    next_t = 0.0
+    last_period = 0.0
+    for k in range(t2.size):
+        out[k], next_t, last_period = advance_sample_time(timed, next_t, last_period, t2[k], tick_hz, lost[k])
+        timed = True
 
 
 def sample_times_s(t2_ticks, tick_hz: float, lost_before=None) -> np.ndarray:
-    """Time of sample k = the sum of the sensor periods before it (spec: the board has no clock).
-
-    Sample k's own period follows it. Lost samples still took their time: each lost
-    period is taken as the period of the last sample received before the gap.
-    """
-    periods = period_s(t2_ticks, tick_hz)
-    lost = np.zeros(periods.shape, dtype=float) if lost_before is None else np.asarray(lost_before, float)
-    step = np.zeros(periods.shape, dtype=float)
-    step[1:] = periods[:-1] * (1.0 + lost[1:])
-    return np.cumsum(step)
-
-
-class SampleTimeline:
-    """Streaming form of ``sample_times_s``: one sample in, its time out."""
-
-    def __init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        """A board reset (HELLO) restarts time at zero."""
-        self._next_t_s: float | None = None
-        self._last_period_s: float | None = None
-
-    @property
-    def state(self) -> tuple[float, float] | None:
-        """(next sample's time s, last period s), None before the first sample: for a
-        compiled caller that advances the timeline itself and hands it back (`resume`)."""
-        if self._next_t_s is None:
-            return None
-        return self._next_t_s, self._last_period_s
-
-    def resume(self, next_t_s: float, last_period_s: float) -> None:
-        """Continue from a state that `advance` would have reached (see `state`)."""
-        self._next_t_s = next_t_s
-        self._last_period_s = last_period_s
-
-    def advance(self, t2_ticks: int, tick_hz: float, lost_before: int = 0) -> float:
-        period = t2_ticks / tick_hz if t2_ticks > 0 else self._last_period_s
-        if self._next_t_s is None:
-            t_s = 0.0
-        else:
-            t_s = self._next_t_s + lost_before * self._last_period_s
-        if period is None:  # no usable period seen yet: time cannot advance
-            period = 0.0
-        self._last_period_s = period
-        self._next_t_s = t_s + period
-        return t_s
+    """Time of every sample of a recording, as the daemon times them (`advance_sample_time`)."""
+    t2 = np.ascontiguousarray(t2_ticks, dtype=np.float64)
+    if not (t2 > 0).any():
+        raise ValueError("no sample has a usable period count (t2 > 0)")
+    lost = (np.zeros(t2.size) if lost_before is None
+            else np.ascontiguousarray(lost_before, dtype=np.float64))
+    out = np.empty(t2.size)
+    _sample_times(t2, float(tick_hz), lost, out)
+    return out

@@ -12,6 +12,7 @@ estimate_series(method="realtime").
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,9 +27,10 @@ from gateway.core.smoother import run_backward
 METHODS = ("raw", "paper", "realtime", "smoothed")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Estimate:
-    """One sample's estimate and the health the daemon publishes."""
+    """One sample's estimate and the health the daemon publishes: the one estimate type
+    (the realtime estimator, the daemon's pipeline and every wire read this)."""
 
     t_s: float
     pos_m: float
@@ -41,7 +43,17 @@ class Estimate:
     nis: float  # innovation² / its variance (χ², 1 dof, at standstill), 0 in motion
     zupt_velocity_error_mps: float  # velocity found at the latest stop (ZUPT innovation, held)
     zupt_nis: float
-    flags: int
+    flags: int  # estimator_kernel.F_*
+
+    @classmethod
+    def from_kernel(cls, t_s: float, out: np.ndarray) -> "Estimate":
+        """The estimate in a kernel output array (`KernelState.out`, layout O_*)."""
+        o = out.tolist()  # one conversion, not twelve numpy scalars
+        pos_var, vel_var = o[K.O_POS_VAR], o[K.O_VEL_VAR]
+        return cls(float(t_s), o[K.O_POS], o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS],
+                   math.sqrt(pos_var) if pos_var >= 0.0 else math.nan,
+                   math.sqrt(vel_var) if vel_var >= 0.0 else math.nan,
+                   o[K.O_INNOV], o[K.O_NIS], o[K.O_ZUPT_INNOV], o[K.O_ZUPT_NIS], int(o[K.O_FLAGS]))
 
     @property
     def standstill(self) -> bool:
@@ -49,6 +61,7 @@ class Estimate:
 
     @property
     def initialised(self) -> bool:
+        """False before the first standstill: the bias is unknown and the position held at 0."""
         return bool(self.flags & K.F_INITIALISED)
 
     @property
@@ -60,9 +73,24 @@ class Estimate:
     def gap(self) -> bool:
         return bool(self.flags & K.F_GAP)
 
+    @property
+    def holding(self) -> bool:
+        """The numbers are the last ones, not live: no valid input, or time did not advance."""
+        return bool(self.flags & (K.F_INPUT_INVALID | K.F_TIME_ERROR))
+
+    @property
+    def fault(self) -> bool:
+        """The filter's state is not finite or diverged: the numbers mean nothing."""
+        return bool(self.flags & K.F_FAULT)
+
+    @property
+    def bias_estimating(self) -> bool:
+        return bool(self.flags & K.F_BIAS_ESTIMATING)
+
 
 class RealtimeEstimator:
-    """Causal estimator: one sample in, one estimate out.
+    """Causal estimator: one sample in, one estimate out — a thin wrapper of the kernel's
+    state (`estimator_kernel.KernelState`) and its `step`.
 
     step(t_s, acc) with acc None (or NaN/inf) for an invalid sample, lost_before for
     samples lost on the line before this one. tare() sets the position to zero;
@@ -72,61 +100,27 @@ class RealtimeEstimator:
 
     def __init__(self, settings: EstimatorSettings):
         self.settings = settings
-        self._prm = settings.kernel_params()
+        self.params = settings.kernel_params()
         self.reset()
 
     def reset(self) -> None:
-        (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._gain,
-         self._out) = K.new_state(self._prm)
+        self.state: K.KernelState = K.new_state(self.params)
 
     def step(self, t_s: float, acc_mps2: float | None, lost_before: int = 0) -> Estimate:
         valid = acc_mps2 is not None
-        z = float(acc_mps2) if valid else 0.0
-        K.step(self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._prm, self._gain,
-               float(t_s), z, valid, int(lost_before), self._out)
-        o = self._out
-        return Estimate(
-            t_s=float(t_s),
-            pos_m=float(o[K.O_POS]),
-            vel_mps=float(o[K.O_VEL]),
-            acc_mps2=float(o[K.O_ACC]),
-            bias_mps2=float(o[K.O_BIAS]),
-            pos_std_m=float(np.sqrt(o[K.O_POS_VAR])),
-            vel_std_mps=float(np.sqrt(o[K.O_VEL_VAR])),
-            innovation_mps2=float(o[K.O_INNOV]),
-            nis=float(o[K.O_NIS]),
-            zupt_velocity_error_mps=float(o[K.O_ZUPT_INNOV]),
-            zupt_nis=float(o[K.O_ZUPT_NIS]),
-            flags=int(o[K.O_FLAGS]),
-        )
-
-    @property
-    def kernel_state(self) -> tuple:
-        """The arrays `estimator_kernel.step` works on, in its argument order (x, P, misc,
-        ring_z, ring_ok, snap, prm, gain) plus its output array: for a caller that
-        drives the kernel from its own compiled loop (the daemon's per-chunk path).
-        Valid until `reset()`; `step()` and that caller then share one filter."""
-        return (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._prm, self._gain,
-                self._out)
+        K.step(self.state, self.params, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before))
+        return Estimate.from_kernel(t_s, self.state.out)
 
     def tare(self) -> None:
-        """Position := 0 here; it is then exact by definition (no variance, no correlation)."""
-        self._x[0] = 0.0
-        self._P[0, :] = 0.0
-        self._P[:, 0] = 0.0
+        K.tare(self.state)
 
     def request_bias_reestimate(self) -> None:
-        """Widen the bias variance back to its initial value: the next standstill re-measures it."""
-        self._P[2, 2] = max(self._P[2, 2], self._prm[K.P_BIAS0_VAR])
+        K.request_bias_reestimate(self.state, self.params)
 
     @property
     def covariance(self) -> np.ndarray:
         """Copy of the state covariance of [position, velocity, bias]."""
-        return self._P.copy()
-
-    @property
-    def state(self) -> np.ndarray:
-        return self._x.copy()
+        return self.state.P.copy()
 
 
 @dataclass
@@ -227,7 +221,7 @@ def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
 def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
     prm = settings.kernel_params()
     n = t.size
-    x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
+    state = K.new_state(prm)
     cols = {name: np.empty(n) for name in ("pos", "vel", "acc", "bias", "pos_var", "vel_var", "bias_var",
                                            "innov", "nis", "zupt")}
     flags = np.empty(n, dtype=np.int32)
@@ -244,14 +238,14 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
         capacity = 1
     for _attempt in range(2):
         zupt_index, zupt_data = np.empty(capacity, dtype=np.int64), np.empty((capacity, 5))
-        n_zupt = K.run_forward(prm, t, z, ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
+        n_zupt = K.run_forward(prm, t, z, ok, lost, state,
                                cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
                                cols["vel_var"], cols["bias_var"], cols["innov"], cols["nis"], cols["zupt"],
                                flags, smooth, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data)
         if not smooth or n_zupt <= capacity:
             break
         capacity = n_zupt  # rare: more stops than expected; run again with room for all
-        x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
+        state = K.new_state(prm)
     method = "realtime"
     if smooth:
         method = "smoothed"
@@ -269,8 +263,7 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
         moving = init & ~still
         y_edge = np.zeros(n)
         y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
-        cols["pos"] = cols["pos"] + lag * cols["vel"]
-        cols["vel"] = cols["vel"] + lag * y_edge
+        cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
         del st_x, st_p, st_zaru
     return _track(method, t, cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"], cols["vel_var"],
                   cols["innov"], cols["nis"], cols["zupt"], flags, notes)

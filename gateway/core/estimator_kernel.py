@@ -24,6 +24,7 @@ offline loop compiles with numba; the realtime class calls the same function.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,7 +61,8 @@ M_RING_POS = 7
 M_RING_FILL = 8
 M_COUNT = 9  # samples processed
 M_STILL_START = 10  # sample number where the current standstill began
-N_MISC = 11
+M_BIAS_REQUESTED = 11  # 1: a re-estimation of the bias was asked for; the next standstill does it
+N_MISC = 12
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -109,11 +111,29 @@ F_ENTRY = 16  # a standstill began at this sample (ZUPT applied)
 F_UNDECIDED = 32  # too few valid samples in the window to judge: the previous regime is held
 F_TIME_ERROR = 64  # the sample time did not increase: not propagated
 F_ROLLBACK = 128  # a standstill ended: the zero-acceleration updates of the last window were undone
+F_FAULT = 256  # the state is not finite or has diverged: the numbers mean nothing (reset it)
+F_BIAS_ESTIMATING = 512  # the bias is not measured yet (before the first standstill, or asked anew)
+
+# a velocity beyond this is no motion of any machine the sensor rides on: the filter diverged
+DIVERGED_SPEED_MPS = 1000.0
 
 
 @jit
 def drift_at(t_s, prm):
     return prm[P_DRIFT_C1] * -math.expm1(-(t_s + prm[P_DRIFT_T0]) / prm[P_DRIFT_T])
+
+
+@jit
+def undo_sensor_lag(pos, vel, y_edge, lag):
+    """The outputs as the true motion had them, from the filter's (lagged) state.
+
+    The sensor's one-pole filter (τ = lag) lags the measured acceleration y behind the
+    true u: u = y + τ·ẏ, so ∫u = ∫y + τ·y — the true velocity is v + τ·y and the true
+    position p + τ·v, exactly; y_edge is y at the sample's time (the mean of the two
+    samples around it, the bias removed). Scalars (the realtime step) or arrays (the
+    smoother) alike.
+    """
+    return pos + lag * vel, vel + lag * y_edge
 
 
 @jit
@@ -203,9 +223,28 @@ def scalar_update(x, P, i, y, R, gain):
     return S
 
 
+class KernelState(NamedTuple):
+    """The filter's whole memory, as a value every caller may hold and pass on.
+
+    Arrays, updated in place by `step` (no allocation per sample: the loop compiles);
+    a caller reads the newest estimate in `out` (layout O_*) and never needs anything
+    else. `new_state(params)` makes a fresh one.
+    """
+
+    x: np.ndarray  # [position m, velocity m/s, bias m/s²]
+    P: np.ndarray  # its 3×3 covariance
+    misc: np.ndarray  # layout M_*
+    ring_z: np.ndarray  # the detector's window: accelerations …
+    ring_ok: np.ndarray  # … and whether each was valid
+    snap: np.ndarray  # state after each sample of the window, for a rollback (N_SNAP columns)
+    gain: np.ndarray  # scratch: the last update's Kalman gain
+    out: np.ndarray  # the newest estimate, layout O_*
+
+
 @jit
-def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before, out):
-    """One sample in, the estimate at t_s out (written to `out`, layout O_*)."""
+def step(state, prm, t_s, z, z_valid, lost_before):
+    """One sample in, the estimate at t_s out (written to `state.out`, layout O_*)."""
+    x, P, m, ring_z, ring_ok, snap, gain, out = state
     flags = 0
     count = int(m[M_COUNT])
     rollback_from = -1
@@ -378,6 +417,7 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
             k2 = gain[2]
             m[M_ZUPT_INNOV] = zupt_y
             m[M_ZUPT_NIS] = zupt_y * zupt_y / zupt_s
+            m[M_BIAS_REQUESTED] = 0.0  # this standstill measures the bias anew
             flags |= F_ENTRY
         zaru_y = z - x[2]
         zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
@@ -423,9 +463,7 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
         out[O_BIAS_VAR] = prm[P_BIAS0_VAR]
     else:
         flags |= F_INITIALISED
-        # The sensor's one-pole filter (τ) lags the measured acceleration y behind the true
-        # u: u = y + τ·ẏ, so ∫u = ∫y + τ·y — the true velocity is v + τ·y and the true
-        # position p + τ·v, exactly, with y at t_k = the mean of the two samples around it.
+        # the sensor filter's lag undone (undo_sensor_lag), y at t_k from the two samples around it
         lag = prm[P_LAG]
         if regime == STANDSTILL:
             flags |= F_STANDSTILL
@@ -434,12 +472,16 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
         else:
             out[O_ACC] = m[M_U_PREV] - x[2]
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
-        out[O_POS] = x[0] + lag * x[1]
-        out[O_VEL] = x[1] + lag * y_edge
+        out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, lag)
         out[O_BIAS] = x[2]
         out[O_POS_VAR] = P[0, 0]
         out[O_VEL_VAR] = P[1, 1]
         out[O_BIAS_VAR] = P[2, 2]
+    if regime == UNINITIALISED or m[M_BIAS_REQUESTED] > 0.0:
+        flags |= F_BIAS_ESTIMATING
+    if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2]) and math.isfinite(P[0, 0])
+            and math.isfinite(P[1, 1]) and math.isfinite(P[2, 2])) or abs(x[1]) > DIVERGED_SPEED_MPS:
+        flags |= F_FAULT
     out[O_INNOV] = innov
     out[O_NIS] = nis
     out[O_ZUPT_INNOV] = m[M_ZUPT_INNOV]
@@ -456,19 +498,33 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
     out[O_ROLLBACK_FROM] = rollback_from
 
 
-def new_state(prm: np.ndarray):
-    """Fresh filter memory: (x, P, misc, ring_z, ring_ok, snap, gain, out)."""
+def new_state(prm: np.ndarray) -> KernelState:
+    """Fresh filter memory for these parameters (EstimatorSettings.kernel_params)."""
     w = int(prm[P_WINDOW])
     x = np.zeros(3)
     P = np.zeros((3, 3))
     P[2, 2] = prm[P_BIAS0_VAR]
     m = np.zeros(N_MISC)
     m[M_REGIME] = UNINITIALISED
-    return x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT)
+    return KernelState(x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT))
+
+
+def tare(state: KernelState) -> None:
+    """Position := 0 here; it is then exact by definition (no variance, no correlation)."""
+    state.x[0] = 0.0
+    state.P[0, :] = 0.0
+    state.P[:, 0] = 0.0
+
+
+def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:
+    """Widen the bias variance back to its initial value: the next standstill re-measures
+    it (and `F_BIAS_ESTIMATING` is set until a standstill begins)."""
+    state.P[2, 2] = max(state.P[2, 2], prm[P_BIAS0_VAR])
+    state.misc[M_BIAS_REQUESTED] = 1.0
 
 
 @jit
-def run_forward(prm, t_s, z, z_ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
+def run_forward(prm, t_s, z, z_ok, lost, state,
                 pos, vel, acc, bias, pos_var, vel_var, bias_var, innov, nis, zupt_innov, flags,
                 store, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data):
     """The step over whole arrays. With store, keeps what the smoother needs:
@@ -477,9 +533,10 @@ def run_forward(prm, t_s, z, z_ok, lost, x, P, m, ring_z, ring_ok, snap, gain, o
     After a rollback the records of the samples run again are rewritten (motion, no
     update), so the smoother sees the sequence the filter state now stands on.
     Returns the number of ZUPT records (more than zupt_index holds: run again with room)."""
+    x, P, out, snap = state.x, state.P, state.out, state.snap
     n_zupt = 0
     for k in range(t_s.size):
-        step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s[k], z[k], z_ok[k], lost[k], out)
+        step(state, prm, t_s[k], z[k], z_ok[k], lost[k])
         pos[k] = out[O_POS]
         vel[k] = out[O_VEL]
         acc[k] = out[O_ACC]

@@ -1,0 +1,172 @@
+"""The daemon's board side without the wires: received chunks → the sample pipeline →
+the events the status bits are made of, and the snapshot every wire shows.
+
+No I/O and no event loop: the supervisor (gateway/daemon.py) hands it chunks with their
+arrival time (`receive`), and asks for the numbers when a wire needs them (`drain`,
+`snapshot`). Kept apart from the supervisor so that its rules are tested on their own.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+from drivers.published_values import PublishedValues
+from gateway.core.estimator import Estimate
+from gateway.sample_pipeline import ChunkResult, SamplePipeline
+from gateway.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
+
+log = logging.getLogger("adxlgw")
+
+# a clipped or an invalid sample shows on the wires at least this long
+SATURATION_HOLD_S = 1.0
+AXIS_INVALID_HOLD_S = 1.0
+
+
+@dataclass(slots=True)
+class BoardEvents:
+    """When things last happened (monotonic s of the chunk that showed them)."""
+
+    last_sample_s: float | None = None
+    samples_lost_at_s: float | None = None
+    board_reset_at_s: float | None = None
+    estimator_fault_at_s: float | None = None
+    saturated_until_s: float = -1.0
+    axis_invalid_until_s: float = -1.0
+
+
+@dataclass(frozen=True, slots=True)
+class LinkHealth:
+    """What the supervisor knows of the wires, for the status bits and counters."""
+
+    port_open: bool
+    last_byte_s: float | None
+    stale_after_s: float
+    lost_after_s: float
+    config_reloaded_at_s: float | None = None
+    can_send_errors: int = 0
+
+
+class BoardIntake:
+    """Chunks in (with their arrival time), estimates and published snapshots out."""
+
+    def __init__(self, pipeline: SamplePipeline):
+        self.pipeline = pipeline
+        self.events = BoardEvents()
+        self._inbox: list[tuple[float, bytes]] = []  # received, not yet through the pipeline
+        self._heartbeat = 0
+        self._published_at = -math.inf
+        self._values = PublishedValues()
+        self._values_built = True  # False: published since, build on the next read
+
+    # ---------------------------------------------------------------- input --
+    def receive(self, arrived_s: float, data: bytes) -> None:
+        """Keep a chunk until `drain` (the supervisor decides when: see daemon.py)."""
+        self._inbox.append((arrived_s, data))
+
+    @property
+    def waiting_since_s(self) -> float | None:
+        """Arrival time of the oldest chunk not yet drained; None: nothing waits."""
+        return self._inbox[0][0] if self._inbox else None
+
+    @property
+    def waiting_chunks(self) -> int:
+        return len(self._inbox)
+
+    def drain(self) -> bool:
+        """Everything received so far through the pipeline, chunk by chunk; True if any
+        sample was estimated. A sample's events carry its chunk's arrival time."""
+        batch, self._inbox = self._inbox, []
+        sampled = False
+        for arrived_s, data in batch:
+            sampled = self._take(arrived_s, self.pipeline.feed(data)) or sampled
+        return sampled
+
+    def _take(self, arrived_s: float, r: ChunkResult) -> bool:
+        ev = self.events
+        if r.board_reset:
+            log.warning("board reset: continuity lost, position not referenced until the next tare")
+            ev.board_reset_at_s = arrived_s
+        if r.estimator_fault:
+            log.error("estimator state not finite or diverged: started over, position not referenced")
+            ev.estimator_fault_at_s = arrived_s
+        if not r.samples:
+            return False
+        ev.last_sample_s = arrived_s
+        if r.samples_lost:
+            ev.samples_lost_at_s = arrived_s
+        if r.saturated:
+            ev.saturated_until_s = arrived_s + SATURATION_HOLD_S
+        if r.invalid:
+            ev.axis_invalid_until_s = arrived_s + AXIS_INVALID_HOLD_S
+        return True
+
+    # --------------------------------------------------------------- output --
+    def publish(self, now_s: float) -> None:
+        """New values as of `now_s`: the heartbeat moves (the snapshot is built lazily)."""
+        self._heartbeat = (self._heartbeat + 1) & 0xFFFFFFFF
+        self._published_at = now_s
+        self._values_built = False
+
+    @property
+    def published_at_s(self) -> float:
+        return self._published_at
+
+    def snapshot(self, health: LinkHealth) -> PublishedValues:
+        """What the wires show as of the last publish: built once per publish."""
+        if not self._values_built:
+            self._values = self._build(health)
+            self._values_built = True
+        return self._values
+
+    def condition(self, now_s: float, health: LinkHealth) -> GatewayCondition:
+        est = self.pipeline.latest()
+        ev = self.events
+        return GatewayCondition(
+            now_s=now_s,
+            have_estimate=est is not None,
+            port_open=health.port_open,
+            last_sample_s=ev.last_sample_s,
+            last_byte_s=health.last_byte_s,
+            stale_after_s=health.stale_after_s,
+            lost_after_s=health.lost_after_s,
+            referenced=self.pipeline.referenced,
+            standstill=bool(est and est.standstill),
+            estimator_fault=bool(est and est.fault) or _recent(ev.estimator_fault_at_s, now_s),
+            holding=bool(est and (est.holding or not est.initialised)),
+            axis_invalid=now_s < ev.axis_invalid_until_s,
+            saturated_until_s=ev.saturated_until_s,
+            board_reset_at_s=ev.board_reset_at_s,
+            samples_lost_at_s=ev.samples_lost_at_s,
+            config_reloaded_at_s=health.config_reloaded_at_s,
+            bias_estimating=bool(est and est.bias_estimating),
+        )
+
+    def _build(self, health: LinkHealth) -> PublishedValues:
+        now = self._published_at
+        est: Estimate | None = self.pipeline.latest()
+        if est is not None:
+            pos, vel, acc, bias, pos_std = est.pos_m, est.vel_mps, est.acc_mps2, est.bias_mps2, est.pos_std_m
+        else:  # nothing estimated since start or a start-over: the last numbers, flagged
+            last = self._values
+            pos, vel, acc = last.position_m, last.velocity_mps, last.acceleration_mps2
+            bias, pos_std = last.bias_estimate_mps2, last.position_std_m
+        p = self.pipeline
+        c = p.decoder_counters
+        last_sample = self.events.last_sample_s
+        return PublishedValues(
+            position_m=pos, velocity_mps=vel, acceleration_mps2=acc,
+            status=status_bits(self.condition(now, health)),
+            heartbeat=self._heartbeat,
+            sample_counter=p.counters.samples,
+            last_sample_age_ms=None if last_sample is None else (now - last_sample) * 1000,
+            bias_estimate_mps2=bias, position_std_m=pos_std,
+            board_temp_c=p.board.temp_c,
+            lost_samples=c.samples_lost, crc_errors=c.crc_errors,
+            board_resets=p.counters.resets_announced + p.counters.resets_inferred,
+            can_send_errors=health.can_send_errors,
+        )
+
+
+def _recent(at_s: float | None, now_s: float) -> bool:
+    return at_s is not None and now_s - at_s < EVENT_HOLD_S

@@ -1,0 +1,334 @@
+"""Board bytes in, estimates out: the one path from the serial line to a position.
+
+`SamplePipeline.feed(data)` takes bytes as they come off the board's line, in any
+chunking, and returns what they did (`ChunkResult`); `latest()` is the newest estimate.
+No I/O and no clock: the daemon, `adxlgw record`, the tests and the benchmarks drive the
+same object.
+
+How: a `StreamDecoder` finds the frames and hands them here (this class is its
+`SampleSink`). Reports (STATUS/HELLO) come one by one in Python: tick rate, board
+temperature, resets. Runs of SAMPLE frames go to `run_samples`, one call per run, which
+for each frame decodes it (`board_protocol.sample_at`), counts the samples lost before
+it (`samples_lost`), times it (`conversion.advance_sample_time`), converts its duty cycle
+(`conversion.duty_to_mps2`), judges validity and clipping, and steps the estimator
+(`estimator_kernel.step`). `run_samples` is compiled by numba when it can be (at 500
+samples/s, on a VM that wakes the daemon cold each time, Python per sample was most of
+the daemon's CPU: docs/daemon.md); with ADXLGW_NO_JIT=1, or without numba, the very same
+function runs as plain Python — one implementation under two runners
+(tests/test_sample_pipeline.py compares them).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.board_protocol import (
+    FLAG_TIMER_OVERFLOW, FLAG_X_TIMED_OUT, FLAG_Y_TIMED_OUT, FLAGS_RESERVED, SAMPLE_FRAME_LENGTH, Hello,
+    DecoderCounters, Status, StreamDecoder, sample_at, samples_lost,
+)
+from gateway.core import estimator_kernel as K
+from gateway.core.conversion import Calibration, advance_sample_time, duty_to_mps2
+from gateway.core.estimator import Estimate, RealtimeEstimator
+from gateway.core.estimator_settings import EstimatorSettings
+from gateway.core.jit import jit
+from gateway.core.units import STANDARD_GRAVITY_MPS2
+
+# A reading within 2 % of the ±2 g range is treated as clipped (the ADXL202 saturates
+# a little beyond 2 g; the nominal duty cycle limits are 25 % and 75 %).
+SATURATION_FRACTION = 0.98
+
+# ---- the float64 array that carries the board-side state in and the results out -----
+S_TIMED = 0  # 1 once a sample was timed since the start or the last board reset
+S_NEXT_T = 1  # time of the next sample (s)
+S_LAST_PERIOD = 2  # last period (s)
+S_TICK_HZ = 3  # board timer rate; 0: not known yet (no STATUS/HELLO seen)
+S_ZERO_G = 4  # calibration of the configured axis: zero-g duty cycle …
+S_SENS = 5  # … and sensitivity (duty per g)
+S_SAT_LIMIT = 6  # |acceleration| at or above this is clipped (m/s²)
+S_INVALID_MASK = 7  # flags that make the configured axis' counts invalid
+S_AXIS_Y = 8  # 1: the configured axis is y
+R_SAMPLES = 9  # results of one run: samples estimated …
+R_LOST = 10  # … samples lost before them (seq gaps) …
+R_GAPS = 11  # … in how many gaps
+R_INVALID = 12
+R_SATURATED = 13
+R_NO_TICK = 14  # SAMPLEs before any tick rate: time unknown, not estimated
+R_ENTRY = 15  # 1: some step began a standstill
+R_FAULT = 16  # 1: some step left the estimator's state not finite or diverged
+N_SLOTS = 17
+
+_CLIPPED_FLAGS = FLAG_X_TIMED_OUT | FLAG_Y_TIMED_OUT | FLAG_TIMER_OVERFLOW
+_X_INVALID = FLAG_X_TIMED_OUT | FLAG_TIMER_OVERFLOW | FLAGS_RESERVED
+_Y_INVALID = FLAG_Y_TIMED_OUT | FLAG_TIMER_OVERFLOW | FLAGS_RESERVED
+_FRAME = SAMPLE_FRAME_LENGTH
+_F_ENTRY = K.F_ENTRY
+_F_FAULT = K.F_FAULT
+_O_FLAGS = K.O_FLAGS
+_compiled_sample_at = jit(sample_at)
+_compiled_samples_lost = jit(samples_lost)
+
+
+@jit
+def run_samples(buf, pos, last_seq, st, kstate, prm):
+    """The run of whole, CRC-valid SAMPLE frames from `buf[pos]` on, each through
+    decoding, continuity, timing, conversion and one estimator step.
+
+    Returns (end, samples, last_seq, lost, gaps) as `SampleSink.take_samples`; the
+    timeline in `st` moves on, the run's results are in its R_* slots.
+    """
+    timed = st[S_TIMED] > 0.0
+    next_t = st[S_NEXT_T]
+    last_period = st[S_LAST_PERIOD]
+    tick_hz = st[S_TICK_HZ]
+    zero_g = st[S_ZERO_G]
+    sens = st[S_SENS]
+    sat_limit = st[S_SAT_LIMIT]
+    invalid_mask = int(st[S_INVALID_MASK])
+    use_y = st[S_AXIS_Y] > 0.0
+    n = 0
+    lost_total = 0
+    gaps = 0
+    invalid = 0
+    saturated_n = 0
+    no_tick = 0
+    entry = False
+    fault = False
+    while True:
+        seq, t1x, t1y, t2, flags = _compiled_sample_at(buf, pos)
+        if seq < 0:
+            break
+        pos += _FRAME
+        n += 1
+        lost = _compiled_samples_lost(last_seq, seq)
+        if lost:
+            lost_total += lost
+            gaps += 1
+        last_seq = seq
+        if tick_hz <= 0.0:  # no STATUS/HELLO yet: the sample's time cannot be told
+            no_tick += 1
+            continue
+        t_s, next_t, last_period = advance_sample_time(timed, next_t, last_period, t2, tick_hz, lost)
+        timed = True
+        t1 = t1y if use_y else t1x
+        acc = math.nan
+        if (flags & invalid_mask) == 0 and t2 > 0 and 0 <= t1 <= t2:
+            acc = duty_to_mps2(t1 / t2, zero_g, sens)
+        ok = math.isfinite(acc)
+        if not ok:
+            invalid += 1
+        elif (flags & _CLIPPED_FLAGS) != 0 or abs(acc) >= sat_limit:
+            saturated_n += 1
+        K.step(kstate, prm, t_s, acc if ok else 0.0, ok, lost)
+        step_flags = int(kstate.out[_O_FLAGS])
+        if step_flags & _F_ENTRY:
+            entry = True
+        if step_flags & _F_FAULT:
+            fault = True
+    st[S_TIMED] = 1.0 if timed else 0.0
+    st[S_NEXT_T] = next_t
+    st[S_LAST_PERIOD] = last_period
+    st[R_SAMPLES] = n - no_tick
+    st[R_LOST] = lost_total
+    st[R_GAPS] = gaps
+    st[R_INVALID] = invalid
+    st[R_SATURATED] = saturated_n
+    st[R_NO_TICK] = no_tick
+    st[R_ENTRY] = 1.0 if entry else 0.0
+    st[R_FAULT] = 1.0 if fault else 0.0
+    return pos, n, last_seq, lost_total, gaps
+
+
+@dataclass(slots=True)
+class PipelineCounters:
+    samples: int = 0  # estimated (timed) samples
+    samples_invalid: int = 0
+    samples_saturated: int = 0
+    # SAMPLEs that arrived before any STATUS/HELLO told the tick rate: time is unknown
+    samples_without_tick_rate: int = 0
+    # resets seen as HELLO, plus resets inferred from STATUS uptime going backwards
+    resets_announced: int = 0
+    resets_inferred: int = 0
+    # the estimator's state went non-finite or diverged, and it started over
+    estimator_faults: int = 0
+
+
+@dataclass(slots=True)
+class ChunkResult:
+    """What one `feed` did."""
+
+    samples: int = 0  # samples estimated
+    samples_lost: int = 0  # samples lost on the line before them (seq gaps)
+    saturated: int = 0  # clipped samples among them
+    invalid: int = 0  # samples whose axis carried no valid measurement
+    board_reset: bool = False  # the board restarted (HELLO, or STATUS uptime went back)
+    entered_standstill: bool = False
+    estimator_fault: bool = False  # the estimator's state broke and it started over
+
+
+@dataclass(frozen=True, slots=True)
+class BoardInfo:
+    """What the board's reports said last."""
+
+    tick_hz: int | None = None
+    temp_c: float | None = None
+    uptime_s: int | None = None
+    firmware: tuple[int, int] | None = None
+
+
+class SamplePipeline:
+    """Board bytes → decoded, timed, converted samples → the realtime estimator.
+
+    The published position is the estimator's minus a reference offset: `tare()` makes
+    here zero (referenced); a board reset or a new axis starts the estimator over and
+    keeps the position continuous, but no longer referenced.
+    """
+
+    def __init__(self, calibration: Calibration, settings: EstimatorSettings, axis: str = "x",
+                 range_g: float = 2.0, start_position_m: float = 0.0):
+        self.estimator = RealtimeEstimator(settings)
+        self.counters = PipelineCounters()
+        self.board = BoardInfo()
+        self._decoder = StreamDecoder(sink=self)
+        self._st = np.zeros(N_SLOTS)
+        self._range_g = range_g
+        self.set_calibration(calibration, axis)
+        # published = estimator position − offset; a start position (e.g. the last one
+        # published before a restart) is a prior to continue from, not a reference
+        self.reference_offset_m = -start_position_m
+        self.referenced = False
+        self._estimated = False  # a sample went through the estimator since start or reset
+        self._result = ChunkResult()
+        self._hellos_seen = 0
+        # the first call compiles (numba, seconds; cached on disk after): now, not on the
+        # first sample of the board
+        probe = RealtimeEstimator(settings)
+        run_samples(np.zeros(0, np.uint8), 0, -1, np.zeros(N_SLOTS), probe.state, probe.params)
+
+    # ---------------------------------------------------------------- input --
+    def feed(self, data: bytes | bytearray | memoryview) -> ChunkResult:
+        """Bytes from the board's line, in any chunking: every frame they complete goes
+        through; what it did comes back."""
+        self._result = result = ChunkResult()
+        self._decoder.feed(data)
+        return result
+
+    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int]:
+        """`SampleSink`: a run of SAMPLE frames through `run_samples` (the decoder calls it)."""
+        st = self._st
+        end, taken, last_seq, lost_total, gaps = run_samples(buf, pos, last_seq, st, self.estimator.state,
+                                                             self.estimator.params)
+        (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:N_SLOTS].tolist()
+        c = self.counters
+        r = self._result
+        samples = int(samples)
+        c.samples += samples
+        c.samples_invalid += int(invalid)
+        c.samples_saturated += int(saturated)
+        c.samples_without_tick_rate += int(no_tick)
+        r.samples += samples
+        r.samples_lost += int(lost)
+        r.invalid += int(invalid)
+        r.saturated += int(saturated)
+        if samples:
+            self._estimated = True
+        if entry:
+            r.entered_standstill = True
+        if fault:
+            # numbers that mean nothing are not kept: start over, flagged
+            c.estimator_faults += 1
+            r.estimator_fault = True
+            self._start_over()
+        # plain ints: run as plain Python (no numba), the run's numbers are numpy's
+        return int(end), int(taken), int(last_seq), int(lost_total), int(gaps)
+
+    def on_report(self, frame: Status | Hello) -> None:
+        """`SampleSink`: a STATUS or HELLO; a board reset loses time continuity."""
+        reset = False
+        if isinstance(frame, Hello):
+            self._hellos_seen += 1
+            if self._hellos_seen > 1 or self.counters.samples:
+                self.counters.resets_announced += 1
+                reset = True
+        elif self.board.uptime_s is not None and frame.uptime_s < self.board.uptime_s:
+            # uptime went backwards without a HELLO: the board restarted and its HELLO was lost
+            self.counters.resets_inferred += 1
+            reset = True
+        if reset:
+            self._result.board_reset = True
+            self._start_over()
+        tick_hz = frame.tick_hz if frame.tick_hz > 0 else self.board.tick_hz
+        self.board = BoardInfo(tick_hz, frame.temp_c, frame.uptime_s, (frame.fw_major, frame.fw_minor))
+        self._st[S_TICK_HZ] = float(tick_hz or 0)
+
+    # ------------------------------------------------------------- commands --
+    def tare(self) -> bool:
+        """Position := 0 here (referenced from now on); False when nothing is estimated yet."""
+        est = self.latest()
+        if est is None:
+            return False
+        self.reference_offset_m += est.pos_m
+        self.referenced = True
+        return True
+
+    def request_bias_reestimate(self) -> bool:
+        """Accepted only at standstill: the bias variance widens and the rest re-measures it."""
+        est = self.latest()
+        if est is None or not est.standstill:
+            return False
+        self.estimator.request_bias_reestimate()
+        return True
+
+    def reset(self) -> None:
+        """Start the estimator over (e.g. continuity lost); the position stays continuous
+        but is no longer referenced."""
+        self._start_over()
+
+    def set_calibration(self, calibration: Calibration, axis: str) -> None:
+        """Calibration and axis for the samples from now on; another axis starts over."""
+        if axis not in ("x", "y"):
+            raise ValueError(f"axis must be 'x' or 'y', got {axis!r}")
+        changed = getattr(self, "axis", axis) != axis
+        self.calibration = calibration
+        self.axis = axis
+        cal = calibration.y if axis == "y" else calibration.x
+        st = self._st
+        st[S_ZERO_G] = cal.zero_g_duty
+        st[S_SENS] = cal.sensitivity_duty_per_g
+        st[S_SAT_LIMIT] = SATURATION_FRACTION * self._range_g * STANDARD_GRAVITY_MPS2
+        st[S_INVALID_MASK] = _Y_INVALID if axis == "y" else _X_INVALID
+        st[S_AXIS_Y] = 1.0 if axis == "y" else 0.0
+        if changed:
+            self._start_over()
+
+    def _start_over(self) -> None:
+        est = self.latest()
+        if est is not None and math.isfinite(est.pos_m):
+            # keep the published position continuous; it is just no longer trusted
+            self.reference_offset_m = -est.pos_m
+        self.referenced = False
+        self.estimator.reset()
+        self._estimated = False
+        self._st[S_TIMED] = 0.0
+
+    # --------------------------------------------------------------- output --
+    def latest(self) -> Estimate | None:
+        """The newest estimate, position from the reference; None before any sample
+        since the start or the last start-over."""
+        if not self._estimated:
+            return None
+        state = self.estimator.state
+        est = Estimate.from_kernel(state.misc[K.M_T_PREV], state.out)
+        return Estimate(est.t_s, est.pos_m - self.reference_offset_m, est.vel_mps, est.acc_mps2, est.bias_mps2,
+                        est.pos_std_m, est.vel_std_mps, est.innovation_mps2, est.nis,
+                        est.zupt_velocity_error_mps, est.zupt_nis, est.flags)
+
+    @property
+    def decoder_counters(self) -> DecoderCounters:
+        """What the decoder saw (bytes, frames, CRC errors, samples lost, …): live, read only."""
+        return self._decoder.live_counters
+
+    @property
+    def last_seq(self) -> int:
+        return self._decoder.last_seq
