@@ -32,7 +32,7 @@ from benchmarks.daemon_benchmark import board_frames, writer  # noqa: E402
 from benchmarks.machine_info import machine  # noqa: E402
 from drivers.board_protocol import encode_hello  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
-from drivers.can_publisher import CyclicEncoder  # noqa: E402
+from drivers.can_frames import CyclicEncoder  # noqa: E402
 from gateway.board_intake import BoardIntake, LinkHealth  # noqa: E402
 from gateway.config import validate  # noqa: E402
 from gateway.core.conversion import Calibration  # noqa: E402

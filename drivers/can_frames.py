@@ -181,14 +181,14 @@ def _crc8_table(poly: int) -> tuple[int, ...]:
     return tuple(table)
 
 
-_CRC8_TABLE = _crc8_table(CRC8_POLY)
+CRC8_TABLE = _crc8_table(CRC8_POLY)
 
 
 def crc8(data: bytes, init: int = 0xFF, xor_out: int = 0xFF) -> int:
     """CRC-8 with polynomial 0x1D, MSB first. Defaults are CRC-8/SAE-J1850 (check 0x4B)."""
     crc = init
     for byte in data:
-        crc = _CRC8_TABLE[crc ^ byte]
+        crc = CRC8_TABLE[crc ^ byte]
     return crc ^ xor_out
 
 
@@ -239,49 +239,83 @@ def unpack(frame: FrameSpec, payload: bytes) -> dict[str, int]:
     return raw
 
 
-def _scaled(spec: SignalSpec, value: float) -> tuple[int, bool]:
-    """(raw, clamped) for a scaled signed signal whose most negative raw means n/a."""
-    low, high = spec.raw_limits()
-    if math.isnan(value):
-        return low, False
-    scaled = value / spec.factor if math.isfinite(value) else value
-    if scaled > high:
-        return high, True
-    if scaled < -high:
-        return -high, True
-    return round(scaled), False
+class CyclicEncoder:
+    """The encoder of the two cyclic frames (ADXL_Position, ADXL_Velocity): everything
+    that depends only on the frame table is worked out once, since it runs 100 times a
+    second per frame pair. The one encoder of these frames (the publisher sends its
+    bytes); tests/test_can_frames.py checks it against cantools decoding the DBC that
+    `dbc_text()` writes from the same table — an independent decoder.
 
-
-def encode_cyclic(values: PublishedValues, counters: Mapping[int, int]) -> list[tuple[FrameSpec, bytes]]:
-    """The protected payloads of all cyclic frames for one snapshot.
-
-    `counters` maps frame_id to the alive counter to put in this transmission.
+    Scaled signals: value / factor rounded to the nearest raw step; beyond the signed
+    range (±inf included) clamped to the largest raw magnitude and SCALED_CLAMPED set in
+    the status; NaN (missing) is the most negative raw value, "NotAvailable" in the DBC.
     """
-    position, clamped_p = _scaled(POSITION_FRAME.signal("Position"), values.position_m)
-    velocity, clamped_v = _scaled(VELOCITY_FRAME.signal("Velocity"), values.velocity_mps)
-    acceleration, clamped_a = _scaled(VELOCITY_FRAME.signal("Acceleration"), values.acceleration_mps2)
-    status = StatusBits(values.status)
-    if clamped_p or clamped_v or clamped_a:
-        status |= StatusBits.SCALED_CLAMPED
-    flags = {
-        "Valid": StatusBits.VALID,
-        "Standstill": StatusBits.STANDSTILL,
-        "Stale": StatusBits.STALE,
-        "BoardLost": StatusBits.BOARD_LOST,
-    }
-    raw_by_frame = {
-        POSITION_FRAME: {"Pos_Position": position, "Pos_Status": int(status) & 0xFFFF},
-        VELOCITY_FRAME: {"Vel_Velocity": velocity, "Vel_Acceleration": acceleration},
-    }
-    frames = []
-    for frame, raw in raw_by_frame.items():
-        prefix = frame.signals[0].name.split("_", 1)[0]
-        for suffix, bit in flags.items():
-            raw[f"{prefix}_{suffix}"] = int(bool(status & bit))
-        payload = pack(frame, raw)
-        e2e_p01_protect(frame, payload, counters[frame.frame_id])
-        frames.append((frame, bytes(payload)))
-    return frames
+
+    def __init__(self) -> None:
+        pos = POSITION_FRAME.signal("Position")
+        status = POSITION_FRAME.signal("Status")
+        vel = VELOCITY_FRAME.signal("Velocity")
+        acc = VELOCITY_FRAME.signal("Acceleration")
+        # (factor, lowest raw, highest raw, start bit, mask) of each scaled signal
+        self._pos = (pos.factor, *pos.raw_limits(), pos.start_bit, (1 << pos.length) - 1)
+        self._vel = (vel.factor, *vel.raw_limits(), vel.start_bit, (1 << vel.length) - 1)
+        self._acc = (acc.factor, *acc.raw_limits(), acc.start_bit, (1 << acc.length) - 1)
+        self._status_shift, self._status_mask = status.start_bit, (1 << status.length) - 1
+        self._clamped = int(StatusBits.SCALED_CLAMPED)
+        # the four status bits each cyclic frame repeats (byte 1, bits 4-7): status bit → frame bit
+        self._flags = tuple(
+            (int(bit), POSITION_FRAME.signal(name).start_bit)
+            for name, bit in (("Valid", StatusBits.VALID), ("Standstill", StatusBits.STANDSTILL),
+                              ("Stale", StatusBits.STALE), ("BoardLost", StatusBits.BOARD_LOST))
+        )
+        assert all(VELOCITY_FRAME.signal(n).start_bit == POSITION_FRAME.signal(n).start_bit
+                   for n in ("Valid", "Standstill", "Stale", "BoardLost"))
+        self._counter_shift = POSITION_FRAME.signal("Counter").start_bit
+        # the CRC register after each frame's data ID (E2E profile 1: initial value 0)
+        self._after_id = {
+            frame.frame_id: crc8(bytes((frame.data_id & 0xFF, frame.data_id >> 8)), init=0, xor_out=0)
+            for frame in (POSITION_FRAME, VELOCITY_FRAME)
+        }
+
+    def _scaled(self, value: float, spec: tuple) -> tuple[int, bool]:
+        """(raw, clamped); NaN is the most negative raw value."""
+        factor, low, high = spec[0], spec[1], spec[2]
+        if math.isnan(value):
+            return low, False
+        scaled = value / factor  # ±inf stays ±inf
+        if scaled > high:
+            return high, True
+        if scaled < -high:
+            return -high, True
+        return round(scaled), False
+
+    def encode(self, values: PublishedValues, pos_counter: int, vel_counter: int) -> tuple[bytes, bytes]:
+        """Payloads of ADXL_Position and ADXL_Velocity with these alive counters."""
+        position, clamped_p = self._scaled(values.position_m, self._pos)
+        velocity, clamped_v = self._scaled(values.velocity_mps, self._vel)
+        acceleration, clamped_a = self._scaled(values.acceleration_mps2, self._acc)
+        status = int(values.status)
+        if clamped_p or clamped_v or clamped_a:
+            status |= self._clamped
+        flags = 0
+        for bit, shift in self._flags:
+            if status & bit:
+                flags |= 1 << shift
+        cs = self._counter_shift
+        p, v, a = self._pos, self._vel, self._acc
+        pos_word = (flags | (pos_counter << cs) | ((position & p[4]) << p[3])
+                    | ((status & self._status_mask) << self._status_shift))
+        vel_word = flags | (vel_counter << cs) | ((velocity & v[4]) << v[3]) | ((acceleration & a[4]) << a[3])
+        return (self._protect(POSITION_FRAME.frame_id, pos_word), self._protect(VELOCITY_FRAME.frame_id, vel_word))
+
+    def _protect(self, frame_id: int, word: int) -> bytes:
+        payload = bytearray(word.to_bytes(8, "little"))
+        table = CRC8_TABLE
+        crc = self._after_id[frame_id]
+        for byte in payload[1:]:
+            crc = table[crc ^ byte]
+        payload[0] = crc
+        return bytes(payload)
 
 
 @dataclass(frozen=True, slots=True)

@@ -40,7 +40,6 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import logging
-import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -57,12 +56,12 @@ from .can_frames import (
     VELOCITY_FRAME,
     AckResult,
     CommandCheck,
+    CyclicEncoder,
     check_command,
-    crc8,
     encode_ack,
     next_counter,
 )
-from .published_values import NOTHING_PUBLISHED, CommandCallback, PublishedValues, StatusBits, ValuesSource, current
+from .published_values import NOTHING_PUBLISHED, CommandCallback, ValuesSource, current
 
 log = logging.getLogger(__name__)
 
@@ -107,85 +106,6 @@ class CanPublisherConfig:
                 f"min_interval_ms must be within 0..period_ms, got {self.min_interval_ms}"
             )
         object.__setattr__(self, "bus_options", MappingProxyType(dict(self.bus_options)))
-
-
-class CyclicEncoder:
-    """`can_frames.encode_cyclic` for the two cyclic frames, with everything that
-    depends only on the frame table worked out once.
-
-    Same bytes as encode_cyclic (tests/test_can_publisher.py compares them over
-    ordinary, missing, huge and infinite values and every counter), about five times
-    faster: encode_cyclic looks signals up by name, builds dicts, does IntFlag
-    arithmetic and recomputes the CRC over the data ID on every call, 100 times a
-    second per frame pair.
-    """
-
-    def __init__(self) -> None:
-        pos = POSITION_FRAME.signal("Position")
-        status = POSITION_FRAME.signal("Status")
-        vel = VELOCITY_FRAME.signal("Velocity")
-        acc = VELOCITY_FRAME.signal("Acceleration")
-        # (factor, lowest raw, highest raw, start bit, mask) of each scaled signal
-        self._pos = (pos.factor, *pos.raw_limits(), pos.start_bit, (1 << pos.length) - 1)
-        self._vel = (vel.factor, *vel.raw_limits(), vel.start_bit, (1 << vel.length) - 1)
-        self._acc = (acc.factor, *acc.raw_limits(), acc.start_bit, (1 << acc.length) - 1)
-        self._status_shift, self._status_mask = status.start_bit, (1 << status.length) - 1
-        self._clamped = int(StatusBits.SCALED_CLAMPED)
-        # the four status bits each cyclic frame repeats (byte 1, bits 4-7): status bit → frame bit
-        self._flags = tuple(
-            (int(bit), POSITION_FRAME.signal(name).start_bit)
-            for name, bit in (("Valid", StatusBits.VALID), ("Standstill", StatusBits.STANDSTILL),
-                              ("Stale", StatusBits.STALE), ("BoardLost", StatusBits.BOARD_LOST))
-        )
-        assert all(VELOCITY_FRAME.signal(n).start_bit == POSITION_FRAME.signal(n).start_bit
-                   for n in ("Valid", "Standstill", "Stale", "BoardLost"))
-        self._counter_shift = POSITION_FRAME.signal("Counter").start_bit
-        # CRC-8 table of the E2E polynomial, and the CRC register after each frame's data ID
-        self._table = tuple(crc8(bytes((b,)), init=0, xor_out=0) for b in range(256))
-        self._after_id = {
-            frame.frame_id: crc8(bytes((frame.data_id & 0xFF, frame.data_id >> 8)), init=0, xor_out=0)
-            for frame in (POSITION_FRAME, VELOCITY_FRAME)
-        }
-
-    def _scaled(self, value: float, spec: tuple) -> tuple[int, bool]:
-        """can_frames._scaled: (raw, clamped); NaN is the most negative raw value."""
-        factor, low, high = spec[0], spec[1], spec[2]
-        if math.isnan(value):
-            return low, False
-        scaled = value / factor  # ±inf stays ±inf
-        if scaled > high:
-            return high, True
-        if scaled < -high:
-            return -high, True
-        return round(scaled), False
-
-    def encode(self, values: PublishedValues, pos_counter: int, vel_counter: int) -> tuple[bytes, bytes]:
-        """Payloads of ADXL_Position and ADXL_Velocity with these alive counters."""
-        position, clamped_p = self._scaled(values.position_m, self._pos)
-        velocity, clamped_v = self._scaled(values.velocity_mps, self._vel)
-        acceleration, clamped_a = self._scaled(values.acceleration_mps2, self._acc)
-        status = int(values.status)
-        if clamped_p or clamped_v or clamped_a:
-            status |= self._clamped
-        flags = 0
-        for bit, shift in self._flags:
-            if status & bit:
-                flags |= 1 << shift
-        cs = self._counter_shift
-        p, v, a = self._pos, self._vel, self._acc
-        pos_word = (flags | (pos_counter << cs) | ((position & p[4]) << p[3])
-                    | ((status & self._status_mask) << self._status_shift))
-        vel_word = flags | (vel_counter << cs) | ((velocity & v[4]) << v[3]) | ((acceleration & a[4]) << a[3])
-        return (self._protect(POSITION_FRAME.frame_id, pos_word), self._protect(VELOCITY_FRAME.frame_id, vel_word))
-
-    def _protect(self, frame_id: int, word: int) -> bytes:
-        payload = bytearray(word.to_bytes(8, "little"))
-        table = self._table
-        crc = self._after_id[frame_id]
-        for byte in payload[1:]:
-            crc = table[crc ^ byte]
-        payload[0] = crc
-        return bytes(payload)
 
 
 @dataclass(frozen=True, slots=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import subprocess
 import sys
@@ -24,13 +25,20 @@ from drivers.can_frames import (
     crc8,
     dbc_text,
     e2e_p01_crc,
+    CyclicEncoder,
     encode_command,
-    encode_cyclic,
 )
 from drivers.published_values import Command, PublishedValues, StatusBits
 
 ROOT = Path(__file__).resolve().parent.parent
 DBC_PATH = ROOT / "config" / "adxl-gateway.dbc"
+ENCODER = CyclicEncoder()
+
+
+def encode_cyclic(values: PublishedValues, pos_counter: int, vel_counter: int) -> dict:
+    """The publisher's encoder, as {frame: payload}."""
+    pos, vel = ENCODER.encode(values, pos_counter, vel_counter)
+    return {POSITION_FRAME: pos, VELOCITY_FRAME: vel}
 
 
 # --------------------------------------------------------------------------- #
@@ -160,7 +168,7 @@ def test_cantools_decodes_the_published_values(position, velocity, acceleration,
     values = PublishedValues(
         position_m=position, velocity_mps=velocity, acceleration_mps2=acceleration, status=StatusBits(status)
     )
-    frames = dict(encode_cyclic(values, {POSITION_FRAME.frame_id: counter, VELOCITY_FRAME.frame_id: counter}))
+    frames = encode_cyclic(values, counter, counter)
     pos = db.decode_message(POSITION_FRAME.frame_id, frames[POSITION_FRAME])
     vel = db.decode_message(VELOCITY_FRAME.frame_id, frames[VELOCITY_FRAME])
     assert pos["Pos_Position"] == pytest.approx(position, abs=0.5e-6 + 1e-12)
@@ -178,7 +186,7 @@ def test_cantools_decodes_the_published_values(position, velocity, acceleration,
 
 def test_missing_and_out_of_range_values() -> None:
     db = cantools.database.load_file(str(DBC_PATH))
-    frames = dict(encode_cyclic(PublishedValues(acceleration_mps2=50.0, status=StatusBits.VALID), {0x120: 0, 0x121: 0}))
+    frames = encode_cyclic(PublishedValues(acceleration_mps2=50.0, status=StatusBits.VALID), 0, 0)
     pos = db.decode_message(0x120, frames[POSITION_FRAME])
     vel = db.decode_message(0x121, frames[VELOCITY_FRAME], decode_choices=False)
     assert str(pos["Pos_Position"]) == "NotAvailable"  # NaN position
@@ -188,14 +196,38 @@ def test_missing_and_out_of_range_values() -> None:
     assert pos["Pos_Valid"] == 1
 
 
+@pytest.mark.parametrize("value", [math.inf, -math.inf, 1e9, -1e9, 2147.4836475, -2147.4836476])
+def test_values_beyond_the_range_are_clamped_and_flagged(value) -> None:
+    db = cantools.database.load_file(str(DBC_PATH))
+    frames = encode_cyclic(PublishedValues(position_m=value, velocity_mps=value, acceleration_mps2=value,
+                                           status=StatusBits.VALID), 0, 0)
+    pos = db.decode_message(0x120, frames[POSITION_FRAME])
+    vel = db.decode_message(0x121, frames[VELOCITY_FRAME], decode_choices=False)
+    top = 2147.483647
+    assert pos["Pos_Position"] == pytest.approx(math.copysign(top, value))  # ±max, never the n/a raw value
+    assert vel["Vel_Velocity"] == pytest.approx(math.copysign(top, value))
+    assert vel["Vel_Acceleration"] == pytest.approx(math.copysign(32.767, value))
+    assert pos["Pos_Status"] & StatusBits.SCALED_CLAMPED
+
+
+@settings(derandomize=True, deadline=None, max_examples=200)
+@given(raw=st.integers(-2**31 + 1, 2**31 - 2))
+def test_halfway_between_two_steps_rounds_to_a_neighbour(raw) -> None:
+    db = cantools.database.load_file(str(DBC_PATH))
+    value = (raw + 0.5) * 1e-6
+    frames = encode_cyclic(PublishedValues(position_m=value), 0, 0)
+    decoded = db.decode_message(0x120, frames[POSITION_FRAME])["Pos_Position"]
+    assert decoded in (pytest.approx(raw * 1e-6, abs=1e-9), pytest.approx((raw + 1) * 1e-6, abs=1e-9))
+
+
 def _candump_line(channel: str, frame_id: int, payload: bytes) -> str:
     return f"  {channel}  {frame_id:03X}   [{len(payload)}]  " + " ".join(f"{b:02X}" for b in payload)
 
 
 def test_cantools_command_line_decodes_candump_output() -> None:
     values = PublishedValues(position_m=1.234567, velocity_mps=-0.5, acceleration_mps2=0.25, status=StatusBits.VALID)
-    frames = encode_cyclic(values, {0x120: 7, 0x121: 8})
-    lines = [_candump_line("vcan0", frame.frame_id, payload) for frame, payload in frames]
+    frames = encode_cyclic(values, 7, 8)
+    lines = [_candump_line("vcan0", frame.frame_id, payload) for frame, payload in frames.items()]
     lines.append(_candump_line("vcan0", COMMAND_FRAME.frame_id, encode_command(Command.TARE, 2)))
     result = subprocess.run(
         [sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],

@@ -1,7 +1,6 @@
 """The gateway daemon in-process against the emulated board on a real pty, a pymodbus
 client on TCP, and a python-can virtual bus decoded with cantools."""
 import asyncio
-import math
 import socket
 
 import can

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from drivers.board_protocol import (
-    SAMPLE_FRAME_LENGTH, Hello, Sample, Status, decode_frames, encode_hello, encode_sample, encode_status,
+    SAMPLE_FRAME_LENGTH, Sample, decode_frames, encode_hello, encode_sample, encode_status,
     sample_at,
 )
 from gateway.core import estimator_kernel as K

@@ -1,6 +1,4 @@
-import math
 
-import pytest
 
 from drivers.published_values import StatusBits
 from gateway.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
