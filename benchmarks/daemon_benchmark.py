@@ -172,23 +172,23 @@ from gateway.daemon import Gateway
 cfg = load_config({config!r})
 sends = []
 
-async def main():
-    gw = Gateway(cfg)
-    task = asyncio.create_task(gw.run())
-    while gw.can is None or gw.can._bus is None:
-        await asyncio.sleep(0.01)
-    bus = gw.can._bus
+def timed_bus(**kwargs):
+    # python-can's Bus, its sends timed: when each position frame left, and how many
+    # samples the gateway had processed by then (the frame carries their values)
+    import can
+    bus = can.Bus(**kwargs)
     send = bus.send
     def timed_send(msg, timeout=None):
         send(msg, timeout)
         if msg.arbitration_id == 0x120:
-            # the frame carries the values of every sample processed so far
-            sends.append((time.monotonic_ns(), gw.counters.samples))
+            sends.append((time.monotonic_ns(), gw.pipeline.counters.samples))
     bus.send = timed_send
-    await task
+    return bus
+
+gw = Gateway(cfg, can_bus_factory=timed_bus)
 
 try:
-    asyncio.run(main())
+    asyncio.run(gw.run())
 finally:
     with open({trace!r}, "w") as fh:
         json.dump({{"sends": sends}}, fh)
