@@ -24,7 +24,6 @@ keep pushing back, and fires only once the board has been quiet for PUBLISH_TICK
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import signal
@@ -32,26 +31,23 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from drivers.board_protocol import SAMPLE_FRAME_LENGTH
 import can
 
-from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherConfig, CanPublisherError
+from drivers.can_publisher import BusFactory, CanPublisher
 from drivers.errors import SerialPortError
-from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
+from drivers.modbus_server import ModbusServer
 from drivers.published_values import Command, PublishedValues
-from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
+from drivers.serial_source import SerialSource, reconnect_delays_s
 from gateway.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
-from gateway.core.conversion import AxisCalibration, Calibration
-from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
-from gateway.core.sensor_model import SensorParams
-from gateway.drift_model_file import load_drift_model
+from gateway.daemon_settings import batch_frames_for, calibration_from, estimator_settings_from, serial_settings_from
 from gateway.emulated_board import EmulatedBoard
-from gateway.errors import ConfigError, DeviceError, InputError
+from gateway.errors import ConfigError, DeviceError
 from gateway.sample_pipeline import SamplePipeline
 from gateway.sd_notify import SystemdNotifier
 from gateway.state_store import PersistentState, StateStore
 from gateway.terminal_view import TerminalView
+from gateway.wires import Wires
 
 log = logging.getLogger("adxlgw")
 
@@ -64,63 +60,10 @@ HOUSEKEEPING_S = 0.25  # terminal view, state save when something changed
 STATE_SAVE_EVERY_S = 60.0
 
 
-def calibration_from(cfg: Config) -> Calibration:
-    c = cfg.calibration
-    return Calibration(AxisCalibration(c.zero_g_duty_x, c.sensitivity_x),
-                       AxisCalibration(c.zero_g_duty_y, c.sensitivity_y))
-
-
-def modbus_config_from(cfg: Config) -> ModbusServerConfig:
-    m = cfg.modbus
-    return ModbusServerConfig(
-        tcp_enabled=m.tcp_enabled, host=m.host, port=m.port, unit_id=m.unit_id, word_order=m.word_order,
-        writes_enabled=m.writes_enabled, write_allow=tuple(m.write_allow), rtu_enabled=m.rtu_enabled,
-        rtu_port=m.rtu_port, rtu_baudrate=m.rtu_baudrate, rtu_parity=m.rtu_parity,
-        rtu_writes_enabled=m.rtu_writes_enabled,
-    )
-
-
-def can_config_from(cfg: Config) -> CanPublisherConfig:
-    c = cfg.can
-    return CanPublisherConfig(
-        interface=c.interface, channel=c.channel,
-        bitrate=None if c.interface == "socketcan" else c.bitrate,
-        period_ms=float(c.period_ms),
-        sync_to_updates=c.sync_to_updates,
-        min_interval_ms=None if c.min_interval_ms < 0 else float(c.min_interval_ms),
-        commands_enabled=c.commands_enabled,
-    )
-
-
-def batch_frames_for(cfg: Config) -> int:
-    """How many SAMPLE frames wake the gateway: serial.batch_frames, but 1 when CAN
-    sends a frame pair per sample (mixed mode), which needs a wakeup per sample."""
-    return 1 if cfg.can.enabled and cfg.can.min_interval_ms >= 0 else cfg.serial.batch_frames
-
-
-def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
-    s = cfg.serial
-    return SerialSettings(port=port, baudrate=s.baudrate, reconnect_initial_s=s.reconnect_min_s,
-                          reconnect_max_s=s.reconnect_max_s,
-                          wake_min_bytes=batch_frames_for(cfg) * SAMPLE_FRAME_LENGTH)
-
-
-def estimator_settings_from(cfg: Config) -> EstimatorSettings:
-    """The estimator's settings from the sensor model, with the fitted drift model if one is configured."""
-    drift = None
-    if cfg.estimator.drift_model:
-        try:
-            drift = load_drift_model(cfg.estimator.drift_model)
-        except InputError as err:
-            raise ConfigError(f"{cfg.source}: estimator.drift_model: {err}") from err
-    return from_sensor_model(SensorParams(), drift_fit=drift, axis=cfg.calibration.axis)
-
-
 @dataclass
 class Counters:
     config_reloads: int = 0
     config_reload_errors: int = 0
-    can_start_failures: int = 0
     watchdog_pings: int = 0
 
 
@@ -144,7 +87,6 @@ class Gateway:
         self.notifier = notifier or SystemdNotifier()
         self.clock = clock
         self.publish_tick_s = publish_tick_s  # how often to republish while the board is quiet
-        self._can_bus_factory = can_bus_factory  # python-can's Bus, or a wrapper of it
         self.counters = Counters()
         self.state_store = StateStore(cfg.state.path)
         saved = self.state_store.load()
@@ -154,8 +96,7 @@ class Gateway:
                                        start_position_m=saved.last_position_m or 0.0)
         self.intake = BoardIntake(self.pipeline)
         self.source: SerialSource | None = None
-        self.modbus: ModbusServer | None = None
-        self.can: CanPublisher | None = None
+        self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
         self.emulated: EmulatedBoard | None = None
         self.view = TerminalView() if cfg.service.view else None
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
@@ -189,7 +130,7 @@ class Gateway:
             return
         self._started = True
         self._loop = asyncio.get_running_loop()
-        await self._start_servers()
+        await self.wires.start(self.cfg)
         self._arm_tick(self.clock(), self.publish_tick_s)
         self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
         self._board_task = asyncio.create_task(self._board_supervisor(), name="board")
@@ -221,7 +162,7 @@ class Gateway:
         loop = asyncio.get_running_loop()
         loop.add_signal_handler(signal.SIGTERM, self.request_stop)
         loop.add_signal_handler(signal.SIGINT, self.request_stop)
-        loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self.reload())))
+        loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self._reload_logged())))
         async with self:
             stopper = asyncio.create_task(self._stop_requested.wait())
             await asyncio.wait({stopper, self._board_task}, return_when=asyncio.FIRST_COMPLETED)
@@ -245,11 +186,19 @@ class Gateway:
         await asyncio.gather(*tasks, return_exceptions=True)
         if self.source is not None:
             self.source.close()
-        await self._stop_servers()
+        await self.wires.stop()
         if self.emulated is not None:
             await self.emulated.stop()
         self.state_store.save(self._state_to_save())
         log.info("stopped")
+
+    @property
+    def modbus(self) -> ModbusServer | None:
+        return self.wires.modbus
+
+    @property
+    def can(self) -> CanPublisher | None:
+        return self.wires.can
 
     # ------------------------------------------------------------- commands --
     def on_command(self, command: Command, source: str) -> bool:
@@ -316,10 +265,7 @@ class Gateway:
         """New values as of `now`: the heartbeat moves and every wire will show them
         (the snapshot is built only when a Modbus read or a CAN frame needs it)."""
         self.intake.publish(now)
-        if self.modbus:
-            self.modbus.update(self.fresh_values)
-        if self.can:
-            self.can.update(self.fresh_values)
+        self.wires.published()
 
     def fresh_values(self) -> PublishedValues:
         """What the wires show, after everything received so far — the bytes waiting in
@@ -470,49 +416,13 @@ class Gateway:
                 self.notifier.watchdog()
                 self.counters.watchdog_pings += 1
 
-    async def _start_servers(self) -> None:
-        # a read first takes the bytes waiting in the port (they may hold newer samples)
-        self.modbus = ModbusServer(modbus_config_from(self.cfg), on_command=self.on_command,
-                                   before_read=self._drain_now)
+    async def _reload_logged(self) -> None:
+        """A reload from a signal: nobody awaits it, so a failure is said here."""
         try:
-            await self.modbus.start()
-        except ModbusServerError as err:
-            raise DeviceError(f"Modbus server: {err}") from err
-        self.modbus.update(self.fresh_values)  # from the first read on, what the gateway knows
-        if self.cfg.can.enabled:
-            self.can = CanPublisher(can_config_from(self.cfg), on_command=self.on_command,
-                                bus_factory=self._can_bus_factory)
-            try:
-                await self.can.start()
-                self.can.update(self.fresh_values)
-            except CanPublisherError as err:
-                # Modbus keeps serving; CAN is retried in the background
-                self.counters.can_start_failures += 1
-                log.error("%s; retrying every 5 s", err)
-                self.can = None
-                self._tasks.append(asyncio.create_task(self._retry_can(), name="can-retry"))
-
-    async def _retry_can(self) -> None:
-        while self.can is None:
-            await asyncio.sleep(5)
-            publisher = CanPublisher(can_config_from(self.cfg), on_command=self.on_command,
-                                bus_factory=self._can_bus_factory)
-            try:
-                await publisher.start()
-                publisher.update(self.fresh_values)
-                self.can = publisher
-                log.info("CAN publisher started")
-            except CanPublisherError as err:
-                self.counters.can_start_failures += 1
-                log.debug("%s", err)
-
-    async def _stop_servers(self) -> None:
-        for component in (self.can, self.modbus):
-            if component is not None:
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(component.stop(), timeout=1.0)
-        self.can = None
-        self.modbus = None
+            await self.reload()
+        except Exception as err:  # a bug or a device that would not start: say it, keep running
+            log.error("reload failed: %s", err)
+            self.notifier.ready()
 
     async def reload(self) -> None:
         if self._reload is None:
@@ -534,8 +444,8 @@ class Gateway:
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
         if old.modbus.as_tuple() != new.modbus.as_tuple() or old.can.as_tuple() != new.can.as_tuple():
             log.info("reload: restarting Modbus and CAN with the new settings")
-            await self._stop_servers()
-            await self._start_servers()
+            await self.wires.stop()
+            await self.wires.start(self.cfg)
         if (old.serial.as_tuple() != new.serial.as_tuple() or batch_frames_for(old) != batch_frames_for(new)) \
                 and self._board_task is not None and self.ready:
             log.info("reload: reopening the board port")

@@ -66,7 +66,7 @@ def test_the_board_port_batches_unless_can_sends_per_sample(tmp_path):
     mixed mode (min_interval_ms ≥ 0, a frame pair per sample) needs a wakeup per sample."""
     from drivers.board_protocol import SAMPLE_FRAME_LENGTH
     from gateway.config import validate
-    from gateway.daemon import serial_settings_from
+    from gateway.daemon_settings import serial_settings_from
 
     def wake(**sections):
         cfg = validate({"state": {"path": str(tmp_path / "s.json")}, **sections}, "<test>")

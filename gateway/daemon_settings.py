@@ -1,0 +1,67 @@
+"""The daemon's config, turned into what each part takes: driver settings, calibration,
+the estimator's settings. Pure functions of a validated `Config` (one place to read
+when a config key seems to have no effect)."""
+from __future__ import annotations
+
+from drivers.board_protocol import SAMPLE_FRAME_LENGTH
+from drivers.can_publisher import CanPublisherConfig
+from drivers.modbus_server import ModbusServerConfig
+from drivers.serial_source import SerialSettings
+from gateway.config import Config
+from gateway.core.conversion import AxisCalibration, Calibration
+from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
+from gateway.core.sensor_model import SensorParams
+from gateway.drift_model_file import load_drift_model
+from gateway.errors import ConfigError, InputError
+
+
+def calibration_from(cfg: Config) -> Calibration:
+    c = cfg.calibration
+    return Calibration(AxisCalibration(c.zero_g_duty_x, c.sensitivity_x),
+                       AxisCalibration(c.zero_g_duty_y, c.sensitivity_y))
+
+
+def modbus_config_from(cfg: Config) -> ModbusServerConfig:
+    m = cfg.modbus
+    return ModbusServerConfig(
+        tcp_enabled=m.tcp_enabled, host=m.host, port=m.port, unit_id=m.unit_id, word_order=m.word_order,
+        writes_enabled=m.writes_enabled, write_allow=tuple(m.write_allow), rtu_enabled=m.rtu_enabled,
+        rtu_port=m.rtu_port, rtu_baudrate=m.rtu_baudrate, rtu_parity=m.rtu_parity,
+        rtu_writes_enabled=m.rtu_writes_enabled,
+    )
+
+
+def can_config_from(cfg: Config) -> CanPublisherConfig:
+    c = cfg.can
+    return CanPublisherConfig(
+        interface=c.interface, channel=c.channel,
+        bitrate=None if c.interface == "socketcan" else c.bitrate,
+        period_ms=float(c.period_ms),
+        sync_to_updates=c.sync_to_updates,
+        min_interval_ms=None if c.min_interval_ms < 0 else float(c.min_interval_ms),
+        commands_enabled=c.commands_enabled,
+    )
+
+
+def batch_frames_for(cfg: Config) -> int:
+    """How many SAMPLE frames wake the gateway: serial.batch_frames, but 1 when CAN
+    sends a frame pair per sample (mixed mode), which needs a wakeup per sample."""
+    return 1 if cfg.can.enabled and cfg.can.min_interval_ms >= 0 else cfg.serial.batch_frames
+
+
+def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
+    s = cfg.serial
+    return SerialSettings(port=port, baudrate=s.baudrate, reconnect_initial_s=s.reconnect_min_s,
+                          reconnect_max_s=s.reconnect_max_s,
+                          wake_min_bytes=batch_frames_for(cfg) * SAMPLE_FRAME_LENGTH)
+
+
+def estimator_settings_from(cfg: Config) -> EstimatorSettings:
+    """The estimator's settings from the sensor model, with the fitted drift model if one is configured."""
+    drift = None
+    if cfg.estimator.drift_model:
+        try:
+            drift = load_drift_model(cfg.estimator.drift_model)
+        except InputError as err:
+            raise ConfigError(f"{cfg.source}: estimator.drift_model: {err}") from err
+    return from_sensor_model(SensorParams(), drift_fit=drift, axis=cfg.calibration.axis)
