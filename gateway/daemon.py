@@ -40,7 +40,7 @@ from drivers.published_values import Command, PublishedValues
 from drivers.serial_source import SerialSource, reconnect_delays_s
 from gateway.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
-from gateway.daemon_settings import batch_frames_for, calibration_from, estimator_settings_from, serial_settings_from
+from gateway.daemon_settings import calibration_from, estimator_settings_from, serial_settings_from
 from gateway.emulated_board import EmulatedBoard
 from gateway.errors import ConfigError, DeviceError
 from gateway.sample_pipeline import SamplePipeline
@@ -107,6 +107,7 @@ class Gateway:
         self._started = False
         self._stopped = False
         self._serial_path: str | None = None
+        self._emulated_path: str | None = None
         self._tasks: list[asyncio.Task] = []
         self._board_task: asyncio.Task | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -336,16 +337,29 @@ class Gateway:
         await asyncio.to_thread(self.state_store.save, state)
 
     # ---------------------------------------------------------------- tasks --
-    async def _open_board(self) -> None:
+    async def _board_path(self) -> str:
+        """The configured board port; the emulated board (started once) when it says so."""
         port = self.cfg.serial.port
-        if port == "emulated" and self.emulated is None:
+        if port != "emulated":
+            return port
+        if self.emulated is None:
             self.emulated = EmulatedBoard()
-            self._serial_path = await self.emulated.start()
-        elif port != "emulated":
-            self._serial_path = port
-        self.source = SerialSource(serial_settings_from(self.cfg, self._serial_path))
-        delays = reconnect_delays_s(self.source.settings)
+            self._emulated_path = await self.emulated.start()
+        return self._emulated_path
+
+    async def _open_board(self) -> None:
+        """Open the board's port, retrying with back-off; each retry takes the config as
+        it is then (a reload that fixes serial.port while the port is missing is heard)."""
+        delays = None
         while True:
+            path = await self._board_path()
+            settings = serial_settings_from(self.cfg, path)
+            if self.source is None or self.source.settings != settings:
+                if self.source is not None:
+                    self.source.close()
+                self.source = SerialSource(settings)
+                self._serial_path = path
+                delays = reconnect_delays_s(settings)
             try:
                 await asyncio.to_thread(self.source.open)
                 log.info("board port %s open", self._serial_path)
@@ -437,18 +451,23 @@ class Gateway:
             log.error("reload refused, keeping the running config: %s", err)
             self.notifier.ready()
             return
-        old, self.cfg = self.cfg, new
+        old = self.cfg
+        try:
+            await self.wires.apply(old, new)
+        except DeviceError as err:
+            self.counters.config_reload_errors += 1
+            log.error("reload refused, keeping the running config: %s", err)
+            self.notifier.ready()
+            return
+        self.cfg = new
         self.counters.config_reloads += 1
         self._reloaded_at = self.clock()
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
-        if old.modbus.as_tuple() != new.modbus.as_tuple() or old.can.as_tuple() != new.can.as_tuple():
-            log.info("reload: restarting Modbus and CAN with the new settings")
-            await self.wires.stop()
-            await self.wires.start(self.cfg)
-        if (old.serial.as_tuple() != new.serial.as_tuple() or batch_frames_for(old) != batch_frames_for(new)) \
-                and self._board_task is not None and self.ready:
-            log.info("reload: reopening the board port")
-            self._reopen_board.set()
+        if old.serial.port != new.serial.port or serial_settings_from(old, "port") != serial_settings_from(new, "port"):
+            # while the port is still being opened, the opener takes the new settings itself
+            if self.ready:
+                log.info("reload: reopening the board port")
+                self._reopen_board.set()
         log.info("config reloaded from %s", new.source)
         self.notifier.ready()
