@@ -36,7 +36,7 @@ import can
 from drivers.can_publisher import BusFactory, CanPublisher
 from drivers.errors import SerialPortError
 from drivers.modbus_server import ModbusServer
-from drivers.published_values import Command, PublishedValues
+from drivers.published_values import Command, PublishedValues, StatusBits
 from drivers.serial_source import SerialSource, reconnect_delays_s
 from gateway.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
@@ -205,6 +205,10 @@ class Gateway:
     def on_command(self, command: Command, source: str) -> bool:
         self._drain(self.clock())  # act on the newest estimate
         if command == Command.TARE:
+            if self.fresh_values().status & (StatusBits.STALE | StatusBits.BOARD_LOST):
+                # the position is of a moment ago, and the axis may have moved since
+                log.warning("tare from %s declined: the board's data is stale", source)
+                return False
             if not self.pipeline.tare():
                 log.warning("tare from %s declined: no estimate yet", source)
                 return False

@@ -99,3 +99,27 @@ def test_fixing_the_board_port_by_reload_while_it_is_missing_opens_the_new_one(t
         run(scenario())
     finally:
         pty.close(remove_link=True)
+
+
+def test_a_tare_is_declined_while_the_board_data_is_stale(tmp_path):
+    """Issue 13: a tare while STALE would reference a position of a moment ago."""
+    from drivers.board_protocol import encode_hello, encode_sample
+    from drivers.published_values import Command, StatusBits
+
+    pty = PtyPort(tmp_path / "board")
+    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            gw.receive(encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0))
+            for seq in range(200):
+                gw.receive(encode_sample(seq, 921, 921, 1843))
+            assert StatusBits.STALE not in gw.fresh_values().status
+            assert gw.on_command(Command.TARE, "test")  # fresh data: taken
+            await wait_for(lambda: StatusBits.STALE in gw.fresh_values().status, 5, what="STALE")
+            assert not gw.on_command(Command.TARE, "test")
+
+    try:
+        run(scenario())
+    finally:
+        pty.close(remove_link=True)
