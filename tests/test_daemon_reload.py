@@ -3,6 +3,7 @@ port is still being opened (issue 16). In-process gateways on real ptys and sock
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 
 from pymodbus.client import AsyncModbusTcpClient
@@ -107,13 +108,16 @@ def test_a_tare_is_declined_while_the_board_data_is_stale(tmp_path):
     from drivers.published_values import Command, StatusBits
 
     pty = PtyPort(tmp_path / "board")
-    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
+    # stale after 1.5 s: room for a loaded machine between the samples and the first tare
+    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False},
+                         serial={"stale_after_ms": 1500, "lost_after_ms": 10000})
 
     async def scenario():
         async with running_gateway(cfg) as gw:
-            gw.receive(encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0))
-            for seq in range(200):
-                gw.receive(encode_sample(seq, 921, 921, 1843))
+            data = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
+            data += b"".join(encode_sample(seq, 921, 921, 1843) for seq in range(200))
+            os.write(pty.master_fd, data)  # the board talks, then falls silent
+            await wait_for(lambda: gw.pipeline.counters.samples == 200, 5, what="the samples")
             assert StatusBits.STALE not in gw.fresh_values().status
             assert gw.on_command(Command.TARE, "test")  # fresh data: taken
             await wait_for(lambda: StatusBits.STALE in gw.fresh_values().status, 5, what="STALE")
