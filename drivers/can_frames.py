@@ -3,7 +3,9 @@
 `FRAMES` is the single source. The publisher packs and unpacks with it,
 `dbc_text()` generates the DBC from it, and config/adxl-gateway.dbc is that text
 committed for users (a test fails if they differ). Nothing about the layout is written
-twice.
+twice. The identifiers are configurable (`can.base_id`, so that two gateways can share a
+bus): `frame_table(base_id)` is the same table moved to other identifiers, and every
+function here takes the table it works on (the default one unless told).
 
 Layout rules (details and rationale in docs/can-frames.md):
 - Classic CAN, 11-bit identifiers, DLC 8, all signals little-endian (Intel).
@@ -24,7 +26,7 @@ from __future__ import annotations
 import enum
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from .published_values import Command, PublishedValues, StatusBits
 
@@ -164,8 +166,49 @@ ACK_FRAME = FrameSpec(
 )
 # fmt: on
 
-FRAMES: tuple[FrameSpec, ...] = (POSITION_FRAME, VELOCITY_FRAME, COMMAND_FRAME, ACK_FRAME)
-CYCLIC_FRAMES: tuple[FrameSpec, ...] = tuple(f for f in FRAMES if f.cycle_time_ms is not None)
+DEFAULT_BASE_ID = POSITION_FRAME.frame_id
+# where each frame sits above the base identifier
+_OFFSETS = {"position": 0x00, "velocity": 0x01, "command": 0x10, "ack": 0x11}
+MAX_BASE_ID = 0x7FF - max(_OFFSETS.values())  # 11-bit identifiers
+
+
+@dataclass(frozen=True, slots=True)
+class FrameTable:
+    """The four frames on one gateway's identifiers."""
+
+    position: FrameSpec
+    velocity: FrameSpec
+    command: FrameSpec
+    ack: FrameSpec
+
+    @property
+    def frames(self) -> tuple[FrameSpec, ...]:
+        return (self.position, self.velocity, self.command, self.ack)
+
+    @property
+    def cyclic(self) -> tuple[FrameSpec, ...]:
+        return (self.position, self.velocity)
+
+    @property
+    def base_id(self) -> int:
+        return self.position.frame_id
+
+
+def frame_table(base_id: int = DEFAULT_BASE_ID) -> FrameTable:
+    """The frames at base_id (position), +1 (velocity), +0x10 (command), +0x11 (ack); the
+    E2E data ID of each follows its identifier, so a frame read under another gateway's
+    identifier fails its CRC."""
+    if not 0 <= base_id <= MAX_BASE_ID:
+        raise ValueError(f"CAN base identifier must be 0..0x{MAX_BASE_ID:03X}, got 0x{base_id:X}")
+    frames = {name: replace(spec, frame_id=base_id + _OFFSETS[name]) for name, spec in
+              (("position", POSITION_FRAME), ("velocity", VELOCITY_FRAME), ("command", COMMAND_FRAME),
+               ("ack", ACK_FRAME))}
+    return FrameTable(**frames)
+
+
+DEFAULT_FRAMES = frame_table()
+FRAMES: tuple[FrameSpec, ...] = DEFAULT_FRAMES.frames
+CYCLIC_FRAMES: tuple[FrameSpec, ...] = DEFAULT_FRAMES.cyclic
 
 
 # --------------------------------------------------------------------------- #
@@ -251,11 +294,14 @@ class CyclicEncoder:
     the status; NaN (missing) is the most negative raw value, "NotAvailable" in the DBC.
     """
 
-    def __init__(self) -> None:
-        pos = POSITION_FRAME.signal("Position")
-        status = POSITION_FRAME.signal("Status")
-        vel = VELOCITY_FRAME.signal("Velocity")
-        acc = VELOCITY_FRAME.signal("Acceleration")
+    def __init__(self, table: FrameTable = DEFAULT_FRAMES) -> None:
+        self.table = table
+        pos_frame, vel_frame = table.position, table.velocity
+        self._pos_id, self._vel_id = pos_frame.frame_id, vel_frame.frame_id
+        pos = pos_frame.signal("Position")
+        status = pos_frame.signal("Status")
+        vel = vel_frame.signal("Velocity")
+        acc = vel_frame.signal("Acceleration")
         # (factor, lowest raw, highest raw, start bit, mask) of each scaled signal
         self._pos = (pos.factor, *pos.raw_limits(), pos.start_bit, (1 << pos.length) - 1)
         self._vel = (vel.factor, *vel.raw_limits(), vel.start_bit, (1 << vel.length) - 1)
@@ -264,17 +310,17 @@ class CyclicEncoder:
         self._clamped = int(StatusBits.SCALED_CLAMPED)
         # the four status bits each cyclic frame repeats (byte 1, bits 4-7): status bit → frame bit
         self._flags = tuple(
-            (int(bit), POSITION_FRAME.signal(name).start_bit)
+            (int(bit), pos_frame.signal(name).start_bit)
             for name, bit in (("Valid", StatusBits.VALID), ("Standstill", StatusBits.STANDSTILL),
                               ("Stale", StatusBits.STALE), ("BoardLost", StatusBits.BOARD_LOST))
         )
-        assert all(VELOCITY_FRAME.signal(n).start_bit == POSITION_FRAME.signal(n).start_bit
+        assert all(vel_frame.signal(n).start_bit == pos_frame.signal(n).start_bit
                    for n in ("Valid", "Standstill", "Stale", "BoardLost"))
-        self._counter_shift = POSITION_FRAME.signal("Counter").start_bit
+        self._counter_shift = pos_frame.signal("Counter").start_bit
         # the CRC register after each frame's data ID (E2E profile 1: initial value 0)
         self._after_id = {
             frame.frame_id: crc8(bytes((frame.data_id & 0xFF, frame.data_id >> 8)), init=0, xor_out=0)
-            for frame in (POSITION_FRAME, VELOCITY_FRAME)
+            for frame in (pos_frame, vel_frame)
         }
 
     def _scaled(self, value: float, spec: tuple) -> tuple[int, bool]:
@@ -306,7 +352,7 @@ class CyclicEncoder:
         pos_word = (flags | (pos_counter << cs) | ((position & p[4]) << p[3])
                     | ((status & self._status_mask) << self._status_shift))
         vel_word = flags | (vel_counter << cs) | ((velocity & v[4]) << v[3]) | ((acceleration & a[4]) << a[3])
-        return (self._protect(POSITION_FRAME.frame_id, pos_word), self._protect(VELOCITY_FRAME.frame_id, vel_word))
+        return self._protect(self._pos_id, pos_word), self._protect(self._vel_id, vel_word)
 
     def _protect(self, frame_id: int, word: int) -> bytes:
         payload = bytearray(word.to_bytes(8, "little"))
@@ -329,20 +375,21 @@ class CommandCheck:
     counter: int
 
 
-def check_command(payload: bytes, last_counter: int | None) -> CommandCheck:
+def check_command(payload: bytes, last_counter: int | None, table: FrameTable = DEFAULT_FRAMES) -> CommandCheck:
     """E2E and content check of an ADXL_Command payload.
 
     `last_counter` is the counter of the previous valid command (None: none yet); a
     repeat of it is refused, any other value 0..14 is accepted (commands are rare, so
     a gap only means frames were lost or the sender restarted).
     """
-    if len(payload) != COMMAND_FRAME.dlc:
+    frame = table.command
+    if len(payload) != frame.dlc:
         code = payload[2] if len(payload) > 2 else 0
         counter = payload[1] & 0x0F if len(payload) > 1 else 0
         return CommandCheck(AckResult.BAD_LENGTH, None, code, counter)
-    raw = unpack(COMMAND_FRAME, payload)
+    raw = unpack(frame, payload)
     code, counter = raw["Cmd_Code"], raw["Cmd_Counter"]
-    if e2e_p01_crc(COMMAND_FRAME.data_id, payload) != raw["Cmd_CRC"]:
+    if e2e_p01_crc(frame.data_id, payload) != raw["Cmd_CRC"]:
         return CommandCheck(AckResult.CRC_ERROR, None, code, counter)
     if counter > COUNTER_MAX or counter == last_counter:
         return CommandCheck(AckResult.COUNTER_ERROR, None, code, counter)
@@ -353,19 +400,19 @@ def check_command(payload: bytes, last_counter: int | None) -> CommandCheck:
     return CommandCheck(None, command, code, counter)
 
 
-def encode_command(command: Command | int, counter: int) -> bytes:
+def encode_command(command: Command | int, counter: int, table: FrameTable = DEFAULT_FRAMES) -> bytes:
     """A protected ADXL_Command payload (for PLC-side tools and tests)."""
-    payload = pack(COMMAND_FRAME, {"Cmd_Code": int(command)})
-    e2e_p01_protect(COMMAND_FRAME, payload, counter)
+    payload = pack(table.command, {"Cmd_Code": int(command)})
+    e2e_p01_protect(table.command, payload, counter)
     return bytes(payload)
 
 
-def encode_ack(check: CommandCheck, result: AckResult, counter: int) -> bytes:
+def encode_ack(check: CommandCheck, result: AckResult, counter: int, table: FrameTable = DEFAULT_FRAMES) -> bytes:
     payload = pack(
-        ACK_FRAME,
+        table.ack,
         {"Ack_Code": check.code & 0xFF, "Ack_CommandCounter": check.counter & 0x0F, "Ack_Result": int(result)},
     )
-    e2e_p01_protect(ACK_FRAME, payload, counter)
+    e2e_p01_protect(table.ack, payload, counter)
     return bytes(payload)
 
 
@@ -405,8 +452,10 @@ def _num(value: float) -> str:
     return "0" if text in ("", "-0") else text
 
 
-def dbc_text() -> str:
-    """The DBC file describing every frame; config/adxl-gateway.dbc is this text."""
+def dbc_text(table: FrameTable = DEFAULT_FRAMES) -> str:
+    """The DBC file describing every frame on the table's identifiers;
+    config/adxl-gateway.dbc is this text for the default ones."""
+    frames = table.frames
     out = [
         'VERSION ""',
         "",
@@ -423,7 +472,7 @@ def dbc_text() -> str:
         f"BU_: {GATEWAY_NODE} {PLC_NODE}",
         "",
     ]
-    for frame in FRAMES:
+    for frame in frames:
         out.append("")
         out.append(f"BO_ {frame.frame_id} {frame.name}: {frame.dlc} {frame.sender}")
         for s in frame.signals:
@@ -441,16 +490,16 @@ def dbc_text() -> str:
     )
     out.append(f'CM_ BU_ {GATEWAY_NODE} "The adxl-gateway daemon.";')
     out.append(f'CM_ BU_ {PLC_NODE} "Controller consuming position, sending commands.";')
-    for frame in FRAMES:
+    for frame in frames:
         out.append(f'CM_ BO_ {frame.frame_id} "{frame.comment}";')
         for s in frame.signals:
             out.append(f'CM_ SG_ {frame.frame_id} {s.name} "{s.comment}";')
     out.append('BA_DEF_ BO_ "GenMsgCycleTime" INT 0 65535;')
     out.append('BA_DEF_DEF_ "GenMsgCycleTime" 0;')
-    for frame in FRAMES:
+    for frame in frames:
         if frame.cycle_time_ms is not None:
             out.append(f'BA_ "GenMsgCycleTime" BO_ {frame.frame_id} {frame.cycle_time_ms};')
-    for frame in FRAMES:
+    for frame in frames:
         for s in frame.signals:
             if s.choices:
                 pairs = " ".join(f'{raw} "{label}"' for raw, label in s.choices)

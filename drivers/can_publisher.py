@@ -49,14 +49,11 @@ from typing import Any
 import can
 
 from .can_frames import (
-    ACK_FRAME,
-    COMMAND_FRAME,
-    CYCLIC_FRAMES,
-    POSITION_FRAME,
-    VELOCITY_FRAME,
+    DEFAULT_FRAMES,
     AckResult,
     CommandCheck,
     CyclicEncoder,
+    FrameTable,
     check_command,
     encode_ack,
     next_counter,
@@ -93,6 +90,8 @@ class CanPublisherConfig:
     min_interval_ms: float | None = None
     #: Commands over CAN are refused (acknowledged as DISABLED) unless enabled.
     commands_enabled: bool = False
+    #: The frames' identifiers (can_frames.frame_table(base_id)): several gateways on one bus.
+    frames: FrameTable = DEFAULT_FRAMES
     #: Further keyword arguments for can.Bus (bitrate, fd, …).
     bus_options: Mapping[str, Any] = field(default_factory=dict)
     #: At most one log line per this interval about failing sends.
@@ -142,12 +141,13 @@ class CanPublisher:
         self._on_command = on_command
         self._bus_factory = bus_factory
         self._values: ValuesSource = NOTHING_PUBLISHED
-        self._encoder = CyclicEncoder()
+        self.frames = config.frames
+        self._encoder = CyclicEncoder(config.frames)
         # plain ints counted per frame; the frozen snapshot is made when asked for
         self._counts = {f.name: 0 for f in dataclasses.fields(CanCounters)}
         self._counters: CanCounters | None = CanCounters()
-        self._alive = {frame.frame_id: 0 for frame in CYCLIC_FRAMES}
-        self._alive[ACK_FRAME.frame_id] = 0
+        self._alive = {frame.frame_id: 0 for frame in config.frames.cyclic}
+        self._alive[config.frames.ack.frame_id] = 0
         self._last_command_counter: int | None = None
         self._bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
@@ -232,7 +232,7 @@ class CanPublisher:
                 interface=cfg.interface,
                 channel=cfg.channel,
                 receive_own_messages=False,
-                can_filters=[{"can_id": COMMAND_FRAME.frame_id, "can_mask": 0x7FF, "extended": False}],
+                can_filters=[{"can_id": self.frames.command.frame_id, "can_mask": 0x7FF, "extended": False}],
                 **({} if cfg.bitrate is None else {"bitrate": cfg.bitrate}),
                 **cfg.bus_options,
             )
@@ -305,7 +305,7 @@ class CanPublisher:
 
     def _send_cycle(self, now: float) -> None:
         alive = self._alive
-        pos_id, vel_id = POSITION_FRAME.frame_id, VELOCITY_FRAME.frame_id
+        pos_id, vel_id = self.frames.position.frame_id, self.frames.velocity.frame_id
         self._in_cycle = True
         try:
             values = current(self._values)
@@ -351,17 +351,19 @@ class CanPublisher:
     def _on_message(self, message: can.Message) -> None:
         """Notifier listener; runs in the event loop thread."""
         if (
-            message.arbitration_id != COMMAND_FRAME.frame_id
+            message.arbitration_id != self.frames.command.frame_id
             or message.is_extended_id
             or message.is_remote_frame
             or message.is_error_frame
         ):
             return
-        check = check_command(bytes(message.data), self._last_command_counter)
+        frames = self.frames
+        check = check_command(bytes(message.data), self._last_command_counter, frames)
         if check.problem is None:
             self._last_command_counter = check.counter
         result = self._act(check)
-        self._send(ACK_FRAME.frame_id, encode_ack(check, result, self._alive[ACK_FRAME.frame_id]))
+        ack_id = frames.ack.frame_id
+        self._send(ack_id, encode_ack(check, result, self._alive[ack_id], frames))
 
     def _act(self, check: CommandCheck) -> AckResult:
         if check.problem is not None or check.command is None:

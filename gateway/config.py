@@ -119,6 +119,10 @@ SCHEMA: tuple[Key, ...] = (
         "Also send at once whenever new values arrive, at most this often (ms): more frames than one "
         "per period (0: one per sample, ~500/s per frame). -1: off.", _range(-1, 10_000)),
     Key("can", "commands_enabled", False, bool, "Accept the tare command frame."),
+    Key("can", "base_id", 0x120, int,
+        "11-bit identifier of the position frame; velocity is base_id + 1, the command base_id + 0x10, its "
+        "acknowledgement base_id + 0x11 (two gateways on one bus: base IDs at least 0x12 apart). "
+        "`adxlgw dbc --config FILE` writes the DBC for these identifiers.", _range(0, 0x7FF - 0x11)),
     # --- estimator ---------------------------------------------------------
     Key("estimator", "drift_model", "", str,
         "Zero-drift model of this sensor from 'adxlgw fit-drift --model-out' (JSON); empty: the "

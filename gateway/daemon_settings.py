@@ -4,6 +4,7 @@ when a config key seems to have no effect)."""
 from __future__ import annotations
 
 from drivers.board_protocol import SAMPLE_FRAME_LENGTH
+from drivers.can_frames import frame_table
 from drivers.can_publisher import CanPublisherConfig
 from drivers.modbus_server import ModbusServerConfig
 from drivers.serial_source import SerialSettings
@@ -40,6 +41,7 @@ def can_config_from(cfg: Config) -> CanPublisherConfig:
         sync_to_updates=c.sync_to_updates,
         min_interval_ms=None if c.min_interval_ms < 0 else float(c.min_interval_ms),
         commands_enabled=c.commands_enabled,
+        frames=frame_table(c.base_id),
     )
 
 

@@ -2,6 +2,8 @@
 client on TCP, and a python-can virtual bus decoded with cantools."""
 import asyncio
 import socket
+import subprocess
+import uuid
 
 import can
 import cantools
@@ -10,7 +12,7 @@ from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.can_frames import dbc_text
 from drivers.published_values import StatusBits
-from tests.daemon_helpers import Emulator, gateway_config, read_inputs, running_gateway, wait_for
+from tests.daemon_helpers import CLI, Emulator, gateway_config, read_inputs, running_gateway, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -265,3 +267,46 @@ def test_a_can_cycle_takes_the_samples_still_waiting_in_the_port(tmp_path):
         assert gw.can.counters.frames_sent > sent
 
     on_a_quiet_pty(tmp_path, body, can={"sync_to_updates": False})
+
+
+def test_two_gateways_on_one_can_bus_each_on_its_identifiers(tmp_path):
+    """Two daemons, one virtual CAN channel, can.base_id 0x120 and 0x200: each one's frames
+    decode with the DBC `adxlgw dbc --config` writes for it, no identifier clashes."""
+    from drivers.pty_port import PtyPort
+
+    channel = f"two-{uuid.uuid4().hex[:8]}"
+    ptys = [PtyPort(tmp_path / f"board{k}") for k in range(2)]
+    cfgs = [gateway_config(tmp_path / f"gw{k}", str(ptys[k].link), can={"channel": channel, "base_id": base})
+            for k, base in enumerate((0x120, 0x200))]
+    dbcs = []
+    for k, cfg in enumerate(cfgs):
+        path = tmp_path / f"gw{k}.toml"
+        path.write_text(f'[can]\ninterface = "virtual"\nchannel = "{channel}"\nbase_id = {cfg.can.base_id}\n'
+                        f'[state]\npath = "{tmp_path}/s{k}.json"\n[serial]\nport = "/dev/null"\n')
+        out = subprocess.run([*CLI, "dbc", "--config", str(path)], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        dbcs.append(cantools.database.load_string(out.stdout, database_format="dbc"))
+
+    async def scenario():
+        bus = can.Bus(interface="virtual", channel=channel)
+        try:
+            async with running_gateway(cfgs[0]), running_gateway(cfgs[1]):
+                ids = set()
+                for _ in range(200):
+                    msg = await asyncio.to_thread(bus.recv, 1.0)
+                    assert msg is not None
+                    ids.add(msg.arbitration_id)
+                    if {0x120, 0x121, 0x200, 0x201} <= ids:
+                        break
+                assert {0x120, 0x121, 0x200, 0x201} <= ids, ids
+                for db, base in zip(dbcs, (0x120, 0x200)):
+                    assert db.get_message_by_name("ADXL_Position").frame_id == base
+                    assert db.get_message_by_name("ADXL_Command").frame_id == base + 0x10
+        finally:
+            bus.shutdown()
+
+    try:
+        run(scenario())
+    finally:
+        for pty in ptys:
+            pty.close(remove_link=True)
