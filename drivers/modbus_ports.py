@@ -2,7 +2,9 @@
 
 pymodbus reports a failed listen or serial open as a bare "Could not start listen"
 (the cause only in its own warning), and lets a `termios.error` from pyserial escape as a
-traceback (a pty refuses parity E: `termios.error: (22, 'Invalid argument')`). These
+traceback (a pty refuses parity E: `termios.error: (22, 'Invalid argument')` — on the
+second attempt; the first one is accepted and the parity silently dropped, so the probe
+reads the settings back). These
 functions find the cause with the same system calls, so the server can say it and the
 daemon can decide: a port that is missing may appear later (retry); settings a port
 cannot take, or a TCP port in use, will not fix themselves (exit 3).
@@ -10,6 +12,7 @@ cannot take, or a TCP port in use, will not fix themselves (exit 3).
 from __future__ import annotations
 
 import errno
+import os
 import socket
 import termios
 from dataclasses import dataclass
@@ -43,11 +46,29 @@ def probe_rtu_port(port: str, baudrate: int, parity: str, bytesize: int, stopbit
     except ValueError as err:  # pyserial's own checks (e.g. a baud rate it cannot set)
         return RtuPortProblem(f"RTU port {port} cannot take {settings}: {err}", missing=False)
     except serial.SerialException as err:
-        missing = err.errno in _MISSING
-        why = err.strerror if err.errno is not None and err.strerror else str(err)
-        return RtuPortProblem(f"RTU port {port}: {why}", missing=missing)
-    handle.close()
+        if err.errno in _MISSING:
+            return RtuPortProblem(f"RTU port {port} missing ({os.strerror(err.errno)})", missing=True)
+        return RtuPortProblem(f"RTU port {port} cannot be opened: {err}", missing=False)
+    try:
+        kept = _parity_kept(handle, parity)
+    finally:
+        handle.close()
+    if not kept:
+        # a Linux pty drops PARENB silently the first time and refuses it (EINVAL) after
+        return RtuPortProblem(f"RTU port {port} cannot take {settings}: the port does not keep parity "
+                              f"{parity} (a pseudo-terminal cannot)", missing=False)
     return None
+
+
+def _parity_kept(handle: serial.SerialBase, parity: str) -> bool:
+    """Whether a tty's line settings read back with the parity asked for (True where
+    there is no tty to ask: a pyserial URL)."""
+    try:
+        cflag = termios.tcgetattr(handle.fileno())[2]
+    except (AttributeError, OSError, termios.error, serial.SerialException):
+        return True
+    wanted = {"N": 0, "E": termios.PARENB, "O": termios.PARENB | termios.PARODD}[parity]
+    return cflag & (termios.PARENB | termios.PARODD) == wanted
 
 
 def tcp_listen_problem(host: str, port: int) -> str:

@@ -120,16 +120,19 @@ _STATUS_ADDRESS = BY_NAME["STATUS"].address
 _ACCEPT_ERROR = "socket.accept() out of system resource"
 
 
-class _QuietUndecodable(logging.Filter):
-    """Drops pymodbus's own line per undecodable frame: the server counts those frames
-    (MODBUS_REJECTED_FRAMES) and logs them once per peer and interval instead."""
+class _PymodbusDuplicates(logging.Filter):
+    """Drops pymodbus's lines that this server says better: one per undecodable frame
+    (counted in MODBUS_REJECTED_FRAMES and logged once per peer and interval here), and
+    a failed listen (ModbusServerError names the cause)."""
+
+    DROPPED = ("Unable to decode frame", "Failed to start server")
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return not record.getMessage().startswith("Unable to decode frame")
+        return not record.getMessage().startswith(self.DROPPED)
 
 
 _PYMODBUS_LOG = logging.getLogger("pymodbus.logging")
-_QUIET_UNDECODABLE = _QuietUndecodable()
+_PYMODBUS_DUPLICATES = _PymodbusDuplicates()
 
 #: holding address -> command, from the map
 _COMMAND_AT: dict[int, Command] = {
@@ -332,7 +335,7 @@ class ModbusServer:
         if self._started:
             raise ModbusServerError("server already started")
         self._started = True
-        _PYMODBUS_LOG.addFilter(_QUIET_UNDECODABLE)  # one filter object: adding twice is a no-op
+        _PYMODBUS_LOG.addFilter(_PYMODBUS_DUPLICATES)  # one filter object: adding twice is a no-op
         self._device_context = self._device()
         cfg = self.config
         try:
@@ -423,7 +426,8 @@ class ModbusServer:
         self._rtu_down = True
         self._bump(rtu_open_failures=1)
         if self._rtu_task is None and self._started:
-            log.warning("%s; Modbus RTU down, retrying with back-off (status bit MODBUS_RTU_DOWN)", reason)
+            self.peer_log.note("Modbus RTU", "rtu open",
+                               f"{reason}; Modbus RTU down, retrying with back-off (status bit MODBUS_RTU_DOWN)")
             self._rtu_task = asyncio.get_running_loop().create_task(self._reopen_rtu(), name="modbus-rtu-reopen")
 
     async def _reopen_rtu(self) -> None:
@@ -442,7 +446,7 @@ class ModbusServer:
                     log.info("Modbus RTU serving on %s again", self.config.rtu_port)
                     return
                 self._bump(rtu_open_failures=1)
-                self.peer_log.note(self.config.rtu_port, "rtu open", f"{problem.reason}; retrying")
+                self.peer_log.note("Modbus RTU", "rtu open", f"{problem.reason}; still retrying")
         finally:
             self._rtu_task = None
 
