@@ -21,6 +21,8 @@ Encoding rules (the why is in docs/modbus-registers.md):
   is set in the same image.
 - Counters wrap modulo 2^n (PLC counter semantics); other unsigned values saturate at
   their maximum; an unknown sample age reads 0xFFFFFFFF.
+- Text (string32, the device name): 32 bytes of ASCII in 16 registers, two characters
+  per register, the first character in the high byte; padded with NUL bytes.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from dataclasses import dataclass
 from .published_values import PublishedValues, StatusBits
 
 #: Bump whenever a row is added, moved or changes meaning; the PLC can check it.
-MAP_VERSION = 1
+MAP_VERSION = 2
 
 PLC_INPUT_BASE = 30001
 PLC_HOLDING_BASE = 40001
@@ -53,10 +55,17 @@ class RegType(enum.StrEnum):
     UINT16 = "uint16"
     INT16 = "int16"
     BITFIELD = "bitfield"
+    STRING32 = "string32"
 
     @property
     def words(self) -> int:
+        if self is RegType.STRING32:
+            return STRING32_WORDS
         return 2 if self in (RegType.FLOAT32, RegType.INT32, RegType.UINT32) else 1
+
+
+#: Registers of a string32 value: 32 ASCII characters, two per register.
+STRING32_WORDS = 16
 
 
 class WordOrder(enum.StrEnum):
@@ -86,6 +95,14 @@ class ServerDiagnostics:
     clients_connected: int = 0
     command_counter: int = 0
     command_result: CommandResult = CommandResult.NONE
+    rejected_frames: int = 0
+    refused_connections: int = 0
+    closed_connections: int = 0
+    #: Identity: the gateway's version and its configured name (constant while it runs).
+    version_major: int = 0
+    version_minor: int = 0
+    version_patch: int = 0
+    device_name: str = ""
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +137,7 @@ _I = Table.INPUT
 _H = Table.HOLDING
 _F32, _I32, _U32 = RegType.FLOAT32, RegType.INT32, RegType.UINT32
 _U16, _I16, _BITS = RegType.UINT16, RegType.INT16, RegType.BITFIELD
+_STR = RegType.STRING32
 
 # fmt: off
 REGISTERS: tuple[Register, ...] = (
@@ -129,7 +147,7 @@ REGISTERS: tuple[Register, ...] = (
              "Status bits (StatusBits): 0 VALID, 1 STANDSTILL, 2 STALE, 3 BOARD_LOST, "
              "4 SATURATED, 5 NOT_REFERENCED, 6 ESTIMATOR_FAULT, 7 HOLDING, 8 AXIS_INVALID, "
              "9 CONFIG_RELOADED, 10 BOARD_RESET, 11 SAMPLES_LOST, 12 BIAS_ESTIMATING, "
-             "13 SCALED_CLAMPED.", "status"),
+             "13 SCALED_CLAMPED, 15 MODBUS_RTU_DOWN.", "status"),
     Register("HEARTBEAT", _I, 2, _U16, "count", 1,
              "Incremented by the daemon every publish cycle; stops when the daemon hangs.",
              "heartbeat", wraps=True),
@@ -186,6 +204,26 @@ REGISTERS: tuple[Register, ...] = (
              "server.rejected_writes", wraps=True),
     Register("MODBUS_CLIENTS", _I, 40, _U16, "count", 1,
              "Modbus TCP clients connected now.", "server.clients_connected"),
+    Register("VERSION_MAJOR", _I, 41, _U16, "", 1,
+             "Gateway software version, major part (also in device identification, FC 43/14).",
+             "server.version_major"),
+    Register("VERSION_MINOR", _I, 42, _U16, "", 1,
+             "Gateway software version, minor part.", "server.version_minor"),
+    Register("VERSION_PATCH", _I, 43, _U16, "", 1,
+             "Gateway software version, patch part.", "server.version_patch"),
+    Register("MODBUS_REJECTED_FRAMES", _I, 44, _U32, "count", 1,
+             "Modbus frames not executed because they were malformed (bad MBAP header: the "
+             "connection is closed; undecodable request: answered with an exception).",
+             "server.rejected_frames", wraps=True),
+    Register("MODBUS_REFUSED_CONNECTIONS", _I, 46, _U32, "count", 1,
+             "Modbus TCP connections refused at once because max_connections was reached.",
+             "server.refused_connections", wraps=True),
+    Register("MODBUS_CLOSED_CONNECTIONS", _I, 48, _U32, "count", 1,
+             "Modbus TCP connections the server closed: idle timeout, a malformed frame, or "
+             "making room for a priority client.", "server.closed_connections", wraps=True),
+    Register("DEVICE_NAME", _I, 50, _STR, "", 1,
+             "[modbus] device_name: ASCII, two characters per register (first in the high "
+             "byte), NUL-padded; all zero when not configured.", "server.device_name"),
     Register("CMD_TARE", _H, 0, _U16, "", 1,
              "Write 1: position := 0 here (tare). Reads 0 (auto-clear). Writing 0 does nothing.",
              "command.TARE"),
@@ -258,6 +296,11 @@ def regmap_markdown() -> str:
 # --------------------------------------------------------------------------- #
 # Encoding
 # --------------------------------------------------------------------------- #
+def _string_words(text: str) -> list[int]:
+    data = text.encode("ascii", "replace")[: 2 * STRING32_WORDS].ljust(2 * STRING32_WORDS, b"\0")
+    return list(struct.unpack(f">{STRING32_WORDS}H", data))
+
+
 def _words_of_32(raw32: int, word_order: WordOrder) -> list[int]:
     high, low = (raw32 >> 16) & 0xFFFF, raw32 & 0xFFFF
     return [high, low] if word_order is WordOrder.ABCD else [low, high]
@@ -331,6 +374,8 @@ def encode_register(register: Register, value: object, word_order: WordOrder) ->
         return _words_of_32(_unsigned(value, register), word_order), False
     if kind is RegType.BITFIELD:
         return [int(value) & 0xFFFF], False  # type: ignore[call-overload]
+    if kind is RegType.STRING32:
+        return _string_words(str(value)), False
     return [_unsigned(value, register)], False
 
 
@@ -366,12 +411,15 @@ def encode_input_registers(
     return words
 
 
-def decode_register(register: Register, words: Sequence[int], word_order: WordOrder) -> float | int:
-    """Raw value of one register from its words (floats as float, integers signed/unsigned).
+def decode_register(register: Register, words: Sequence[int], word_order: WordOrder) -> float | int | str:
+    """Raw value of one register from its words (floats as float, integers signed/unsigned,
+    text as str without its NUL padding).
 
     Multiply by `register.scale` for the value in its unit. Sentinels are returned as
     they are (−2147483648, −32768, NaN); the caller interprets them.
     """
+    if register.type is RegType.STRING32:
+        return struct.pack(f">{STRING32_WORDS}H", *words[:STRING32_WORDS]).rstrip(b"\0").decode("ascii", "replace")
     if register.words == 2:
         first, second = words[0], words[1]
         high, low = (first, second) if word_order is WordOrder.ABCD else (second, first)

@@ -14,13 +14,30 @@ subclass: pymodbus gives the datastore no client address, but each TCP connectio
 its own handler whose transport knows the peer (pymodbus issue #2159 has the same
 question; no public hook exists in 3.x).
 
+Connections (TCP), so a PLC is never locked out and a bad peer costs bounded resources
+(policy in drivers/modbus_admission.py): at most `max_connections`, priority clients
+(write_allow and priority_clients) always get in, idle connections are closed after
+`idle_timeout_s`. The MBAP header of every frame is checked here before pymodbus sees it:
+a protocol id other than 0 or a length outside 2..254 cannot be resynchronised on a byte
+stream, so the connection is closed at once (counted in MODBUS_REJECTED_FRAMES) instead
+of waiting deaf for bytes that never complete the frame. Requests are answered in the
+order they arrived, however many come in one segment: past MAX_QUEUED_REQUESTS waiting,
+the server stops reading that connection until it has caught up (and stops reading a
+client that does not read its answers), so memory stays bounded and nothing is dropped.
+What peers do wrong is logged at most once per peer and interval (drivers/peer_log.py).
+
+Device identification (function 43 / MEI 14, read codes 1–4) is answered from this
+server's `DeviceIdentity` (drivers/modbus_identity.py).
+
 Exception codes this server answers with:
-- 01 ILLEGAL FUNCTION: function code not supported here (only 3, 4, 6, 16, 23 are), or
+- 01 ILLEGAL FUNCTION: function code not supported here (only 3, 4, 6, 16, 23, 43/14 are), or
   a write refused by policy (writes disabled, client address not allowed, RTU writes
   not allowed). pymodbus also answers 01 to requests it cannot decode.
-- 02 ILLEGAL DATA ADDRESS: any register outside the map (from pymodbus's datastore).
-- 03 ILLEGAL DATA VALUE: a command register written with anything but 0 or 1, or a
-  count/byte-count that does not fit (pymodbus).
+- 02 ILLEGAL DATA ADDRESS: any register outside the map (from pymodbus's datastore), or a
+  device identification object that does not exist (read code 4).
+- 03 ILLEGAL DATA VALUE: a command register written with anything but 0 or 1, a
+  count/byte-count that does not fit (pymodbus), or a device identification read code
+  other than 1–4.
 - 04 SERVER DEVICE FAILURE: the command reached the daemon and was declined or failed
   (LAST_COMMAND_RESULT tells which).
 """
@@ -28,10 +45,13 @@ Exception codes this server answers with:
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextvars
 import dataclasses
-import ipaddress
 import logging
+import math
+import struct
+import termios
 import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -40,15 +60,20 @@ from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import ModbusIOException
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ExceptionResponse, ModbusPDU
+from pymodbus.pdu.mei_message import ReadDeviceInformationRequest, ReadDeviceInformationResponse
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.transaction import TransactionManager
 
+from .modbus_admission import Connection, Network, address_in, admit, idle, parse_networks
+from .modbus_identity import CONFORMITY_LEVEL, DeviceIdentity, check_device_name, device_information, version_numbers
 from .modbus_map import (
+    BY_NAME,
     HOLDING_REGISTERS,
     HOLDING_SIZE,
     INPUT_SIZE,
+    MAP_VERSION,
     SERVER_ROWS,
     CommandResult,
     ServerDiagnostics,
@@ -56,11 +81,13 @@ from .modbus_map import (
     encode_input_registers,
     encode_rows,
 )
+from .modbus_ports import RtuPortProblem, probe_rtu_port, tcp_listen_problem
+from .peer_log import PeerLogLimiter
 from .published_values import (
     NOTHING_PUBLISHED,
     Command,
     CommandCallback,
-    PublishedValues,
+    StatusBits,
     ValuesSource,
     current,
 )
@@ -72,8 +99,40 @@ READ_INPUT = 4
 WRITE_SINGLE = 6
 WRITE_MULTIPLE = 16
 READ_WRITE_MULTIPLE = 23
-SUPPORTED_FUNCTIONS = frozenset({READ_HOLDING, READ_INPUT, WRITE_SINGLE, WRITE_MULTIPLE, READ_WRITE_MULTIPLE})
+ENCAPSULATED_INTERFACE = 43  # with MEI type 14: read device identification
+SUPPORTED_FUNCTIONS = frozenset(
+    {READ_HOLDING, READ_INPUT, WRITE_SINGLE, WRITE_MULTIPLE, READ_WRITE_MULTIPLE, ENCAPSULATED_INTERFACE}
+)
 WRITE_FUNCTIONS = frozenset({WRITE_SINGLE, WRITE_MULTIPLE, READ_WRITE_MULTIPLE})
+
+#: MBAP header: transaction id, protocol id, length (2 bytes each), unit id.
+MBAP_HEADER_BYTES = 7
+#: The MBAP length counts the unit id and the PDU; a PDU is 1..253 bytes.
+MBAP_LENGTH_MIN, MBAP_LENGTH_MAX = 2, 254
+#: Requests of one connection waiting for their answer; beyond, the server stops reading
+#: that connection until it caught up (TCP flow control pushes back on the client).
+MAX_QUEUED_REQUESTS = 32
+#: How often idle connections are looked for and held-back peer log counts written.
+SWEEP_INTERVAL_S = 1.0
+#: Reopening a missing RTU port: first wait, longest wait (doubling), like the board port.
+RTU_RETRY_MIN_S, RTU_RETRY_MAX_S = 0.2, 5.0
+_STATUS_ADDRESS = BY_NAME["STATUS"].address
+_ACCEPT_ERROR = "socket.accept() out of system resource"
+
+
+class _PymodbusDuplicates(logging.Filter):
+    """Drops pymodbus's lines that this server says better: one per undecodable frame
+    (counted in MODBUS_REJECTED_FRAMES and logged once per peer and interval here), and
+    a failed listen (ModbusServerError names the cause)."""
+
+    DROPPED = ("Unable to decode frame", "Failed to start server")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(self.DROPPED)
+
+
+_PYMODBUS_LOG = logging.getLogger("pymodbus.logging")
+_PYMODBUS_DUPLICATES = _PymodbusDuplicates()
 
 #: holding address -> command, from the map
 _COMMAND_AT: dict[int, Command] = {
@@ -86,7 +145,7 @@ _REQUEST_SOURCE: contextvars.ContextVar[str] = contextvars.ContextVar("modbus_re
 
 
 class ModbusServerError(Exception):
-    """The Modbus server could not start (port in use, serial port missing, bad config).
+    """The Modbus server could not start (port in use, serial port settings refused, bad config).
 
     Local to this module until the lead reconciles it with drivers/errors.py.
     """
@@ -109,6 +168,7 @@ class ModbusServerConfig:
     writes_enabled: bool = False
     #: TCP clients allowed to write when writes are enabled: addresses or networks
     #: ("192.168.10.5", "10.0.0.0/24"). Empty = nobody; "0.0.0.0/0" = every IPv4 client.
+    #: They are priority clients too (see max_connections).
     write_allow: tuple[str, ...] = ("127.0.0.1",)
     rtu_enabled: bool = False
     #: Serial device (or pyserial URL) of the RTU server.
@@ -121,6 +181,17 @@ class ModbusServerConfig:
     #: RTU has no client address: whether the RS-485 master may write (also needs
     #: writes_enabled).
     rtu_writes_enabled: bool = False
+    #: TCP connections served at once. At the limit a priority client still gets in
+    #: (the connection idle longest is closed for it); anyone else is refused.
+    max_connections: int = 64
+    #: Addresses or networks that always get in, besides those in write_allow.
+    priority_clients: tuple[str, ...] = ()
+    #: A TCP connection without a complete request for this long is closed; 0 = never.
+    idle_timeout_s: float = 60.0
+    #: What a peer does wrong is logged at most once per peer and interval, with a count.
+    peer_log_interval_s: float = 10.0
+    #: Served in device identification (object 6) and the DEVICE_NAME registers.
+    device_name: str = ""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -135,14 +206,31 @@ class ModbusServerConfig:
             object.__setattr__(self, "word_order", WordOrder(self.word_order))
         except ValueError as err:
             raise ModbusServerError(f"word_order {self.word_order!r} is not ABCD or CDAB") from err
+        if not 1 <= self.max_connections <= 10_000:
+            raise ModbusServerError(f"max_connections {self.max_connections} outside 1..10000")
+        if not (math.isfinite(self.idle_timeout_s) and self.idle_timeout_s >= 0):
+            raise ModbusServerError(f"idle_timeout_s {self.idle_timeout_s} must be a finite number ≥ 0")
+        if not (math.isfinite(self.peer_log_interval_s) and self.peer_log_interval_s > 0):
+            raise ModbusServerError(f"peer_log_interval_s {self.peer_log_interval_s} must be > 0")
+        complaint = check_device_name(self.device_name)
+        if complaint:
+            raise ModbusServerError(f"device_name {self.device_name!r:.60}: {complaint}")
         object.__setattr__(self, "write_allow", tuple(self.write_allow))
+        object.__setattr__(self, "priority_clients", tuple(self.priority_clients))
         self.allowed_networks()  # validates
+        self.priority_networks()
 
-    def allowed_networks(self) -> tuple[ipaddress.IPv4Network | ipaddress.IPv6Network, ...]:
+    def allowed_networks(self) -> tuple[Network, ...]:
         try:
-            return tuple(ipaddress.ip_network(entry, strict=False) for entry in self.write_allow)
+            return parse_networks(self.write_allow)
         except ValueError as err:
             raise ModbusServerError(f"write_allow: {err}") from err
+
+    def priority_networks(self) -> tuple[Network, ...]:
+        try:
+            return self.allowed_networks() + parse_networks(self.priority_clients)
+        except ValueError as err:
+            raise ModbusServerError(f"priority_clients: {err}") from err
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +245,17 @@ class ModbusCounters:
     commands_done: int = 0
     commands_declined: int = 0
     commands_failed: int = 0
+    #: Frames not executed: a bad MBAP header (connection closed) or an undecodable request.
+    rejected_frames: int = 0
+    #: Connections refused at once because max_connections was reached.
+    refused_connections: int = 0
+    #: Connections the server closed: idle, a bad frame, room for a priority client.
+    closed_connections: int = 0
+    #: accept() failures (e.g. EMFILE: out of file descriptors), each logged at most once
+    #: per interval.
+    accept_errors: int = 0
+    #: Attempts to open the RTU port that failed (missing, lost).
+    rtu_open_failures: int = 0
 
 
 class ModbusServer:
@@ -178,14 +277,26 @@ class ModbusServer:
         # the board sent since its last wakeup (and calls update() if there were any)
         self._before_read = before_read
         self._networks = config.allowed_networks()
+        self._priority_networks = config.priority_networks()
+        self.identity = DeviceIdentity(device_name=config.device_name, map_version=MAP_VERSION)
+        self._version = version_numbers(self.identity.version)
         self._counters = ModbusCounters()
         self._command_counter = 0
         self._command_result = CommandResult.NONE
         self._image: list[int] = encode_input_registers(NOTHING_PUBLISHED, word_order=config.word_order)
         self._pending: ValuesSource | None = None
-        self._servers: list[_TcpServer | _SerialServer] = []
+        self._device_context: SimDevice | None = None
         self._tcp: _TcpServer | None = None
+        self._rtu: _SerialServer | None = None
+        self._rtu_task: asyncio.Task[None] | None = None
+        self._rtu_down = False
         self._handlers: set[_GatewayRequestHandler] = set()
+        #: admitted TCP connections, in admission order
+        self._connections: dict[int, _GatewayRequestHandler] = {}
+        self.peer_log = PeerLogLimiter(log, config.peer_log_interval_s)
+        self._sweeper: asyncio.TimerHandle | None = None
+        self._restore_exception_handler: Callable[[], None] | None = None
+        self._started = False
 
     # ---------------------------------------------------------------- API --
     def update(self, values: ValuesSource) -> None:
@@ -209,34 +320,39 @@ class ModbusServer:
         sockets = getattr(self._tcp.transport, "sockets", None) or ()
         return sockets[0].getsockname()[1] if sockets else None
 
+    @property
+    def rtu_serving(self) -> bool:
+        """True while the RTU port is open and served (False when RTU is off or down)."""
+        return self._rtu is not None and not self._rtu_down
+
     async def start(self) -> None:
-        if self._servers:
+        """Listen on TCP and open the RTU port.
+
+        Raises ModbusServerError with one line naming the cause when the TCP port cannot
+        be listened on or the RTU port cannot take its settings. A missing RTU port is no
+        error: the server starts without it, sets MODBUS_RTU_DOWN and keeps trying.
+        """
+        if self._started:
             raise ModbusServerError("server already started")
-        device = self._device()
+        self._started = True
+        _PYMODBUS_LOG.addFilter(_PYMODBUS_DUPLICATES)  # one filter object: adding twice is a no-op
+        self._device_context = self._device()
         cfg = self.config
         try:
             if cfg.tcp_enabled:
-                self._tcp = _TcpServer(self, context=device, address=(cfg.host, cfg.port))
-                self._servers.append(self._tcp)
-                await self._tcp.serve_forever(background=True)
+                await self._start_tcp()
             if cfg.rtu_enabled:
-                rtu = _SerialServer(
-                    self,
-                    context=device,
-                    framer=FramerType.RTU,
-                    port=cfg.rtu_port,
-                    baudrate=cfg.rtu_baudrate,
-                    parity=cfg.rtu_parity,
-                    bytesize=cfg.rtu_bytesize,
-                    stopbits=cfg.rtu_stopbits,
-                )
-                self._servers.append(rtu)
-                await rtu.serve_forever(background=True)
-        except (RuntimeError, OSError) as err:
-            # pymodbus reports a failed listen/open as RuntimeError after logging the
-            # OSError; close whatever did start.
+                problem = await asyncio.to_thread(self._probe_rtu)
+                if problem is not None and not problem.missing:
+                    raise ModbusServerError(problem.reason)
+                if problem is None:
+                    problem = await self._start_rtu()
+                if problem is not None:
+                    self._rtu_gone(problem.reason)
+        except ModbusServerError:
             await self.stop()
-            raise ModbusServerError(f"cannot start Modbus server: {err}") from err
+            raise
+        self._arm_sweep()
         log.info(
             "Modbus server started (tcp port %s, rtu %s)",
             self.tcp_port,
@@ -244,13 +360,159 @@ class ModbusServer:
         )
 
     async def stop(self) -> None:
-        servers, self._servers = self._servers, []
+        self._started = False
+        if self._sweeper is not None:
+            self._sweeper.cancel()
+            self._sweeper = None
+        task, self._rtu_task = self._rtu_task, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+        servers = [s for s in (self._tcp, self._rtu) if s is not None]
+        self._tcp = self._rtu = None
         for server in servers:
             await server.shutdown()
         for handler in list(self._handlers):
             handler.cancel_pending()
         self._handlers.clear()
-        self._tcp = None
+        self._connections.clear()
+        if self._restore_exception_handler is not None:
+            self._restore_exception_handler()
+            self._restore_exception_handler = None
+        self.peer_log.flush()
+
+    # ------------------------------------------------------- start helpers --
+    async def _start_tcp(self) -> None:
+        cfg = self.config
+        self._tcp = _TcpServer(self, context=self._device_context, address=(cfg.host, cfg.port))
+        try:
+            await self._tcp.serve_forever(background=True)
+        except (RuntimeError, OSError) as err:
+            # pymodbus says only "Could not start listen" (the cause in its own warning):
+            # find the cause with a bind of our own
+            self._tcp = None
+            reason = await asyncio.to_thread(tcp_listen_problem, cfg.host, cfg.port)
+            raise ModbusServerError(reason) from err
+        self._install_accept_error_handler()
+
+    def _probe_rtu(self) -> RtuPortProblem | None:
+        cfg = self.config
+        return probe_rtu_port(cfg.rtu_port, cfg.rtu_baudrate, cfg.rtu_parity, cfg.rtu_bytesize, cfg.rtu_stopbits)
+
+    async def _start_rtu(self) -> RtuPortProblem | None:
+        """Open the RTU port; a problem (it vanished since the probe) or None."""
+        cfg = self.config
+        rtu = _SerialServer(
+            self,
+            context=self._device_context,
+            framer=FramerType.RTU,
+            port=cfg.rtu_port,
+            baudrate=cfg.rtu_baudrate,
+            parity=cfg.rtu_parity,
+            bytesize=cfg.rtu_bytesize,
+            stopbits=cfg.rtu_stopbits,
+        )
+        try:
+            await rtu.serve_forever(background=True)
+        except (RuntimeError, OSError, termios.error) as err:  # it changed since the probe
+            await rtu.shutdown()
+            return RtuPortProblem(f"RTU port {cfg.rtu_port}: {err}", missing=True)
+        self._rtu = rtu
+        self._rtu_down = False
+        return None
+
+    def _rtu_gone(self, reason: str) -> None:
+        """The RTU port is missing or was lost: flag it and reopen it with back-off."""
+        self._rtu_down = True
+        self._bump(rtu_open_failures=1)
+        if self._rtu_task is None and self._started:
+            self.peer_log.note("Modbus RTU", "rtu open",
+                               f"{reason}; Modbus RTU down, retrying with back-off (status bit MODBUS_RTU_DOWN)")
+            self._rtu_task = asyncio.get_running_loop().create_task(self._reopen_rtu(), name="modbus-rtu-reopen")
+
+    async def _reopen_rtu(self) -> None:
+        delay = RTU_RETRY_MIN_S
+        try:
+            if self._rtu is not None:  # lost while serving: close what is left of it
+                rtu, self._rtu = self._rtu, None
+                await rtu.shutdown()
+            while True:
+                await asyncio.sleep(delay)
+                delay = min(2 * delay, RTU_RETRY_MAX_S)
+                problem = await asyncio.to_thread(self._probe_rtu)
+                if problem is None:
+                    problem = await self._start_rtu()
+                if problem is None:
+                    log.info("Modbus RTU serving on %s again", self.config.rtu_port)
+                    return
+                self._bump(rtu_open_failures=1)
+                self.peer_log.note("Modbus RTU", "rtu open", f"{problem.reason}; still retrying")
+        finally:
+            self._rtu_task = None
+
+    def _install_accept_error_handler(self) -> None:
+        """accept() failing for lack of file descriptors (EMFILE) makes asyncio log a
+        traceback per attempt; here it is counted and logged once per interval.
+        asyncio itself pauses accepting for a second each time."""
+        loop = asyncio.get_running_loop()
+        previous = loop.get_exception_handler()
+        tcp = self._tcp
+        listening = {sock.fileno() for sock in (getattr(tcp.transport, "sockets", None) or ())}
+
+        def handler(loop: asyncio.AbstractEventLoop, context: dict) -> None:
+            sock = context.get("socket")
+            if context.get("message") == _ACCEPT_ERROR and sock is not None and sock.fileno() in listening:
+                self._bump(accept_errors=1)
+                self.peer_log.note("Modbus TCP listener", "accept error",
+                                   f"cannot accept connections: {context.get('exception')}")
+                return
+            if previous is not None:
+                previous(loop, context)
+            else:
+                loop.default_exception_handler(context)
+
+        def restore() -> None:
+            if loop.get_exception_handler() is handler:
+                loop.set_exception_handler(previous)
+
+        loop.set_exception_handler(handler)
+        self._restore_exception_handler = restore
+
+    # ---------------------------------------------------------- connections --
+    def _admit(self, handler: _GatewayRequestHandler) -> bool:
+        """Whether a new TCP connection may stay (closing another for it if need be)."""
+        handler.priority = address_in(handler.peer_ip, self._priority_networks)
+        others = [h.connection() for h in self._connections.values()]
+        decision = admit(handler.priority, others, self.config.max_connections)
+        if not decision.admitted:
+            self._bump(refused_connections=1)
+            self.peer_log.note(handler.peer_ip or "?", "refused",
+                               f"Modbus connection refused: {self.config.max_connections} open (max_connections)")
+            return False
+        if decision.evict is not None:
+            victim = self._connections.get(decision.evict)
+            if victim is not None:
+                self.peer_log.note(victim.peer_ip or "?", "evicted",
+                                   f"Modbus connection {victim.source} closed to make room for priority "
+                                   f"client {handler.peer_ip}")
+                victim.close_connection(abort=True)
+        self._connections[id(handler)] = handler
+        return True
+
+    def _arm_sweep(self) -> None:
+        timeout = self.config.idle_timeout_s
+        interval = min(SWEEP_INTERVAL_S, timeout / 4) if timeout > 0 else SWEEP_INTERVAL_S
+        self._sweeper = asyncio.get_running_loop().call_later(interval, self._sweep)
+
+    def _sweep(self) -> None:
+        now = asyncio.get_running_loop().time()
+        for key in idle([h.connection() for h in self._connections.values()], now, self.config.idle_timeout_s):
+            handler = self._connections.get(key)
+            if handler is not None:
+                log.debug("Modbus connection %s idle for %.0f s: closing", handler.source, self.config.idle_timeout_s)
+                handler.close_connection(abort=False)
+        self.peer_log.flush()
+        self._arm_sweep()
 
     # ------------------------------------------------------------ internals --
     def _device(self) -> SimDevice:
@@ -269,6 +531,7 @@ class ModbusServer:
 
     def _diagnostics(self) -> ServerDiagnostics:
         c = self._counters
+        major, minor, patch = self._version
         return ServerDiagnostics(
             requests=c.requests,
             exceptions=c.exceptions,
@@ -276,6 +539,13 @@ class ModbusServer:
             clients_connected=c.clients_connected,
             command_counter=self._command_counter,
             command_result=self._command_result,
+            rejected_frames=c.rejected_frames,
+            refused_connections=c.refused_connections,
+            closed_connections=c.closed_connections,
+            version_major=major,
+            version_minor=minor,
+            version_patch=patch,
+            device_name=self.config.device_name,
         )
 
     def _bump(self, **deltas: int) -> None:
@@ -291,20 +561,21 @@ class ModbusServer:
         if function_code not in WRITE_FUNCTIONS:
             return None
         if self.config.writes_enabled and (
-            self.config.rtu_writes_enabled if handler.is_rtu else self._ip_allowed(handler.peer_ip)
+            self.config.rtu_writes_enabled if handler.is_rtu else address_in(handler.peer_ip, self._networks)
         ):
             return None
         self._bump(rejected_writes=1)
-        log.warning("Modbus write refused from %s", handler.source)
+        self.peer_log.note(handler.peer_ip or handler.source, "refused write",
+                           f"Modbus write refused from {handler.source}")
         return ExcCodes.ILLEGAL_FUNCTION
 
-    def _ip_allowed(self, peer_ip: str | None) -> bool:
-        if peer_ip is None:
-            return False
-        address = ipaddress.ip_address(peer_ip.split("%", 1)[0])
-        if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped is not None:
-            address = address.ipv4_mapped
-        return any(address in network for network in self._networks)
+    def _identification(self, pdu: ReadDeviceInformationRequest) -> ModbusPDU:
+        objects = device_information(self.identity, pdu.read_code, pdu.object_id)
+        if isinstance(objects, ExcCodes):
+            return ExceptionResponse(pdu.function_code, objects)
+        response = ReadDeviceInformationResponse(read_code=pdu.read_code, information=objects)
+        response.conformity = CONFORMITY_LEVEL
+        return response
 
     async def _on_register_access(
         self,
@@ -333,6 +604,8 @@ class ModbusServer:
             encode_rows(
                 SERVER_ROWS, current_registers, NOTHING_PUBLISHED, self._diagnostics(), self.config.word_order
             )
+            if self._rtu_down:
+                current_registers[_STATUS_ADDRESS] |= int(StatusBits.MODBUS_RTU_DOWN)
             return None
         if set_values is None:
             return None  # holding read: command registers rest at 0
@@ -379,8 +652,18 @@ def _clear_registers(registers: list[int]) -> None:
     registers[0:HOLDING_SIZE] = [0] * HOLDING_SIZE
 
 
+@dataclass(frozen=True, slots=True)
+class _Undecodable:
+    frame: bytes
+    error: ModbusIOException
+
+
 class _GatewayRequestHandler(ServerRequestHandler):
-    """One per TCP connection (one for the serial line): admission and accounting."""
+    """One per TCP connection (one for the serial line): framing, admission, order.
+
+    Requests go into one queue per connection and one worker answers them in order
+    (a write pipelined before a read is seen by that read).
+    """
 
     server: _TcpServer | _SerialServer
 
@@ -389,10 +672,20 @@ class _GatewayRequestHandler(ServerRequestHandler):
         self.gateway = owner.gateway
         self.is_rtu = owner.is_rtu
         self.peer_ip: str | None = None
+        self.priority = False
         self.source = "modbus-rtu" if self.is_rtu else "modbus-tcp"
-        self._counted_client = False
-        self._tasks: set[asyncio.Task[None]] = set()
+        self._admitted = False
+        self._closing = False
+        self._last_request_s = self.loop.time()
+        self._buffer = bytearray()
+        self._queue: collections.deque[ModbusPDU | _Undecodable] = collections.deque()
+        self._worker: asyncio.Task[None] | None = None
+        self._pause_reasons: set[str] = set()
         self.gateway._handlers.add(self)
+
+    # ------------------------------------------------------ connection life --
+    def connection(self) -> Connection:
+        return Connection(key=id(self), priority=self.priority, last_request_s=self._last_request_s)
 
     def callback_connected(self) -> None:
         super().callback_connected()
@@ -403,23 +696,118 @@ class _GatewayRequestHandler(ServerRequestHandler):
         if peer:
             self.peer_ip = str(peer[0])
             self.source = f"modbus-tcp:{peer[0]}:{peer[1]}"
-        self._counted_client = True
+        if not self.gateway._admit(self):
+            self._closing = True
+            self.transport.abort()  # RST at once: the file descriptor is free again now
+            return
+        self._admitted = True
         self.gateway._bump(clients_connected=1, connections_total=1)
 
     def callback_disconnected(self, exc: Exception | None) -> None:
         super().callback_disconnected(exc)
-        if self._counted_client:
-            self._counted_client = False
+        if self._admitted:
+            self._admitted = False
             self.gateway._bump(clients_connected=-1)
+            self.gateway._connections.pop(id(self), None)
+        self.cancel_pending()
         self.gateway._handlers.discard(self)
+        if self.is_rtu and exc is not None:  # the serial port went away under us
+            self.gateway._rtu_gone(f"RTU port {self.gateway.config.rtu_port} lost: {exc}")
+
+    def close_connection(self, abort: bool) -> None:
+        """Close this TCP connection: `abort` resets it at once (a bad peer), else the
+        answers already written go out first (idle timeout)."""
+        if self._closing or self.transport is None:
+            return
+        self._closing = True
+        self.gateway._bump(closed_connections=1)
+        # no longer counts against max_connections, though its disconnect comes later
+        self.gateway._connections.pop(id(self), None)
+        if abort:
+            self.transport.abort()
+        else:
+            self.transport.close()
+
+    def cancel_pending(self) -> None:
+        self._queue.clear()
+        if self._worker is not None:
+            self._worker.cancel()
+            self._worker = None
+
+    # asyncio flow control: a client that does not read its answers stops being read
+    def pause_writing(self) -> None:
+        self._pause("writes", True)
+
+    def resume_writing(self) -> None:
+        self._pause("writes", False)
+
+    def _pause(self, reason: str, on: bool) -> None:
+        was_paused = bool(self._pause_reasons)
+        if on:
+            self._pause_reasons.add(reason)
+        else:
+            self._pause_reasons.discard(reason)
+        if self.transport is None or self._closing or was_paused == bool(self._pause_reasons):
+            return
+        if self._pause_reasons:
+            self.transport.pause_reading()
+        else:
+            self.transport.resume_reading()
+
+    # -------------------------------------------------------------- framing --
+    def data_received(self, data: bytes) -> None:
+        """TCP: split the stream into MBAP frames here (pymodbus's framer waits forever
+        on a bad header and drops its buffer past 264 bytes); RTU: pymodbus's framing,
+        which resynchronises on the CRC."""
+        if self.is_rtu:
+            super().data_received(data)
+            return
+        if self._closing:
+            return
+        self._buffer += data
+        self._take_frames()
+
+    def _take_frames(self) -> None:
+        buffer = self._buffer
+        start = 0  # frames are cut by offset and the buffer compacted once: a 256 KiB read
+        # of pipelined requests must not cost a memmove per frame
+        while len(self._queue) < MAX_QUEUED_REQUESTS and len(buffer) - start >= MBAP_HEADER_BYTES:
+            _, protocol_id, length = struct.unpack_from(">HHH", buffer, start)
+            if protocol_id != 0 or not MBAP_LENGTH_MIN <= length <= MBAP_LENGTH_MAX:
+                self._reject_stream(f"bad MBAP header (protocol id {protocol_id}, length {length})")
+                return
+            end = start + 6 + length
+            if len(buffer) < end:
+                break
+            frame = bytes(buffer[start:end])
+            start = end
+            self._last_request_s = self.loop.time()
+            try:
+                _, pdu = self.framer.handleFrame(frame, 0, 0)
+            except ModbusIOException as exc:
+                self._enqueue(_Undecodable(frame, exc))
+                continue
+            if pdu is not None:
+                self._enqueue(pdu)
+        del buffer[:start]
+        self._pause("queue", len(self._queue) >= MAX_QUEUED_REQUESTS)
+
+    def _reject_stream(self, why: str) -> None:
+        # No resynchronisation is possible on a byte stream without frame markers:
+        # whatever follows would be read at the wrong offsets. Close at once.
+        self.gateway._bump(rejected_frames=1)
+        self.gateway.peer_log.note(self.peer_ip or self.source, "bad frame",
+                                   f"Modbus connection {self.source} closed: {why}")
+        self._buffer.clear()
+        self.close_connection(abort=True)
 
     def callback_data(self, data: bytes, addr: tuple | None = None) -> int:
-        """Decode every complete request in `data` and schedule each with its PDU bound.
+        """RTU only (TCP frames in data_received): decode every complete request in
+        `data` and queue each with its PDU bound.
 
         Replaces ServerRequestHandler.callback_data, which handles one request per
-        call (a second request in the same TCP segment waited for more data) and lets
-        the scheduled task re-read `last_pdu` later (a newer request could replace the
-        one that was checked).
+        call and lets the scheduled task re-read `last_pdu` later (a newer request
+        could replace the one that was checked).
         """
         used_total = 0
         while used_total < len(data):
@@ -427,19 +815,45 @@ class _GatewayRequestHandler(ServerRequestHandler):
             try:
                 used = TransactionManager.callback_data(self, chunk, addr)
             except ModbusIOException as exc:
-                self._answer_undecodable(chunk, exc, addr)
+                self._enqueue(_Undecodable(chunk, exc))
                 return len(data)
             if self.last_pdu is not None:
-                task = asyncio.ensure_future(self._handle(self.last_pdu, addr))
-                self._tasks.add(task)
-                task.add_done_callback(self._tasks.discard)
+                self._enqueue(self.last_pdu)
                 self.last_pdu = None
             if not used:
                 break  # incomplete frame: wait for more bytes
             used_total += used
         return used_total
 
-    def _answer_undecodable(self, frame: bytes, exc: ModbusIOException, addr: tuple | None) -> None:
+    def handle_later(self) -> None:  # pragma: no cover - requests are queued directly
+        raise RuntimeError("handle_later is not used by the gateway handler")
+
+    async def handle_request(self) -> None:  # pragma: no cover - see _work
+        raise RuntimeError("handle_request is not used by the gateway handler")
+
+    # ------------------------------------------------------------- answering --
+    def _enqueue(self, item: ModbusPDU | _Undecodable) -> None:
+        self._queue.append(item)
+        if self._worker is None:
+            self._worker = self.loop.create_task(self._work())
+
+    async def _work(self) -> None:
+        try:
+            while self._queue:
+                item = self._queue.popleft()
+                try:
+                    if isinstance(item, _Undecodable):
+                        self._answer_undecodable(item.frame, item.error)
+                    else:
+                        await self._handle(item)
+                except Exception:  # a bug answering one request must not stall the rest
+                    log.exception("Modbus request from %s failed", self.source)
+                if "queue" in self._pause_reasons and len(self._queue) < MAX_QUEUED_REQUESTS // 2:
+                    self._take_frames()  # caught up: read the frames held back, resume reading
+        finally:
+            self._worker = None
+
+    def _answer_undecodable(self, frame: bytes, exc: ModbusIOException) -> None:
         # pymodbus answers these with function code 0x80; answer with the request's own
         # function code as the Modbus spec wants: 01 for a function we do not serve, 03
         # for a known function whose quantity/byte count/length is wrong.
@@ -447,28 +861,26 @@ class _GatewayRequestHandler(ServerRequestHandler):
         function_code = pdu_bytes[0] & 0x7F if pdu_bytes else 0
         code = ExcCodes.ILLEGAL_VALUE if function_code in SUPPORTED_FUNCTIONS else ExcCodes.ILLEGAL_FUNCTION
         dev_id = exc.dev_id if exc.dev_id is not None else 0
+        if self.is_rtu and dev_id != self.gateway.config.unit_id:
+            return  # for another device on the line
+        self.gateway._bump(requests=1, rejected_frames=1)
+        self.gateway.peer_log.note(self.peer_ip or self.source, "undecodable",
+                                   f"undecodable Modbus request (function {function_code}) from {self.source}")
         response = ExceptionResponse(function_code, code, device_id=dev_id, transaction=exc.transaction_id or 0)
-        if not self.is_rtu or dev_id == self.gateway.config.unit_id:
-            self.gateway._bump(requests=1)
-        self.server_send(response, addr)
+        self.server_send(response, None)
 
-    def handle_later(self) -> None:  # pragma: no cover - callback_data schedules directly
-        raise RuntimeError("handle_later is not used by the gateway handler")
-
-    async def handle_request(self) -> None:  # pragma: no cover - see callback_data
-        raise RuntimeError("handle_request is not used by the gateway handler")
-
-    def cancel_pending(self) -> None:
-        for task in list(self._tasks):
-            task.cancel()
-
-    async def _handle(self, pdu: ModbusPDU, addr: tuple | None) -> None:
+    async def _handle(self, pdu: ModbusPDU) -> None:
         if self.is_rtu and pdu.dev_id != self.gateway.config.unit_id:
             return  # addressed to another device on the line (or broadcast): stay silent
         self.gateway._bump(requests=1)
         refusal = self.gateway._refusal(pdu.function_code, self)
         if refusal is not None:
             response: ModbusPDU = ExceptionResponse(pdu.function_code, refusal)
+        elif pdu.function_code == ENCAPSULATED_INTERFACE:
+            if isinstance(pdu, ReadDeviceInformationRequest):
+                response = self.gateway._identification(pdu)
+            else:  # another MEI type (e.g. 13, CANopen): not served
+                response = ExceptionResponse(pdu.function_code, ExcCodes.ILLEGAL_FUNCTION)
         else:
             source_token = _REQUEST_SOURCE.set(self.source)
             try:
@@ -480,10 +892,10 @@ class _GatewayRequestHandler(ServerRequestHandler):
                 _REQUEST_SOURCE.reset(source_token)
         response.transaction_id = pdu.transaction_id
         response.dev_id = pdu.dev_id
-        self.server_send(response, addr)
+        self.server_send(response, None)
 
     def server_send(self, pdu: ModbusPDU | None, addr: tuple | None) -> None:
-        if pdu is None:
+        if pdu is None or self._closing or self.transport is None:
             return
         if self.is_rtu and pdu.dev_id != self.gateway.config.unit_id:
             return  # e.g. pymodbus's answer to an undecodable frame for another device

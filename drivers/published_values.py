@@ -63,6 +63,10 @@ class StatusBits(enum.IntFlag):
     #: wire (int32 µm, µm/s, µm/s²; CAN int16) was clamped at its range limit. The
     #: float32 registers carry the unclamped value.
     SCALED_CLAMPED = 1 << 13
+    #: Set by the Modbus server, never by the daemon, and only in the Modbus registers:
+    #: Modbus RTU is configured but its serial port is missing or lost; the server keeps
+    #: reopening it with back-off. (Bit 14 is left free for a bit the daemon sets.)
+    MODBUS_RTU_DOWN = 1 << 15
 
 
 #: Bits that say "do not use the numbers"; VALID must be clear when any is set.

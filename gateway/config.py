@@ -59,6 +59,12 @@ def _addresses(v):
     return None
 
 
+def _device_name(v):
+    if len(v) > 32:
+        return "is longer than 32 characters"
+    return None if v.isascii() and v.isprintable() else "must be printable ASCII"
+
+
 def _nonempty(v):
     return None if v.strip() else "must not be empty"
 
@@ -103,6 +109,21 @@ SCHEMA: tuple[Key, ...] = (
     Key("modbus", "rtu_baudrate", 19200, int, "RTU line speed.", _range(1200, 4_000_000)),
     Key("modbus", "rtu_parity", "E", str, "RTU parity: N, E or O (Modbus default: E).", _one_of("N", "E", "O")),
     Key("modbus", "rtu_writes_enabled", False, bool, "Accept commands over RTU (it has no client address)."),
+    Key("modbus", "max_connections", 64, int,
+        "Modbus TCP connections served at once (keep it well below the open-file limit). At the "
+        "limit a client in write_allow or priority_clients still gets in (the connection idle "
+        "longest is closed for it); anyone else is refused.", _range(1, 10_000)),
+    Key("modbus", "priority_clients", [], list,
+        "Addresses or networks that always get a connection, besides those in write_allow "
+        "(e.g. the PLC when writes are disabled).", _addresses),
+    Key("modbus", "idle_timeout_s", 60.0, float,
+        "Close a TCP connection that sent no complete request for this long, s (0: never).", _range(0, 86_400)),
+    Key("modbus", "peer_log_interval_s", 10.0, float,
+        "Log what a client does wrong (bad frames, refused writes or connections) at most once "
+        "per client and interval, with a count, s.", _range(0.1, 3600)),
+    Key("modbus", "device_name", "", str,
+        "Name of this gateway on Modbus (device identification object 6, registers DEVICE_NAME): "
+        "printable ASCII, at most 32 characters.", _device_name),
     # --- CAN ---------------------------------------------------------------
     Key("can", "enabled", True, bool, "Publish on CAN."),
     Key("can", "interface", "virtual", str,

@@ -29,6 +29,8 @@ def modbus_config_from(cfg: Config) -> ModbusServerConfig:
         writes_enabled=m.writes_enabled, write_allow=tuple(m.write_allow), rtu_enabled=m.rtu_enabled,
         rtu_port=m.rtu_port, rtu_baudrate=m.rtu_baudrate, rtu_parity=m.rtu_parity,
         rtu_writes_enabled=m.rtu_writes_enabled,
+        max_connections=m.max_connections, priority_clients=tuple(m.priority_clients),
+        idle_timeout_s=m.idle_timeout_s, peer_log_interval_s=m.peer_log_interval_s, device_name=m.device_name,
     )
 
 

@@ -1,19 +1,35 @@
-"""State that must survive a restart (tare offset, calibration), persisted atomically.
+"""State that must survive a restart (tare offset, bias, last position), persisted atomically.
 
 Write to a temporary file in the same directory, fsync, rename over the old one, fsync
 the directory: after a crash the file is either the old or the new state, never half.
+
+The file is untrusted input when read back (a user, a backup tool or a bad disk may
+have written it): every field is checked for type, finiteness and range, and a file
+that fails any check is moved aside (``state.json.bad-<UTC time>``) with one warning
+and the gateway starts unreferenced from defaults — never a crash, never a NaN
+published. A temporary file left by a kill during a save is removed at load.
 """
 from __future__ import annotations
 
 import json
 import logging
+import math
 import os
-from dataclasses import asdict, dataclass, field
+import time
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 log = logging.getLogger(__name__)
 
 STATE_VERSION = 1
+#: A state file is a few hundred bytes; anything much larger is not ours.
+MAX_STATE_BYTES = 64 * 1024
+#: No linear axis this gateway serves is 10 km long: beyond, the number is garbage.
+MAX_ABS_POSITION_M = 1.0e4
+#: The ADXL202 measures ±2 g; a bias beyond that cannot be a bias of this sensor.
+MAX_ABS_BIAS_MPS2 = 2 * 9.80665
+#: Bad files kept beside the state file for a post-mortem; older ones are deleted.
+KEEP_BAD_FILES = 3
 
 
 @dataclass
@@ -27,36 +43,122 @@ class PersistentState:
     saved_at_unix_s: float | None = None
 
 
+#: field -> (may be None, largest magnitude allowed)
+_LIMITS: dict[str, tuple[bool, float]] = {
+    "tare_offset_m": (False, MAX_ABS_POSITION_M),
+    "bias_estimate_mps2": (True, MAX_ABS_BIAS_MPS2),
+    "last_position_m": (True, MAX_ABS_POSITION_M),
+    "saved_at_unix_s": (True, 1.0e11),  # year ~5000; negative times are refused below
+}
+
+
+class StateFileError(ValueError):
+    """The state file's content is not a state this version wrote (the message says why)."""
+
+
+def _reject_constant(name: str) -> float:
+    # json accepts NaN, Infinity and -Infinity by default; a state never holds them
+    raise StateFileError(f"non-finite number {name}")
+
+
+def parse_state(text: str) -> PersistentState:
+    """The state in `text` (a state file's content), or StateFileError naming the fault."""
+    try:
+        data = json.loads(text, parse_constant=_reject_constant)
+    except RecursionError as err:  # "[[[[…" nested thousands deep
+        raise StateFileError("JSON nested too deep") from err
+    except json.JSONDecodeError as err:
+        raise StateFileError(f"not JSON: {err}") from err
+    if not isinstance(data, dict):
+        raise StateFileError(f"expected a JSON object, got {type(data).__name__}")
+    version = data.get("version")
+    if type(version) is not int or version != STATE_VERSION:
+        raise StateFileError(f"state version {version!r}, expected {STATE_VERSION}")
+    known = {f.name for f in fields(PersistentState)}
+    unknown = sorted(set(data) - known - {"version"})
+    if unknown:
+        raise StateFileError(f"unknown field {unknown[0]!r}")
+    values: dict[str, float | None] = {}
+    for name in known:
+        if name not in data:
+            continue
+        values[name] = _checked_number(name, data[name])
+    return PersistentState(**values)
+
+
+def _checked_number(name: str, value: object) -> float | None:
+    may_be_none, limit = _LIMITS[name]
+    if value is None and may_be_none:
+        return None
+    # bool is an int in Python and a string is not a number: both refused by name
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise StateFileError(f"{name} = {value!r:.40} is not a number")
+    if isinstance(value, int) and abs(value) > limit:  # before float(): 10**400 overflows it
+        raise StateFileError(f"{name} = {value!r:.40} outside ±{limit:g}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise StateFileError(f"{name} = {value!r:.40} is not finite")
+    if abs(number) > limit or (name == "saved_at_unix_s" and number < 0):
+        raise StateFileError(f"{name} = {number:g} outside ±{limit:g}")
+    return number
+
+
 class StateStore:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self.last_error: str | None = None
+        #: Where the last bad file was moved (None if none was, or it could not be moved).
+        self.moved_aside: Path | None = None
+
+    @property
+    def temp_path(self) -> Path:
+        return self.path.with_name(f".{self.path.name}.tmp")
 
     def load(self) -> PersistentState:
-        """The saved state, or defaults (with the reason logged) when there is none or it is unreadable."""
+        """The saved state, or defaults when there is none or it is bad.
+
+        A bad file is moved aside with one warning (the reason and the new name);
+        a temporary file left by an interrupted save is deleted first.
+        """
+        self._remove_stale_temp()
         try:
-            data = json.loads(self.path.read_text(encoding="utf-8"))
-            if data.get("version") != STATE_VERSION:
-                raise ValueError(f"state version {data.get('version')!r}, expected {STATE_VERSION}")
-            known = {k: data[k] for k in PersistentState.__dataclass_fields__ if k in data}
-            state = PersistentState(**known)
-            if not isinstance(state.tare_offset_m, (int, float)):
-                raise ValueError("tare_offset_m is not a number")
-            return state
+            with open(self.path, "rb") as fh:
+                raw = fh.read(MAX_STATE_BYTES + 1)
         except FileNotFoundError:
             return PersistentState()
-        except (OSError, ValueError, TypeError, AttributeError) as err:
-            self.last_error = f"{self.path}: unreadable state, starting unreferenced: {err}"
+        except OSError as err:  # a directory, no permission, I/O error: not a bad file, leave it
+            self.last_error = f"{self.path}: unreadable state, starting unreferenced: {err.strerror or err}"
+            log.warning("%s", self.last_error)
+            return PersistentState()
+        try:
+            if len(raw) > MAX_STATE_BYTES:
+                raise StateFileError(f"larger than {MAX_STATE_BYTES} bytes")
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError as err:
+                raise StateFileError(f"not UTF-8 at byte {err.start}") from err
+            return parse_state(text)
+        except StateFileError as err:
+            self.moved_aside = self._move_aside()
+            where = f"moved to {self.moved_aside.name}" if self.moved_aside else "could not be moved aside"
+            self.last_error = f"{self.path}: unreadable state, starting unreferenced ({where}): {err}"
             log.warning("%s", self.last_error)
             return PersistentState()
 
     def save(self, state: PersistentState) -> bool:
         data = {"version": STATE_VERSION, **asdict(state)}
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        tmp = self.temp_path
+        try:
+            # allow_nan=False: a NaN that slipped through must fail here, not be written
+            text = json.dumps(data, indent=1, allow_nan=False)
+        except ValueError:
+            self.last_error = f"{self.path}: not saving a state with a non-finite number: {data}"
+            log.error("%s", self.last_error)
+            return False
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             with open(tmp, "w", encoding="utf-8") as fh:
-                json.dump(data, fh, indent=1)
+                fh.write(text)
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, self.path)
@@ -70,4 +172,31 @@ class StateStore:
         except OSError as err:
             self.last_error = f"{self.path}: cannot save state: {err.strerror or err}"
             log.error("%s", self.last_error)
+            self._remove_stale_temp()
             return False
+
+    # ------------------------------------------------------------ internals --
+    def _remove_stale_temp(self) -> None:
+        try:
+            self.temp_path.unlink()
+            log.info("%s: removed a temporary file left by an interrupted save", self.temp_path)
+        except FileNotFoundError:
+            pass
+        except OSError as err:
+            log.warning("%s: cannot remove: %s", self.temp_path, err.strerror or err)
+
+    def _move_aside(self) -> Path | None:
+        stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        target = self.path.with_name(f"{self.path.name}.bad-{stamp}")
+        try:
+            os.replace(self.path, target)
+        except OSError as err:
+            log.warning("%s: cannot move the bad state file aside: %s", self.path, err.strerror or err)
+            return None
+        old = sorted(self.path.parent.glob(f"{self.path.name}.bad-*"))[:-KEEP_BAD_FILES]
+        for path in old:
+            try:
+                path.unlink()
+            except OSError:
+                pass  # keeping one too many is harmless
+        return target

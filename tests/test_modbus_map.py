@@ -38,6 +38,8 @@ ORDERS = [WordOrder.ABCD, WordOrder.CDAB]
 
 def _independent_decode(words: list[int], address: int, kind: str, order: WordOrder) -> float | int:
     """struct-based decoding written apart from the module under test."""
+    if kind == "string32":
+        return struct.pack(">16H", *words[address : address + 16]).rstrip(b"\0").decode("ascii")
     if kind in ("float32", "int32", "uint32"):
         pair = words[address : address + 2]
         if order is WordOrder.CDAB:
@@ -65,7 +67,8 @@ def test_each_table_is_contiguous_from_zero_without_overlap(table: Table) -> Non
 def test_names_unique_and_word_counts_follow_type() -> None:
     assert len({r.name for r in REGISTERS}) == len(REGISTERS)
     for row in REGISTERS:
-        assert row.words == (2 if row.type in (RegType.FLOAT32, RegType.INT32, RegType.UINT32) else 1)
+        expected = {RegType.FLOAT32: 2, RegType.INT32: 2, RegType.UINT32: 2, RegType.STRING32: 16}.get(row.type, 1)
+        assert row.words == expected
 
 
 def test_every_source_exists() -> None:
@@ -102,7 +105,7 @@ def test_map_version_is_bumped_when_the_table_changes() -> None:
         [dataclasses.astuple(r) for r in REGISTERS], default=str, ensure_ascii=False
     ).encode()
     digest = hashlib.sha256(canonical).hexdigest()[:16]
-    recorded = {1: "5848775e9570ad22"}
+    recorded = {1: "5848775e9570ad22", 2: "cb22d8cf81a6cc4f"}
     assert MAP_VERSION in recorded, "MAP_VERSION bumped: record the new fingerprint here"
     assert digest == recorded[MAP_VERSION], (
         f"the register table changed (fingerprint {digest}): bump MAP_VERSION and record it"
@@ -198,6 +201,26 @@ def test_encoding_round_trips_through_struct(
     assert read("LAST_SAMPLE_AGE") == expected_age
 
 
+@pytest.mark.parametrize("order", ORDERS)
+def test_identity_registers_carry_version_and_device_name_in_any_word_order(order: WordOrder) -> None:
+    diagnostics = ServerDiagnostics(version_major=3, version_minor=14, version_patch=159, device_name="line 4 / axis X")
+    words = encode_input_registers(PublishedValues(), diagnostics, order)
+
+    def read(name: str) -> float | int | str:
+        row = BY_NAME[name]
+        return _independent_decode(words, row.address, str(row.type), order)
+
+    assert (read("VERSION_MAJOR"), read("VERSION_MINOR"), read("VERSION_PATCH")) == (3, 14, 159)
+    assert read("DEVICE_NAME") == "line 4 / axis X"
+    row = BY_NAME["DEVICE_NAME"]
+    # first character in the high byte of the first register, whatever the 32-bit word order
+    assert words[row.address] == (ord("l") << 8) | ord("i")
+    assert mm.decode_register(row, words[row.address : row.address + row.words], order) == "line 4 / axis X"
+    # 32 characters fill all 16 registers, longer names are cut (the config refuses them)
+    full = encode_input_registers(PublishedValues(), ServerDiagnostics(device_name="x" * 40), order)
+    assert full[row.address : row.address + 16] == [0x7878] * 16
+
+
 def test_word_orders_are_each_others_swap() -> None:
     values = PublishedValues(position_m=-1.5, velocity_mps=0.25, sample_counter=0x12345678)
     abcd = encode_input_registers(values, word_order=WordOrder.ABCD)
@@ -246,7 +269,7 @@ def test_float_beyond_float32_range_is_nan() -> None:
 
 def test_decode_register_inverts_encode_register() -> None:
     for row in mm.INPUT_REGISTERS:
-        if row.type is RegType.BITFIELD or row.source == "map_version":
+        if row.type in (RegType.BITFIELD, RegType.STRING32) or row.source == "map_version":
             continue
         for order in ORDERS:
             words, _ = mm.encode_register(row, 12.5, order)
