@@ -6,6 +6,9 @@ import asyncio
 import logging
 
 from gateway.config import Config, load_config
+from gateway.preflight import refuse_unrunnable
+
+log = logging.getLogger("adxlgw")
 
 
 def add_parser(sub) -> None:
@@ -42,8 +45,12 @@ def overrides_from(args: argparse.Namespace) -> dict:
 
 
 def load_with_overrides(path: str | None, overrides: dict) -> Config:
+    """The config `run` starts (or reloads) with; ConfigError (exit 2) if it cannot run."""
     cfg = load_config(path)
-    return cfg.replace(overrides) if overrides else cfg
+    cfg = cfg.replace(overrides) if overrides else cfg
+    for finding in refuse_unrunnable(cfg):
+        log.log(logging.WARNING if finding.severity == "device" else logging.INFO, "%s", finding.line(cfg.source))
+    return cfg
 
 
 def serve(cfg: Config, reload) -> int:
