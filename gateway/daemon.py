@@ -141,6 +141,7 @@ class Gateway:
         notifier: SystemdNotifier | None = None,
         clock: Callable[[], float] = time.monotonic,
         compiled_samples: bool = True,
+        view: TerminalView | None = None,
     ):
         self.cfg = cfg
         self._reload = reload
@@ -165,7 +166,7 @@ class Gateway:
         self.modbus: ModbusServer | None = None
         self.can: CanPublisher | None = None
         self.emulated: EmulatedBoard | None = None
-        self.view = TerminalView() if cfg.service.view else None
+        self.view = view if view is not None else (TerminalView() if cfg.service.view else None)
         # position reference: published = estimator position − offset
         self.reference_offset_m = -self.saved.last_position_m if self.saved.last_position_m else 0.0
         self.referenced = False  # after a restart, never trust an old reference

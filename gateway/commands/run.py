@@ -7,6 +7,7 @@ import logging
 
 from gateway.config import Config, load_config
 from gateway.preflight import refuse_unrunnable
+from gateway.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
 
@@ -57,7 +58,10 @@ def serve(cfg: Config, reload) -> int:
     from gateway.daemon import Gateway  # the daemon pulls in pymodbus and python-can
 
     logging.getLogger().setLevel(cfg.service.log_level.upper())
-    return asyncio.run(Gateway(cfg, reload=reload).run())
+    if not cfg.service.view:
+        return asyncio.run(Gateway(cfg, reload=reload).run())
+    with TerminalView() as view:  # log lines above, the view below, until the daemon ends
+        return asyncio.run(Gateway(cfg, reload=reload, view=view).run())
 
 
 def run(args: argparse.Namespace) -> int:
