@@ -9,8 +9,12 @@ import argparse
 import importlib
 import logging
 import sys
+from importlib import metadata
 
 from gateway.errors import GatewayError
+from gateway.log_setup import configure_logging, error_prefix
+
+log = logging.getLogger("adxlgw")
 
 # subcommand modules in the order `adxlgw --help` lists them
 COMMAND_MODULES = (
@@ -26,7 +30,15 @@ COMMAND_MODULES = (
     "config_cmd",
     "regmap",
     "dbc",
+    "install_files",
 )
+
+
+def version() -> str:
+    try:
+        return metadata.version("adxl-gateway")
+    except metadata.PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="ADXL202/8051 accelerometer gateway: distance and velocity over Modbus and CAN.",
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action="version", version=f"adxlgw {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         module = importlib.import_module(f"gateway.commands.{name}")
@@ -42,18 +55,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def warn_if_not_compiled() -> None:
+    """Once per process: numba was wanted but could not start (gateway/core/jit.py)."""
+    from gateway.core import jit
+
+    if jit.JIT_UNAVAILABLE_REASON:
+        log.warning("%s. The estimators run as plain Python: same numbers, more CPU (docs/daemon.md)",
+                    jit.JIT_UNAVAILABLE_REASON.rstrip("."))
+
+
 def main(argv: list[str] | None = None) -> int:
+    # logging first: the subcommands' imports may already have something to say
+    configure_logging(sys.stderr)
+    warn_if_not_compiled()
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
+    if args.verbose:
+        logging.getLogger().setLevel(logging.DEBUG)
     try:
         return int(args.run(args) or 0)
     except GatewayError as err:
-        print(f"adxlgw {args.command}: error: {err}", file=sys.stderr)
+        print(f"{error_prefix(sys.stderr)}adxlgw {args.command}: error: {err}", file=sys.stderr)
         return err.exit_code
     except KeyboardInterrupt:
         return 130

@@ -2,7 +2,9 @@
 
 The schema below is the single source for defaults, validation and the commented
 default file that `adxlgw config --default` prints. An unknown key or a bad value is
-one ``ConfigError`` that names the file and the key (exit code 2).
+one ``ConfigError`` that names the file and the key (exit code 2). A key whose default
+is None has none on purpose (the board's port: a gateway must not guess its wire);
+`adxlgw run` refuses to start until it is set (gateway/preflight.py).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ class Key:
     kind: type | tuple  # bool, int, float, str, list
     doc: str
     check: Callable[[Any], str | None] | None = None  # returns a complaint or None
+    example: Any = None  # shown, commented out, in the default file when default is None
 
     @property
     def dotted(self) -> str:
@@ -71,9 +74,11 @@ def _nonempty(v):
 
 SCHEMA: tuple[Key, ...] = (
     # --- the board ---------------------------------------------------------
-    Key("serial", "port", "emulated", str,
+    Key("serial", "port", None, str,
         "Board serial port: a device path (/dev/ttyUSB0, /dev/serial/by-id/…), a pyserial URL "
-        "(socket://host:port, loop://), or \"emulated\" for the built-in virtual board.", _nonempty),
+        "(socket://host:port, loop://), or \"emulated\" for the built-in virtual board (simulated "
+        "values, flagged on every wire). No default: adxlgw run refuses to start until it is set.",
+        _nonempty, example="/dev/ttyUSB0"),
     Key("serial", "baudrate", 115200, int, "Line speed of the board (8N1).", _range(1200, 4_000_000)),
     Key("serial", "reconnect_min_s", 0.2, float, "First wait before reopening a lost port, s.", _range(0.01, 60)),
     Key("serial", "reconnect_max_s", 5.0, float, "Longest wait between reopen attempts, s.", _range(0.01, 600)),
@@ -126,9 +131,10 @@ SCHEMA: tuple[Key, ...] = (
         "printable ASCII, at most 32 characters.", _device_name),
     # --- CAN ---------------------------------------------------------------
     Key("can", "enabled", True, bool, "Publish on CAN."),
-    Key("can", "interface", "virtual", str,
-        "python-can interface: socketcan in production, virtual for tests and the demo.", _nonempty),
-    Key("can", "channel", "adxlgw", str, "CAN channel (vcan0, can0, or a virtual bus name).", _nonempty),
+    Key("can", "interface", "socketcan", str,
+        "python-can interface: socketcan in production (the channel must exist: adxlgw config --check "
+        "says so), virtual for tests and the demo.", _nonempty),
+    Key("can", "channel", "can0", str, "CAN channel (can0, vcan0, or a virtual bus name).", _nonempty),
     Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).", _range(10_000, 1_000_000)),
     Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames (ms).", _range(1, 10_000)),
     Key("can", "sync_to_updates", True, bool,
@@ -172,7 +178,8 @@ class Config:
 
     def replace(self, overrides: dict[str, Any]) -> "Config":
         """A copy with dotted-key overrides (from the command line), validated like the file."""
-        data = self.as_dict()
+        # keys without a default that are still unset stay unset (validate fills them in)
+        data = {s: {k: v for k, v in keys.items() if v is not None} for s, keys in self._values.items()}
         for dotted, value in overrides.items():
             section, name = dotted.split(".", 1)
             data[section][name] = value
@@ -232,7 +239,15 @@ def validate(data: dict[str, Any], source: str) -> Config:
         raise ConfigError(f"{source}: can.min_interval_ms must not exceed can.period_ms")
     if values["serial"]["reconnect_min_s"] > values["serial"]["reconnect_max_s"]:
         raise ConfigError(f"{source}: serial.reconnect_min_s must not exceed serial.reconnect_max_s")
+    if values["serial"]["stale_after_ms"] > values["serial"]["lost_after_ms"]:
+        # a lost board whose values are not yet stale would be published as fresh
+        raise ConfigError(f"{source}: serial.stale_after_ms must not exceed serial.lost_after_ms")
+    if not (values["modbus"]["tcp_enabled"] or values["modbus"]["rtu_enabled"] or values["can"]["enabled"]):
+        raise ConfigError(f"{source}: no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled or can.enabled")
     return Config(values, source)
+
+
+MAX_CONFIG_BYTES = 1 << 20  # a real config is a few kB; anything this big is not one
 
 
 def load_config(path: str | Path | None) -> Config:
@@ -241,11 +256,21 @@ def load_config(path: str | Path | None) -> Config:
     path = str(path)
     try:
         with open(path, "rb") as fh:
-            data = tomllib.load(fh)
+            raw = fh.read(MAX_CONFIG_BYTES + 1)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from err
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES} bytes; not a config file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not UTF-8: byte 0x{raw[err.start]:02x} at offset {err.start}") from err
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    except RecursionError as err:  # tomllib parses nested arrays and tables recursively
+        raise ConfigError(f"{path}: not a config: arrays or tables nested too deeply") from err
     return validate(data, path)
 
 
@@ -269,5 +294,8 @@ def default_config_text() -> str:
         lines += ["", f"[{section}]"]
         for key in (k for k in SCHEMA if k.section == section):
             lines.append(f"# {key.doc}")
-            lines.append(f"{key.name} = {_toml_value(key.default)}")
+            if key.default is None:  # no default: shown as an example to uncomment
+                lines.append(f"# {key.name} = {_toml_value(key.example)}")
+            else:
+                lines.append(f"{key.name} = {_toml_value(key.default)}")
     return "\n".join(lines) + "\n"

@@ -81,6 +81,7 @@ class Gateway:
         clock: Callable[[], float] = time.monotonic,
         publish_tick_s: float = PUBLISH_TICK_S,
         can_bus_factory: BusFactory = can.Bus,
+        view: TerminalView | None = None,
     ):
         self.cfg = cfg
         self._reload = reload
@@ -98,7 +99,7 @@ class Gateway:
         self.source: SerialSource | None = None
         self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
         self.emulated: EmulatedBoard | None = None
-        self.view = TerminalView() if cfg.service.view else None
+        self.view = view if view is not None else (TerminalView() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
         self._reloaded_at: float | None = None

@@ -2,6 +2,11 @@
 
 Used when the config says serial.port = "emulated" (the demo, and tests that want the
 whole chain). The child is the same program a user would run by hand.
+
+No orphans: the child's stdin is a pipe whose only writer is this process, and the
+child stops when it reads the end of it (`--exit-with-stdin`). The kernel closes the
+pipe however this process ends, SIGKILL included; a pipe, unlike PR_SET_PDEATHSIG,
+needs no preexec_fn in a threaded parent and cannot miss a parent that died first.
 """
 from __future__ import annotations
 
@@ -27,9 +32,9 @@ class EmulatedBoard:
 
     async def start(self) -> str:
         cmd = [sys.executable, "-m", "gateway.cli", "emulate", "--loop", "--seed", str(self.seed),
-               "--link", str(self.link), *self.extra_args]
+               "--link", str(self.link), "--exit-with-stdin", *self.extra_args]
         self.proc = await asyncio.create_subprocess_exec(
-            *cmd, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL,
+            *cmd, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
         try:

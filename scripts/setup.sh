@@ -53,10 +53,10 @@ fi
 extras=""
 [ $want_test -eq 1 ] && extras="[test]"
 stamp=".venv/.installed$extras"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-    log "installing adxl-gateway$extras into .venv (pinned versions, see pyproject.toml)"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt "$stamp" ]; then
+    log "installing adxl-gateway$extras into .venv (the tested versions: constraints.txt)"
     .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip >/dev/null
-    .venv/bin/python -m pip install -q --disable-pip-version-check -e ".$extras"
+    .venv/bin/python -m pip install -q --disable-pip-version-check -c constraints.txt -e ".$extras"
     touch "$stamp"
 fi
 log "ready: .venv/bin/adxlgw"

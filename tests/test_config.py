@@ -13,14 +13,25 @@ def test_default_text_is_complete_valid_toml_with_every_key_commented():
     data = tomllib.loads(text)
     cfg = validate(data, "<default>")
     for key in SCHEMA:
-        assert data[key.section][key.name] == key.default
+        assert data[key.section].get(key.name) == key.default
         assert getattr(getattr(cfg, key.section), key.name) == key.default
-    # one comment line before each key
+    # one comment line before each key; a key without a default is there as a commented example
     lines = text.splitlines()
     for key in SCHEMA:
-        i = next(n for n, line in enumerate(lines) if line.startswith(f"{key.name} = ")
+        start = f"# {key.name} = " if key.default is None else f"{key.name} = "
+        i = next(n for n, line in enumerate(lines) if line.startswith(start)
                  and f"[{key.section}]" in [l for l in lines[:n] if l.startswith("[")][-1:])
         assert lines[i - 1].startswith("# ")
+        if key.default is None:
+            assert tomllib.loads(lines[i][2:])[key.name] == key.example
+
+
+def test_the_board_port_has_no_default_and_can_defaults_to_socketcan():
+    cfg = validate({}, "<d>")
+    assert cfg.serial.port is None
+    assert (cfg.can.interface, cfg.can.channel) == ("socketcan", "can0")
+    # an override keeps the unset port unset instead of failing on it
+    assert cfg.replace({"modbus.port": 1502}).serial.port is None
 
 
 @pytest.mark.parametrize(
@@ -39,6 +50,13 @@ def test_default_text_is_complete_valid_toml_with_every_key_commented():
         ("[serial]\nreconnect_min_s = 9.0\nreconnect_max_s = 1.0\n", "must not exceed serial.reconnect_max_s"),
         ("[serial]\nbatch_frames = 18\n", "serial.batch_frames = 18 must be ≤ 17"),
         ("[serial\n", "not valid TOML"),
+        ("[serial]\nport = \"\"\n", "serial.port = '' must not be empty"),
+        ("[serial]\nstale_after_ms = 3000\nlost_after_ms = 2000\n",
+         "serial.stale_after_ms must not exceed serial.lost_after_ms"),
+        ("[modbus]\ntcp_enabled = false\n[can]\nenabled = false\n", "no output enabled"),
+        ("a = " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
+        ("a = " + "{b = " * 5000 + "1" + "}" * 5000 + "\n", "nested too deeply"),
+        ("# " + "x" * (1 << 20) + "\n", "larger than 1048576 bytes"),
     ],
 )
 def test_bad_config_names_the_key(tmp_path, toml, message):
@@ -73,7 +91,17 @@ def test_cli_config_default_and_check(tmp_path):
     path.write_text(r.stdout)
     r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
                        capture_output=True, text=True)
-    assert r.returncode == 0 and "modbus.port = 5020" in r.stdout
+    # the default file does not run: the board's port is the one thing it cannot guess
+    assert r.returncode == 2 and "modbus.port = 5020" in r.stdout
+    assert f"adxlgw config: error: {path}: serial.port: not set" in r.stderr
+    board = tmp_path / "ttyUSB0"  # what the check asks of a device path: that it exists
+    board.touch()
+    path.write_text(f'[serial]\nport = "{board}"\n[can]\ninterface = "virtual"\nchannel = "x"\n')
+    r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "can.channel: python-can's in-process virtual bus: no frame leaves this process" in r.stderr
+    assert r.stderr.strip().endswith(f"{path}: ok")
     path.write_text("[can]\nchanel = \"vcan0\"\n")
     r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
                        capture_output=True, text=True)
@@ -94,3 +122,12 @@ def test_cli_regmap_json_and_dbc_match_the_shipped_files():
     r = subprocess.run([sys.executable, "-m", "gateway.cli", "dbc"], capture_output=True, text=True)
     assert r.returncode == 0
     assert r.stdout == (root / "config" / "adxl-gateway.dbc").read_text()
+
+
+def test_a_file_that_is_not_utf8_is_named_with_the_byte_offset(tmp_path):
+    path = tmp_path / "gw.toml"
+    content = b'[serial]\nport = "/dev/tty\xffUSB0"\n'
+    path.write_bytes(content)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value) == f"{path}: not UTF-8: byte 0xff at offset {content.index(0xFF)}"

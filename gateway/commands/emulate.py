@@ -3,7 +3,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import signal
 import sys
+import threading
 import time
 
 import serial
@@ -33,6 +36,9 @@ def add_parser(sub) -> None:
     p.add_argument("--no-wait", action="store_true",
                    help="start at once; by default the board powers on when a reader first opens the port, "
                         "so the reader sees the HELLO and every sample")
+    p.add_argument("--exit-with-stdin", action="store_true",
+                   help="stop when standard input reaches its end: a parent that holds the other end of a "
+                        "pipe takes the board with it when it dies, even by SIGKILL")
     p.add_argument("--linger", type=non_negative_float, default=1.0,
                    help="keep the port open this long after the last frame, s (default: 1)")
     f = p.add_argument_group("faults (each: period in seconds of board time; 0 = off)")
@@ -66,6 +72,14 @@ class _SerialOut:
         self.port.close()
 
 
+def _stop_at_end_of_stdin() -> None:
+    """Block on stdin until its writer is gone (the parent closed it or died), then stop
+    as SIGTERM would: the loop ends, the pty and its link are removed."""
+    while sys.stdin.buffer.read1(4096):
+        pass
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
 def run(args: argparse.Namespace) -> int:
     settings = EmulatorSettings(
         scenario=scenario_from_args(args),
@@ -85,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
     print(out.path, flush=True)
 
     stop = StopOnSignal()
+    if args.exit_with_stdin:
+        threading.Thread(target=_stop_at_end_of_stdin, daemon=True, name="stdin-watch").start()
 
     if not args.no_wait:
         while not stop and not out.wait_for_reader(timeout_s=0.2):

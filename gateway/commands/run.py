@@ -6,6 +6,10 @@ import asyncio
 import logging
 
 from gateway.config import Config, load_config
+from gateway.preflight import refuse_unrunnable
+from gateway.terminal_view import TerminalView
+
+log = logging.getLogger("adxlgw")
 
 
 def add_parser(sub) -> None:
@@ -42,15 +46,22 @@ def overrides_from(args: argparse.Namespace) -> dict:
 
 
 def load_with_overrides(path: str | None, overrides: dict) -> Config:
+    """The config `run` starts (or reloads) with; ConfigError (exit 2) if it cannot run."""
     cfg = load_config(path)
-    return cfg.replace(overrides) if overrides else cfg
+    cfg = cfg.replace(overrides) if overrides else cfg
+    for finding in refuse_unrunnable(cfg):
+        log.log(logging.WARNING if finding.severity == "device" else logging.INFO, "%s", finding.line(cfg.source))
+    return cfg
 
 
 def serve(cfg: Config, reload) -> int:
     from gateway.daemon import Gateway  # the daemon pulls in pymodbus and python-can
 
     logging.getLogger().setLevel(cfg.service.log_level.upper())
-    return asyncio.run(Gateway(cfg, reload=reload).run())
+    if not cfg.service.view:
+        return asyncio.run(Gateway(cfg, reload=reload).run())
+    with TerminalView() as view:  # log lines above, the view below, until the daemon ends
+        return asyncio.run(Gateway(cfg, reload=reload, view=view).run())
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,24 +7,42 @@ Without numba the very same functions run as plain Python: correct, only slower
 (`JIT_ENABLED` tells which). The realtime class calls the same step function.
 
 Set ADXLGW_NO_JIT=1 to force plain Python (e.g. to debug or to time the difference).
+
+Any failure to import or initialise numba means plain Python, never a crash: numba's
+import checks that llvmlite may map executable memory, and under systemd's
+MemoryDenyWriteExecute=yes (or SELinux's execmem denial) that check raises
+PermissionError, not ImportError. `JIT_UNAVAILABLE_REASON` then says why, for the
+command line to log once (the core does no I/O); it stays None when numba runs or was
+switched off on purpose.
 """
 from __future__ import annotations
 
 import os
 
-try:
+JIT_UNAVAILABLE_REASON: str | None = None
+
+
+def _import_numba():
+    global JIT_UNAVAILABLE_REASON
     if os.environ.get("ADXLGW_NO_JIT"):
-        raise ImportError("disabled by ADXLGW_NO_JIT")
-    import numba
+        return None
+    try:
+        import numba
+    except ImportError as err:
+        JIT_UNAVAILABLE_REASON = f"numba is not installed ({err})"
+        return None
+    except Exception as err:  # noqa: BLE001 — whatever numba/llvmlite raise at start, we run without them
+        JIT_UNAVAILABLE_REASON = f"numba cannot start: {type(err).__name__}: {err}"
+        return None
+    return numba
 
-    JIT_ENABLED = True
 
-    def jit(func):
-        # cache: compiled code is kept beside the module, so only the first run compiles
-        return numba.njit(cache=True, nogil=True)(func)
+_numba = _import_numba()
+JIT_ENABLED = _numba is not None
 
-except ImportError:
-    JIT_ENABLED = False
 
-    def jit(func):
+def jit(func):
+    if _numba is None:
         return func
+    # cache: compiled code is kept beside the module, so only the first run compiles
+    return _numba.njit(cache=True, nogil=True)(func)

@@ -1,0 +1,39 @@
+"""No orphans: the emulated board process ends with the process that started it, even
+when that one is killed with SIGKILL before it ever opened the board's port (the board
+would otherwise wait for a reader forever)."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from tests.test_demo import alive
+
+PARENT = """
+import asyncio, sys, time
+from gateway.emulated_board import EmulatedBoard
+
+async def main():
+    board = EmulatedBoard()
+    await board.start()
+    print(board.proc.pid, flush=True)
+    time.sleep(600)  # never opens the port, never stops the board: only SIGKILL ends this
+
+asyncio.run(main())
+"""
+
+
+def test_the_board_dies_with_a_parent_killed_by_sigkill():
+    parent = subprocess.Popen([sys.executable, "-c", PARENT], stdout=subprocess.PIPE, text=True)
+    board = int(parent.stdout.readline())
+    time.sleep(0.5)
+    assert alive(board)
+    parent.kill()
+    parent.wait(timeout=30)
+    deadline = time.monotonic() + 10
+    while alive(board) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    survived = alive(board)
+    if survived:
+        os.kill(board, signal.SIGKILL)  # the orphan the test found must not outlive it
+    assert not survived, f"emulated board {board} outlived its parent"
