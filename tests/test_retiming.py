@@ -1,6 +1,8 @@
 """Re-timing bursty arrival times onto the sensor's regular clock (gateway/core/retiming.py)."""
 import numpy as np
 import pytest
+from hypothesis import assume, given
+from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from gateway.core.retiming import RetimingError, fit_floor_line, retime, timing_error
@@ -126,3 +128,15 @@ def test_a_gap_inside_the_start_up_backlog_is_unseen_and_said_so():
 def test_arrival_times_that_cannot_be_retimed(arrival, message):
     with pytest.raises(RetimingError, match=message):
         retime(arrival)
+
+
+@given(st.lists(st.one_of(st.just(0.0), st.floats(1e-6, 0.05), st.floats(0.05, 5.0)), min_size=19, max_size=400),
+       st.floats(0.0, 2e9))
+def test_any_non_decreasing_arrivals_give_increasing_causal_times(increments, start):
+    arrival = start + np.concatenate([[0.0], np.cumsum(increments)])
+    assume(arrival[-1] > arrival[0])
+    r = retime(arrival)
+    assert np.all(np.diff(r.t_s) > 0) and np.all(np.isfinite(r.t_s))
+    assert np.all(r.t_s <= arrival + 1e-6 * max(1.0, abs(start) * 1e-9))
+    assert np.all(r.lost_before >= 0) and np.all(np.diff(r.sample_index) >= 1)
+    assert r.period_s > 0 and np.all(r.delay_s >= -1e-6)
