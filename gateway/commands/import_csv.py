@@ -18,14 +18,13 @@ import numpy as np
 from gateway.core.retiming import Retiming, RetimingError, RetimingSettings, retime, timing_error
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
-from gateway.recording import write_recording
+from gateway.recording import HINT_COLUMN, write_recording
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}
 TIME_SCALES = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 LENGTH_SCALES = {"m": 1.0, "mm": 1e-3}
 # role → (option, recording column); the reference is along the measured axis, in SI
 REFERENCE_ROLES = {"ref_pos": "ref_pos_m", "ref_vel": "ref_vel_mps", "ref_acc": "ref_acc_mps2"}
-HINT_COLUMN = "standstill_hint"  # 1 rest, 0 moving, empty unknown (recording format)
 
 
 def add_parser(sub) -> None:
