@@ -203,10 +203,11 @@ def _report_retiming(r: Retiming, lines: list[int], path: str) -> list[str]:
     out.append(f"  a gap after line {lines[r.unconfirmed_from]} (the last {len(lines) - r.unconfirmed_from} "
                "rows) cannot be confirmed")
     d = r.delay_s[r.on_time]
-    out.append(f"  fit residual: least delay per {RetimingSettings().window_s:g} s window median "
-               f"{np.median(r.floor_s) * ms:.2f} ms, max {r.floor_s.max() * ms:.2f} ms; delays outside late "
-               f"stretches median {np.median(d) * ms:.2f} ms, 95 % {np.percentile(d, 95) * ms:.2f} ms, "
-               f"max {d.max() * ms:.1f} ms")
+    out.append(f"  fit residual: the clock's line lies under every arrival; the nearest arrival per "
+               f"{RetimingSettings().window_s:g} s is median {np.median(r.floor_s) * ms:.2f} ms, at most "
+               f"{r.floor_s.max() * ms:.2f} ms above it (the spread is how far the times may be off: "
+               f"a wandering sensor clock or delay floor); delays outside late stretches median "
+               f"{np.median(d) * ms:.2f} ms, 95 % {np.percentile(d, 95) * ms:.2f} ms, max {d.max() * ms:.1f} ms")
     return out
 
 

@@ -40,6 +40,10 @@ class RetimingSettings:
     late_s: float = 0.1  # a delay above this is "late": a backlog or a stall, reported
     window_s: float = 1.0  # windows in which the residual floor is reported
     max_passes: int = 20  # fit → gaps → fit …; converges in 2–3 on real files
+    # the sensor's rate from its data sheet or configuration, if known: the period is then
+    # sought only within rate_tolerance of it (needed when a backlog is most of the file)
+    nominal_rate_hz: float | None = None
+    rate_tolerance: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -90,22 +94,27 @@ class RetimingError(ValueError):
     """The arrival times cannot be re-timed (too few, not increasing, not finite)."""
 
 
-def fit_floor_line(k: np.ndarray, a: np.ndarray) -> tuple[float, float]:
+def fit_floor_line(k: np.ndarray, a: np.ndarray, period_range_s: tuple[float, float] | None = None
+                   ) -> tuple[float, float]:
     """(t0, T) of the highest line t0 + T·k under every (k_i, a_i), highest on average.
 
     max over T of g(T) = min_i (a_i − T·(k_i − k̄)): g is concave and piecewise linear,
     its slope is −(k_j − k̄) at the row j that attains the minimum, so the optimum is found
-    by bisection on the sign of that slope; it is the lower hull's edge over k̄.
+    by bisection on the sign of that slope; it is the lower hull's edge over k̄. With
+    period_range_s, the best T within that range (g is concave: its end nearest the optimum).
     """
     c = k - k.mean()
     def slope_sign(T: float) -> float:
         return -c[np.argmin(a - T * c)]
-    span = (a.max() - a.min()) / max(k.max() - k.min(), 1)
-    lo, hi = 0.0, 2.0 * span + np.finfo(float).tiny
-    for _ in range(64):  # widen until the slope turns negative
-        if slope_sign(hi) < 0:
-            break
-        lo, hi = hi, 2.0 * hi
+    if period_range_s is None:
+        span = (a.max() - a.min()) / max(k.max() - k.min(), 1)
+        lo, hi = 0.0, 2.0 * span + np.finfo(float).tiny
+        for _ in range(64):  # widen until the slope turns negative
+            if slope_sign(hi) < 0:
+                break
+            lo, hi = hi, 2.0 * hi
+    else:
+        lo, hi = period_range_s
     for _ in range(200):
         mid = 0.5 * (lo + hi)
         if mid in (lo, hi):
@@ -149,13 +158,18 @@ def _new_gaps(r: np.ndarray, T: float, window: int, min_periods: float) -> np.nd
     return lost
 
 
-def _first_period(a: np.ndarray, min_rows: int, chunks: int = 16) -> float:
-    """The median of the floor lines' slopes in chunks of the file: a gap or a backlog bends a
-    few chunks, not most (a line over the whole file is pulled by every gap in it)."""
+def _first_period(a: np.ndarray, min_rows: int, period_range_s, chunks: int = 16) -> float:
+    """The median of the floor lines' slopes in chunks of the file: a gap bends a few chunks,
+    not most (a line over the whole file is pulled by every gap in it). A backlog flushed
+    faster than the sensor bends the chunks it fills: more than half of them, and only a
+    nominal rate (period_range_s) can tell the sensor's period."""
     size = max(a.size // chunks, min_rows)
-    slopes = [fit_floor_line(np.arange(s, min(s + size, a.size), dtype=float), a[s:s + size])[1]
-              for s in range(0, a.size - size + 1, size)]
-    return float(np.median(slopes))
+    slopes = np.array([fit_floor_line(np.arange(s, s + size, dtype=float), a[s:s + size])[1]
+                       for s in range(0, a.size - size + 1, size)])
+    if period_range_s is None:
+        return float(np.median(slopes))
+    inside = slopes[(slopes >= period_range_s[0]) & (slopes <= period_range_s[1])]
+    return float(np.median(inside)) if inside.size else 0.5 * (period_range_s[0] + period_range_s[1])
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -187,15 +201,22 @@ def _refine_slope(k, a, t0: float, T: float, on_time: np.ndarray, window: int) -
     ks, floors = [], []
     for s in range(0, k.size - window + 1, window):
         idx = np.arange(s, s + window)[on_time[s:s + window]]
-        if idx.size:
+        if 2 * idx.size >= window:  # a window mostly in a backlog's drain has no floor
             j = idx[np.argmin(r[idx])]
             ks.append(k[j])
             floors.append(r[j])
-    if len(ks) < 3:
+    if len(ks) < 5:  # too few for a median of slopes: the floor line stands
         return t0, T
     slope = theilslopes(floors, ks).slope
     T = T + slope
     return float(np.min(a - T * k)), float(T)
+
+
+def _sensor_period(T: float) -> float:
+    if not (np.isfinite(T) and T > 0):
+        raise RetimingError("the arrival times show no sample rate: the line under them is flat "
+                            "(most rows arrive at the same instant)")
+    return T
 
 
 def retime(arrival_s, settings: RetimingSettings = RetimingSettings()) -> Retiming:
@@ -219,18 +240,30 @@ def retime(arrival_s, settings: RetimingSettings = RetimingSettings()) -> Retimi
     k = np.arange(n, dtype=float)
     passes = 0
     confirm = 2
-    T = _first_period(a, settings.min_rows)
+    bounds = None
+    if settings.nominal_rate_hz is not None:
+        nominal = 1.0 / settings.nominal_rate_hz
+        bounds = (nominal / (1 + settings.rate_tolerance), nominal / (1 - settings.rate_tolerance))
+    T = _first_period(a, settings.min_rows, bounds)
+    if not T > 0:  # most chunks arrived at one instant: the whole file's floor line, then
+        T = _sensor_period(fit_floor_line(k, a, bounds)[1])
     t0 = float(np.min(a - T * k))
     for passes in range(1, settings.max_passes + 1):
-        confirm = max(int(np.ceil(settings.confirm_s / T)), 2)
+        confirm = min(max(int(np.ceil(settings.confirm_s / T)), 2), n)
         new = _new_gaps(a - (t0 + T * k), T, confirm, settings.gap_min_periods)
-        if not new.any():
-            break
         lost += new
         k = np.arange(n) + np.cumsum(lost).astype(float)
-        t0, T = fit_floor_line(k, a)
-    t0, T = fit_floor_line(k, a)
-    window = max(int(round(settings.window_s / T)), 2)
+        # the line from the on-time rows only: a backlog is above it anyway, but would move
+        # the middle the line is made highest at (into the backlog, if it is most of the file)
+        late_mask = _late(a - (t0 + T * k), settings.late_s)
+        if np.count_nonzero(~late_mask) >= settings.min_rows:
+            T = _sensor_period(fit_floor_line(k[~late_mask], a[~late_mask], bounds)[1])
+        else:
+            T = _sensor_period(fit_floor_line(k, a, bounds)[1])
+        t0 = float(np.min(a - T * k))
+        if not new.any():
+            break
+    window = min(max(int(round(settings.window_s / T)), 2), n)
     late_mask = _late(a - (t0 + T * k), settings.late_s)
     t0, T = _refine_slope(k, a, t0, T, ~late_mask, window)
     tau = t0 + T * k
