@@ -41,9 +41,9 @@ def test_leiria_arrival_times_re_timed_against_its_sensor_clock(tmp_path):
     err -= np.median(err)
     raw = foreign["arrival_time_s"] - foreign["sensor_time_s"]
     raw -= np.median(raw)
-    # measured 2026-11-24: max 32.9 ms (inside the backlog), RMS 5.5 ms; the arrival times
-    # themselves are off by 3.9 s; bounds leave room, not tuned to the digit
-    assert np.abs(err).max() < 0.040 and np.sqrt(np.mean(err ** 2)) < 0.008
+    # measured 2026-11-24: max 27.9 ms (inside the backlog), RMS 7.4 ms; the arrival times
+    # themselves are off by 3.9 s; the bounds leave room, they are not tuned to the digit
+    assert np.abs(err).max() < 0.040 and np.sqrt(np.mean(err ** 2)) < 0.010
     assert np.abs(raw).max() > 3.5
     # the reference and the hint travel with their rows
     np.testing.assert_array_equal(s.reference["ref_pos_m"], foreign["ref_z_m"])
@@ -99,6 +99,8 @@ def rows(n, t=lambda i: 0.01 * i, extra=""):
         ("", ["--time-col", "t", "--acc-col", "acc"], "f.csv:1: empty file, no header row"),
         ("t,acc\n" + rows(30), ["--time-col", "t", "--check-time-col", "t", "--acc-col", "acc"],
          "--check-time-col needs --arrival-col"),
+        ("t,acc\n" + rows(30), ["--time-col", "t", "--nominal-rate-hz", "100", "--acc-col", "acc"],
+         "--nominal-rate-hz needs --arrival-col"),
     ],
 )
 def test_bad_foreign_files_are_one_line_exit_2(tmp_path, content, args, message):

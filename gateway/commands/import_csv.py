@@ -15,6 +15,7 @@ from decimal import Decimal
 
 import numpy as np
 
+from gateway.commands.common import positive_float
 from gateway.core.retiming import Retiming, RetimingError, RetimingSettings, retime, timing_error
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
@@ -44,6 +45,10 @@ def add_parser(sub) -> None:
                       help="column with the time the PC received each sample: the sample times are "
                            "recovered from it (a regular sensor clock, lost samples found as gaps) and "
                            "it is kept as t_host_s")
+    p.add_argument("--nominal-rate-hz", type=positive_float,
+                   help="with --arrival-col: the sensor's configured sample rate, if known; the period "
+                        "is then sought within ±10 %% of it (needed when a start-up backlog is most of "
+                        "the file: the arrivals alone cannot tell it from a logger falling behind)")
     p.add_argument("--time-unit", choices=sorted(TIME_SCALES), default="s",
                    help="unit of the time or arrival column (default: s)")
     p.add_argument("--check-time-col", metavar="COL",
@@ -126,6 +131,8 @@ def _check_args(args) -> None:
             raise RecordingError(f"--{name.replace('_', '-')} {value!r} must be a finite non-zero number")
     if args.check_time_col and not args.arrival_col:
         raise RecordingError("--check-time-col needs --arrival-col (it checks the re-timed sample times)")
+    if args.nominal_rate_hz and not args.arrival_col:
+        raise RecordingError("--nominal-rate-hz needs --arrival-col (it guides the re-timing)")
     if args.hint_rest_value == args.hint_moving_value:
         raise RecordingError("--hint-rest-value and --hint-moving-value must differ")
 
@@ -174,7 +181,7 @@ def read_foreign(args) -> tuple[dict[str, list], list[int], int]:
 
 def _retime(args, arrival_s: np.ndarray, lines: list[int]) -> Retiming:
     try:
-        return retime(arrival_s, RetimingSettings())
+        return retime(arrival_s, RetimingSettings(nominal_rate_hz=args.nominal_rate_hz))
     except RetimingError as err:
         # the core counts rows from 0 among the rows kept; the user wants the file's line
         text = str(err)

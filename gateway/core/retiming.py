@@ -158,18 +158,25 @@ def _new_gaps(r: np.ndarray, T: float, window: int, min_periods: float) -> np.nd
     return lost
 
 
-def _first_period(a: np.ndarray, min_rows: int, period_range_s, chunks: int = 16) -> float:
+def _first_period(a: np.ndarray, min_rows: int, late_s: float, period_range_s, chunks: int = 16) -> float:
     """The median of the floor lines' slopes in chunks of the file: a gap bends a few chunks,
-    not most (a line over the whole file is pulled by every gap in it). A backlog flushed
-    faster than the sensor bends the chunks it fills: more than half of them, and only a
-    nominal rate (period_range_s) can tell the sensor's period."""
+    not most (a line over the whole file is pulled by every gap in it). Chunks in a backlog
+    (late against the line of that median) are then left out: a flush is not the sensor's
+    timing. A backlog in most chunks sets the first median, and only a nominal rate
+    (period_range_s) can tell the sensor's period then."""
     size = max(a.size // chunks, min_rows)
-    slopes = np.array([fit_floor_line(np.arange(s, s + size, dtype=float), a[s:s + size])[1]
-                       for s in range(0, a.size - size + 1, size)])
-    if period_range_s is None:
+    starts = range(0, a.size - size + 1, size)
+    slopes = np.array([fit_floor_line(np.arange(s, s + size, dtype=float), a[s:s + size])[1] for s in starts])
+    if period_range_s is not None:
+        slopes = slopes[(slopes >= period_range_s[0]) & (slopes <= period_range_s[1])]
+        if not slopes.size:
+            return 0.5 * (period_range_s[0] + period_range_s[1])
         return float(np.median(slopes))
-    inside = slopes[(slopes >= period_range_s[0]) & (slopes <= period_range_s[1])]
-    return float(np.median(inside)) if inside.size else 0.5 * (period_range_s[0] + period_range_s[1])
+    T = float(np.median(slopes))
+    k = np.arange(a.size, dtype=float)
+    late = _late(a - (np.min(a - T * k) + T * k), late_s)
+    on_time = np.array([not late[s:s + size].any() for s in starts])
+    return float(np.median(slopes[on_time])) if np.count_nonzero(on_time) >= 3 else T
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -244,7 +251,7 @@ def retime(arrival_s, settings: RetimingSettings = RetimingSettings()) -> Retimi
     if settings.nominal_rate_hz is not None:
         nominal = 1.0 / settings.nominal_rate_hz
         bounds = (nominal / (1 + settings.rate_tolerance), nominal / (1 - settings.rate_tolerance))
-    T = _first_period(a, settings.min_rows, bounds)
+    T = _first_period(a, settings.min_rows, settings.late_s, bounds)
     if not T > 0:  # most chunks arrived at one instant: the whole file's floor line, then
         T = _sensor_period(fit_floor_line(k, a, bounds)[1])
     t0 = float(np.min(a - T * k))
