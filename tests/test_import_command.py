@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from gateway.recording import read_recording, to_acceleration
+from tests.test_retiming import bursty_arrivals
 
 REPO = Path(__file__).resolve().parents[1]
 LEIRIA = REPO / "datasets" / "leiria-robot"
@@ -110,6 +111,20 @@ def test_bad_foreign_files_are_one_line_exit_2(tmp_path, content, args, message)
     assert "Traceback" not in r.stderr and r.stderr.strip().count("\n") == 0
     assert message in r.stderr
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_a_backlog_most_of_the_file_needs_the_nominal_rate(tmp_path):
+    tau, arrival, _, _ = bursty_arrivals(8, n=1500, lost=((1350, 2),), backlog=900, stall=(1280, 0.05))
+    src = _write(tmp_path, "arrival,acc\n" + "".join(f"{float(t)!r},0.0\n" for t in arrival))
+    out = tmp_path / "o.csv"
+    r = adxlgw("import", src, "--arrival-col", "arrival", "--acc-col", "acc", "--out", out)
+    assert r.returncode == 2 and r.stderr.strip().count("\n") == 0
+    assert "cannot tell the sensor's rate" in r.stderr and "give --nominal-rate-hz" in r.stderr
+    r = adxlgw("import", src, "--arrival-col", "arrival", "--acc-col", "acc", "--nominal-rate-hz", "100",
+               "--out", out)
+    assert r.returncode == 0, r.stderr
+    t_s = read_recording(out).columns["t_s"]
+    assert np.median(np.diff(t_s)) == pytest.approx(0.010, rel=1e-3)
 
 
 def test_hint_values_of_the_users_logger(tmp_path):

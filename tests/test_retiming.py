@@ -113,8 +113,11 @@ def test_a_backlog_longer_than_the_rest_of_the_file_does_not_set_the_period():
     tau, arrival, _, lost_true = bursty_arrivals(8, n=1500, lost=((1350, 2),), backlog=900, stall=(1280, 0.05))
     # 9 s of samples flushed 2.5 ms apart for 3 s, then 3 s of steady arrivals: the arrivals
     # alone say "400 samples/s, falling behind at the end"; the data sheet's 100 Hz, 3 % off, decides
-    assert retime(arrival).period_s == pytest.approx(TRANSFER_S, rel=1e-3)
+    guess = retime(arrival)
+    assert guess.period_s == pytest.approx(TRANSFER_S, rel=1e-3)
+    assert guess.falling_behind is not None  # and it says it cannot tell
     r = retime(arrival, RetimingSettings(nominal_rate_hz=97.0))
+    assert r.falling_behind is None
     assert r.late[0].start == 0 and r.late[0].stop > 1150
     assert r.period_s == pytest.approx(0.010, rel=1e-3)  # 3 s of steady arrivals: to ~0.1 %
     assert_gaps_found(r, lost_true)

@@ -197,6 +197,9 @@ def _report_retiming(r: Retiming, lines: list[int], path: str) -> list[str]:
            f"(period {r.period_s * ms:.4f} ms on the arrival clock; {r.passes} fit passes)"]
     out.append(f"  arrivals: {r.bursts} bursts of ≥ 2 rows (median {r.burst_rows_median:g} rows, "
                f"{r.burst_interval_s * ms:.1f} ms apart inside, {r.between_bursts_s * ms:.1f} ms between)")
+    if r.falling_behind:
+        out.append("  warning: the arrivals fall behind the sensor for good at the end (with the nominal "
+                   "rate given, taken as the logger falling behind)")
     for ep in r.late:
         kind = "start-up backlog" if ep.start == 0 else "late stretch"
         out.append(f"  {kind}: lines {lines[ep.start]}–{lines[ep.stop - 1]} ({ep.stop - ep.start} rows) up to "
@@ -242,6 +245,14 @@ def run(args: argparse.Namespace) -> int:
     metadata = {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " ")}
     if args.arrival_col:
         timing = _retime(args, t_in, lines)
+        tail = timing.falling_behind
+        if tail and not args.nominal_rate_hz:
+            raise RecordingError(
+                f"{args.foreign}: column {time_col!r}: cannot tell the sensor's rate: lines {lines[tail.start]}–"
+                f"{lines[-1]} arrive {tail.arrival_interval_s * 1e3:.1f} ms apart and later and later to the end, "
+                f"after rows {timing.period_s * 1e3:.1f} ms apart; either the logger fell behind a "
+                f"{timing.rate_hz:.0f} Hz sensor or the rows before were a start-up backlog flushed faster "
+                f"than a ~{1 / tail.arrival_interval_s:.0f} Hz sensor: give --nominal-rate-hz")
         origin = timing.t_s[0]
         t_s = timing.t_s - origin
         t_host_s = t_in - origin

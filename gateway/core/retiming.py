@@ -84,6 +84,19 @@ class Retiming:
         return [(int(r), int(self.lost_before[r])) for r in rows]
 
     @property
+    def falling_behind(self) -> LateEpisode | None:
+        """A late stretch to the very end that arrives slower than the period found.
+
+        Either the logger fell behind the sensor for good, or the rows before it were a
+        start-up backlog flushed faster than the sensor and the period found is the flush's.
+        Arrival times alone cannot tell the two apart; a nominal rate can.
+        """
+        last = self.late[-1] if self.late else None
+        if last and last.stop == self.t_s.size and last.arrival_interval_s > 1.5 * self.period_s:
+            return last
+        return None
+
+    @property
     def blind_rows(self) -> int:
         """Rows at the start that no on-time arrival precedes: gaps among them are unseen."""
         first = self.late[0] if self.late and self.late[0].start == 0 else None
