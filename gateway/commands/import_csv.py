@@ -184,14 +184,11 @@ def _retime(args, arrival_s: np.ndarray, lines: list[int]) -> Retiming:
         return retime(arrival_s, RetimingSettings(nominal_rate_hz=args.nominal_rate_hz))
     except RetimingError as err:
         # the core counts rows from 0 among the rows kept; the user wants the file's line
-        text = str(err)
-        if text.startswith("row "):
-            row, rest = text[4:].split(":", 1)
-            raise RecordingError(f"{args.foreign}:{lines[int(row)]}: column {args.arrival_col!r}:{rest}") from None
-        raise RecordingError(f"{args.foreign}: column {args.arrival_col!r}: {text}") from None
+        where = args.foreign if err.row is None else f"{args.foreign}:{lines[err.row]}"
+        raise RecordingError(f"{where}: column {args.arrival_col!r}: {err.what}") from None
 
 
-def _report_retiming(r: Retiming, lines: list[int], path: str) -> list[str]:
+def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
     ms = 1e3
     out = [f"re-timed from arrival times: sensor clock {r.rate_hz:.4f} samples/s "
            f"(period {r.period_s * ms:.4f} ms on the arrival clock; {r.passes} fit passes)"]
@@ -230,12 +227,7 @@ def run(args: argparse.Namespace) -> int:
         raise RecordingError(f"{args.foreign}: {len(lines)} rows with both {time_col!r} and {args.acc_col!r}; "
                              f"{'re-timing needs' if args.arrival_col else 'a recording needs'} at least {need}")
     t_in = _seconds(values["time"], args.time_unit)
-    if args.arrival_col:
-        back = np.flatnonzero(np.diff(t_in) < 0)
-        if back.size:
-            raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: arrival time goes "
-                                 "backwards")
-    else:
+    if not args.arrival_col:  # arrival times are checked by the re-timing
         back = np.flatnonzero(np.diff(t_in) <= 0)
         if back.size:
             raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: time does not "
@@ -256,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
         origin = timing.t_s[0]
         t_s = timing.t_s - origin
         t_host_s = t_in - origin
-        notes += _report_retiming(timing, lines, args.foreign)
+        notes += _report_retiming(timing, lines)
         metadata.update({
             "retimed_from": f"{time_col} ({args.time_unit})",
             "retimed_rate_hz": f"{timing.rate_hz:.6f}",
@@ -266,6 +258,10 @@ def run(args: argparse.Namespace) -> int:
             "retimed_floor_max_ms": f"{timing.floor_s.max() * 1e3:.3f}",
         })
         if args.check_time_col:
+            empty = [line for line, v in zip(lines, values["check"]) if not isinstance(v, int) and math.isnan(v)]
+            if empty:
+                raise RecordingError(f"{args.foreign}:{empty[0]}: column {args.check_time_col!r}: empty cell "
+                                     "(the check needs a time in every row)")
             err = timing_error(t_s, _seconds(values["check"], args.time_unit))
             notes.append(f"  against {args.check_time_col!r}: timing error max {err.max_s * 1e3:.2f} ms, "
                          f"RMS {err.rms_s * 1e3:.2f} ms, sample-spacing RMS {err.interval_rms_s * 1e3:.3f} ms "

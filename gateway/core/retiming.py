@@ -104,7 +104,12 @@ class Retiming:
 
 
 class RetimingError(ValueError):
-    """The arrival times cannot be re-timed (too few, not increasing, not finite)."""
+    """The arrival times cannot be re-timed (too few, going backwards, not finite, no rate)."""
+
+    def __init__(self, what: str, row: int | None = None):
+        super().__init__(what if row is None else f"row {row}: {what}")
+        self.what = what
+        self.row = row  # 0-based among the arrival times given, where one row is to blame
 
 
 def fit_floor_line(k: np.ndarray, a: np.ndarray, period_range_s: tuple[float, float] | None = None
@@ -247,10 +252,10 @@ def retime(arrival_s, settings: RetimingSettings = RetimingSettings()) -> Retimi
         raise RetimingError(f"{n} arrival times; re-timing needs at least {settings.min_rows}")
     bad = np.flatnonzero(~np.isfinite(a_in))
     if bad.size:
-        raise RetimingError(f"row {bad[0]}: arrival time is not finite")
+        raise RetimingError("arrival time is not finite", int(bad[0]))
     back = np.flatnonzero(np.diff(a_in) < 0)
     if back.size:
-        raise RetimingError(f"row {back[0] + 1}: arrival time goes backwards")
+        raise RetimingError("arrival time goes backwards", int(back[0]) + 1)
     if a_in[-1] == a_in[0]:
         raise RetimingError("all arrival times are equal")
     origin = a_in[0]
