@@ -1,10 +1,17 @@
 """adxlgw import: a logger's file with arrival times, a reference and a hint → a scored recording."""
+import contextlib
+import io
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from gateway.cli import main as cli_main
 
 from gateway.recording import read_recording, to_acceleration
 from tests.test_retiming import bursty_arrivals
@@ -139,3 +146,17 @@ def test_hint_values_of_the_users_logger(tmp_path):
     assert r.returncode == 0, r.stderr
     hint = read_recording(out).columns["standstill_hint"]
     assert hint[:3].tolist()[:2] == [1.0, 0.0] and np.isnan(hint[2])
+
+
+@given(st.binary(max_size=600) | st.text(alphabet="t,acc\n0123456789.-e\"", max_size=600).map(str.encode))
+def test_any_bytes_are_imported_or_refused_in_one_line(content):
+    # in-process (a subprocess per example is too slow); the CLI's own error path
+    with tempfile.TemporaryDirectory() as tmp:
+        src, out = Path(tmp) / "f.csv", Path(tmp) / "o.csv"
+        src.write_bytes(b"t,acc\n" + content)
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err):
+            code = cli_main(["import", str(src), "--arrival-col", "t", "--acc-col", "acc", "--out", str(out)])
+    assert code in (0, 2), err.getvalue()
+    if code == 2:
+        assert err.getvalue().count("\n") == 1 and "f.csv" in err.getvalue()
