@@ -9,19 +9,25 @@ sample's index on that clock; k_i − k_{i−1} − 1 samples were lost before r
 The line (Moon, Skelly & Towsley, "Estimation and removal of clock skew from network
 delay measurements", INFOCOM 1999): the line t0 + T·k under every arrival and as high
 as possible on average, max Σ τ_i subject to τ_i ≤ a_i. Only the least-delayed
-arrivals decide it, so bursts and backlogs, however long, do not bias it; T is the
-sensor's period measured on the PC's clock, any clock-rate mismatch included.
+arrivals decide it, so bursts do not bias it; T is the sensor's period measured on the
+PC's clock, any clock-rate mismatch included. It is fitted to the rows outside late
+stretches (a backlog is above it anyway, but would move the middle it is made highest
+at); the first T is the median of the lines of 16 chunks, backlog chunks left out.
 
 Gaps: a lost sample makes every later arrival one period later against the line, so the
-floor of the delays — the least delay from a row to the end — steps up by a whole period
-and never comes back; a burst or a backlog does not move it. A step of at least half a
-period is a gap of round(step / T) samples, put as early as causality allows (no row
-before its own arrival); the line is fitted again with the new indices until no new gap
-appears.
+floor of the delays steps up and stays up; a burst, a backlog or a stall does not move
+it. The floor before a row (least delay over `confirm_s`) against the floor after it
+(over 4·`confirm_s`): a step of at least half a period is a gap of round(step / T)
+samples, put right after the last row on the old floor (the latest sample times the
+arrivals allow). Then the line again with the new indices, until no new gap appears.
+Last, the slope from the least delay of every `window_s` window (Theil–Sen), not only
+the two points the line rests on, and the line lowered until it is under every arrival.
 
 What arrival times cannot show, and `Retiming` says: a gap inside a backlog before the
-first on-time arrival, or in the last `confirm_s` (the floor after it is not seen long
-enough to tell a gap from a late stretch).
+first on-time arrival, or in the last `confirm_s`; where between two arrivals on the
+floor a sample was lost; and whether a late stretch that lasts to the end is a logger
+falling behind or the period found is a start-up flush's (`falling_behind`: only a
+nominal rate can tell).
 """
 from __future__ import annotations
 
