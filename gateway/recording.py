@@ -29,6 +29,7 @@ RAW_REQUIRED = ("seq", "t1x", "t1y", "t2")
 ACC_REQUIRED = ("t_s", "acc_x_mps2")
 REFERENCE_COLUMNS = ("ref_pos_m", "ref_vel_mps", "ref_acc_mps2")
 INTEGER_COLUMNS = ("seq", "t1x", "t1y", "t2", "flags")
+HINT_COLUMN = "standstill_hint"  # the machine's word on the axis: 1 at rest, 0 moving, empty unknown
 
 
 @dataclass
@@ -156,6 +157,12 @@ def parse_recording(text: str, path: str = "<recording>") -> Recording:
     if n == 0:
         raise _error(path, header_line, None, "no data rows")
     columns = {name: data[:, j].copy() for j, name in enumerate(header)}
+    if HINT_COLUMN in columns:
+        hint = columns[HINT_COLUMN]
+        bad = np.flatnonzero(np.isfinite(hint) & (hint != 0) & (hint != 1))
+        if bad.size:
+            raise _error(path, header_line + 1 + int(bad[0]), HINT_COLUMN,
+                         f"{float(hint[bad[0]])!r} is not 1 (at rest), 0 (moving) or empty (unknown)")
     required = RAW_REQUIRED if form == "raw" else ACC_REQUIRED
     for name in required:
         bad = np.flatnonzero(~np.isfinite(columns[name]))

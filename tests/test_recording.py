@@ -50,6 +50,8 @@ def test_acceleration_form_and_unknown_metadata_are_kept():
         ("t_s,acc_x_mps2\n0,1\n0,2\n", "<f>:3: column 't_s': sample times must increase"),
         ("# tick_hz=921600\nseq,t1x,t1y,t2\n0,900.5,901,1843\n", "column 't1x': 900.5 is not an integer count"),
         ("# only=metadata\n", "no header row"),
+        ("t_s,acc_x_mps2,standstill_hint\n0,1,1\n0.1,2,\n0.2,2,0.5\n",
+         "<f>:4: column 'standstill_hint': 0.5 is not 1 (at rest), 0 (moving) or empty (unknown)"),
     ],
 )
 def test_bad_recordings_name_file_line_and_column(text, message):

@@ -1,35 +1,59 @@
-"""adxlgw import: another logger's CSV → a recording in the acceleration form."""
+"""adxlgw import: another logger's CSV → a recording in the acceleration form.
+
+Sample times come either from a trusted column (`--time-col`, the sensor's own clock) or
+are recovered from the PC's arrival times (`--arrival-col`, gateway/core/retiming.py).
+Reference columns and the machine's standstill hint are carried through row by row, so
+a logger file with a reference becomes a scored recording in one command.
+"""
 from __future__ import annotations
 
 import argparse
 import csv
 import math
 import sys
-from decimal import Decimal, InvalidOperation
+from decimal import Decimal
 
 import numpy as np
 
 from gateway.commands.common import positive_float
+from gateway.core.retiming import Retiming, RetimingError, RetimingSettings, retime, timing_error
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
-from gateway.recording import write_recording
+from gateway.recording import HINT_COLUMN, write_recording
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}
 TIME_SCALES = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+LENGTH_SCALES = {"m": 1.0, "mm": 1e-3}
+# role → (option, recording column); the reference is along the measured axis, in SI
+REFERENCE_ROLES = {"ref_pos": "ref_pos_m", "ref_vel": "ref_vel_mps", "ref_acc": "ref_acc_mps2"}
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "import",
         help="convert another logger's CSV into a recording (acceleration form)",
-        description="Read a foreign CSV, take one time column and one or two acceleration columns, "
-                    "scale them to seconds and m/s², and write a recording in the acceleration form. "
-                    "Rows whose time or acceleration cell is empty are skipped and counted "
-                    "(e.g. interleaved rows of another kind).",
+        description="Read a foreign CSV, take the sample times (a sensor-clock column, or the PC's "
+                    "arrival times re-timed onto the sensor's regular clock), one or two acceleration "
+                    "columns, and optionally a reference and a standstill hint; write a recording in "
+                    "the acceleration form. Rows whose time or acceleration cell is empty are skipped "
+                    "and counted (e.g. interleaved rows of another kind).",
     )
     p.add_argument("foreign", metavar="FOREIGN.csv")
-    p.add_argument("--time-col", required=True, help="column with the sample time")
-    p.add_argument("--time-unit", choices=sorted(TIME_SCALES), default="s", help="unit of the time column (default: s)")
+    when = p.add_mutually_exclusive_group(required=True)
+    when.add_argument("--time-col", help="column with the sample time on the sensor's clock")
+    when.add_argument("--arrival-col",
+                      help="column with the time the PC received each sample: the sample times are "
+                           "recovered from it (a regular sensor clock, lost samples found as gaps) and "
+                           "it is kept as t_host_s")
+    p.add_argument("--nominal-rate-hz", type=positive_float,
+                   help="with --arrival-col: the sensor's configured sample rate, if known; the period "
+                        "is then sought within ±10 %% of it (needed when a start-up backlog is most of "
+                        "the file: the arrivals alone cannot tell it from a logger falling behind)")
+    p.add_argument("--time-unit", choices=sorted(TIME_SCALES), default="s",
+                   help="unit of the time or arrival column (default: s)")
+    p.add_argument("--check-time-col", metavar="COL",
+                   help="with --arrival-col: a trusted sample-time column (same unit) to print the "
+                        "re-timing's error against; the output does not use it")
     p.add_argument("--acc-col", required=True, help="column with the acceleration along the measured axis")
     p.add_argument("--acc-y-col", help="optional column with a second axis")
     p.add_argument("--acc-unit", choices=sorted(UNIT_SCALES), default="mps2",
@@ -37,6 +61,17 @@ def add_parser(sub) -> None:
     p.add_argument("--acc-scale", type=float, default=1.0,
                    help="extra factor applied after the unit, e.g. -1 to flip the axis (default: 1)")
     p.add_argument("--temp-col", help="optional column with temperature in °C")
+    p.add_argument("--ref-pos-col", help="reference position along the measured axis → ref_pos_m")
+    p.add_argument("--ref-vel-col", help="reference velocity → ref_vel_mps")
+    p.add_argument("--ref-acc-col", help="reference acceleration → ref_acc_mps2")
+    p.add_argument("--ref-unit", choices=sorted(LENGTH_SCALES), default="m",
+                   help="length unit of the reference columns: m (m, m/s, m/s²) or mm (default: m)")
+    p.add_argument("--ref-scale", type=float, default=1.0,
+                   help="extra factor on the reference, e.g. -1 when it counts the other way (default: 1)")
+    p.add_argument("--hint-col", help=f"the machine's standstill hint → {HINT_COLUMN} (1 rest, 0 moving, "
+                                      "empty unknown)")
+    p.add_argument("--hint-rest-value", default="1", help="cell value meaning 'at rest' (default: 1)")
+    p.add_argument("--hint-moving-value", default="0", help="cell value meaning 'moving' (default: 0)")
     p.add_argument("--out", required=True, help="output recording")
     p.set_defaults(run=run)
 
@@ -56,63 +91,210 @@ def _number(cell: str, path: str, line: int, column: str):
     return value
 
 
-def run(args: argparse.Namespace) -> int:
-    if not math.isfinite(args.acc_scale) or args.acc_scale == 0:
-        raise RecordingError(f"--acc-scale {args.acc_scale!r} must be a finite non-zero number")
+def _read_text(path: str) -> str:
     try:
-        fh = open(args.foreign, encoding="utf-8", newline="")
+        with open(path, "rb") as fh:
+            raw = fh.read()
     except OSError as err:
-        raise RecordingError(f"{args.foreign}: cannot read: {err.strerror or err}") from err
-    with fh:
-        reader = csv.reader(fh)
-        try:
-            header = [h.strip() for h in next(reader)]
-        except StopIteration:
-            raise RecordingError(f"{args.foreign}:1: empty file, no header row") from None
-        wanted = {"time": args.time_col, "acc": args.acc_col}
-        if args.acc_y_col:
-            wanted["acc_y"] = args.acc_y_col
-        if args.temp_col:
-            wanted["temp"] = args.temp_col
-        index = {}
-        for role, name in wanted.items():
-            if name not in header:
-                raise RecordingError(f"{args.foreign}:1: no column {name!r} in the header")
-            index[role] = header.index(name)
-        values = {role: [] for role in wanted}
-        skipped = 0
-        for line, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
-            if not cells["time"] or not cells["acc"]:
-                skipped += 1
-                continue
-            for role, cell in cells.items():
-                values[role].append(_number(cell, args.foreign, line, wanted[role]) if cell else float("nan"))
-    if len(values["time"]) < 2:
-        raise RecordingError(f"{args.foreign}: fewer than two rows with both {args.time_col!r} and {args.acc_col!r}")
-    t0 = values["time"][0]
-    t_s = np.array([float(Decimal(t - t0) if isinstance(t, int) and isinstance(t0, int) else (t - t0))
-                    for t in values["time"]]) * TIME_SCALES[args.time_unit]
-    back = np.flatnonzero(np.diff(t_s) <= 0)
-    if back.size:
-        raise RecordingError(f"{args.foreign}: column {args.time_col!r}: time does not increase at data row {back[0] + 2}")
+        raise RecordingError(f"{path}: cannot read: {err.strerror or err}") from err
+    try:
+        return raw.decode("utf-8-sig")  # a spreadsheet's byte-order mark is not part of the header
+    except UnicodeDecodeError as err:
+        line = raw.count(b"\n", 0, err.start) + 1
+        raise RecordingError(f"{path}:{line}: not UTF-8 text ({err.reason} at byte offset {err.start})") from None
+
+
+def _seconds(values: list, unit: str) -> np.ndarray:
+    """Seconds since the first row; exact integer differences first (nanoseconds since 1970)."""
+    t0 = values[0]
+    diffs = [float(Decimal(t - t0)) if isinstance(t, int) and isinstance(t0, int) else float(t - t0)
+             for t in values]
+    return np.array(diffs) * TIME_SCALES[unit]
+
+
+def _hint(cell: str, args, path: str, line: int) -> float:
+    if cell == "":
+        return float("nan")
+    if cell == args.hint_rest_value:
+        return 1.0
+    if cell == args.hint_moving_value:
+        return 0.0
+    raise RecordingError(f"{path}:{line}: column {args.hint_col!r}: {cell!r} is neither the rest value "
+                         f"{args.hint_rest_value!r} nor the moving value {args.hint_moving_value!r} "
+                         "(empty = unknown)")
+
+
+def _check_args(args) -> None:
+    for name in ("acc_scale", "ref_scale"):
+        value = getattr(args, name)
+        if not math.isfinite(value) or value == 0:
+            raise RecordingError(f"--{name.replace('_', '-')} {value!r} must be a finite non-zero number")
+    if args.check_time_col and not args.arrival_col:
+        raise RecordingError("--check-time-col needs --arrival-col (it checks the re-timed sample times)")
+    if args.nominal_rate_hz and not args.arrival_col:
+        raise RecordingError("--nominal-rate-hz needs --arrival-col (it guides the re-timing)")
+    if args.hint_rest_value == args.hint_moving_value:
+        raise RecordingError("--hint-rest-value and --hint-moving-value must differ")
+
+
+def _wanted(args) -> dict[str, str]:
+    wanted = {"time": args.arrival_col or args.time_col, "acc": args.acc_col}
+    optional = {"acc_y": args.acc_y_col, "temp": args.temp_col, "ref_pos": args.ref_pos_col,
+                "ref_vel": args.ref_vel_col, "ref_acc": args.ref_acc_col, "hint": args.hint_col,
+                "check": args.check_time_col}
+    wanted.update({role: name for role, name in optional.items() if name})
+    return wanted
+
+
+def read_foreign(args) -> tuple[dict[str, list], list[int], int]:
+    """Cells of the wanted columns for rows with a time and an acceleration; their line numbers."""
+    path = args.foreign
+    reader = csv.reader(_read_text(path).splitlines())
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise RecordingError(f"{path}:1: empty file, no header row") from None
+    wanted = _wanted(args)
+    index = {}
+    for role, name in wanted.items():
+        if name not in header:
+            raise RecordingError(f"{path}:1: no column {name!r} in the header")
+        index[role] = header.index(name)
+    values: dict[str, list] = {role: [] for role in wanted}
+    lines: list[int] = []
+    skipped = 0
+    for line, row in enumerate(reader, start=2):
+        if not row:
+            continue
+        cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
+        if not cells["time"] or not cells["acc"]:
+            skipped += 1
+            continue
+        for role, cell in cells.items():
+            if role == "hint":
+                values[role].append(_hint(cell, args, path, line))
+            else:
+                values[role].append(_number(cell, path, line, wanted[role]) if cell else float("nan"))
+        lines.append(line)
+    return values, lines, skipped
+
+
+def _retime(args, arrival_s: np.ndarray, lines: list[int]) -> Retiming:
+    try:
+        return retime(arrival_s, RetimingSettings(nominal_rate_hz=args.nominal_rate_hz))
+    except RetimingError as err:
+        # the core counts rows from 0 among the rows kept; the user wants the file's line
+        where = args.foreign if err.row is None else f"{args.foreign}:{lines[err.row]}"
+        raise RecordingError(f"{where}: column {args.arrival_col!r}: {err.what}") from None
+
+
+def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
+    ms = 1e3
+    out = [f"re-timed from arrival times: sensor clock {r.rate_hz:.4f} samples/s "
+           f"(period {r.period_s * ms:.4f} ms on the arrival clock; {r.passes} fit passes)"]
+    out.append(f"  arrivals: {r.bursts} bursts of ≥ 2 rows (median {r.burst_rows_median:g} rows, "
+               f"{r.burst_interval_s * ms:.1f} ms apart inside, {r.between_bursts_s * ms:.1f} ms between)")
+    if r.falling_behind:
+        out.append("  warning: the arrivals fall behind the sensor for good at the end (with the nominal "
+                   "rate given, taken as the logger falling behind)")
+    for ep in r.late:
+        kind = "start-up backlog" if ep.start == 0 else "late stretch"
+        out.append(f"  {kind}: lines {lines[ep.start]}–{lines[ep.stop - 1]} ({ep.stop - ep.start} rows) up to "
+                   f"{ep.max_delay_s:.3f} s late, arriving {ep.arrival_interval_s * ms:.1f} ms apart")
+    if r.blind_rows:
+        out.append(f"  a gap among the first {r.blind_rows} rows cannot be seen (no on-time arrival before them)")
+    gaps = r.gaps
+    lost = int(r.lost_before.sum())
+    listed = ", ".join(f"line {lines[row]} ({n})" for row, n in gaps[:10]) + (" …" if len(gaps) > 10 else "")
+    out.append(f"  gaps: {len(gaps)}, {lost} samples lost" + (f": before {listed}" if gaps else ""))
+    out.append(f"  a gap after line {lines[r.unconfirmed_from]} (the last {len(lines) - r.unconfirmed_from} "
+               "rows) cannot be confirmed")
+    d = r.delay_s[r.on_time]
+    out.append(f"  fit residual: the clock's line lies under every arrival; the nearest arrival per "
+               f"{RetimingSettings().window_s:g} s is median {np.median(r.floor_s) * ms:.2f} ms, at most "
+               f"{r.floor_s.max() * ms:.2f} ms above it (the spread is how far the times may be off: "
+               f"a wandering sensor clock or delay floor); delays outside late stretches median "
+               f"{np.median(d) * ms:.2f} ms, 95 % {np.percentile(d, 95) * ms:.2f} ms, max {d.max() * ms:.1f} ms")
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_args(args)
+    values, lines, skipped = read_foreign(args)
+    time_col = args.arrival_col or args.time_col
+    need = RetimingSettings().min_rows if args.arrival_col else 2
+    if len(lines) < need:
+        raise RecordingError(f"{args.foreign}: {len(lines)} rows with both {time_col!r} and {args.acc_col!r}; "
+                             f"{'re-timing needs' if args.arrival_col else 'a recording needs'} at least {need}")
+    t_in = _seconds(values["time"], args.time_unit)
+    if not args.arrival_col:  # arrival times are checked by the re-timing
+        back = np.flatnonzero(np.diff(t_in) <= 0)
+        if back.size:
+            raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: time does not "
+                                 "increase")
+
+    notes: list[str] = []
+    metadata = {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " ")}
+    if args.arrival_col:
+        timing = _retime(args, t_in, lines)
+        tail = timing.falling_behind
+        if tail and not args.nominal_rate_hz:
+            raise RecordingError(
+                f"{args.foreign}: column {time_col!r}: cannot tell the sensor's rate: lines {lines[tail.start]}–"
+                f"{lines[-1]} arrive {tail.arrival_interval_s * 1e3:.1f} ms apart and later and later to the end, "
+                f"after rows {timing.period_s * 1e3:.1f} ms apart; either the logger fell behind a "
+                f"{timing.rate_hz:.0f} Hz sensor or the rows before were a start-up backlog flushed faster "
+                f"than a ~{1 / tail.arrival_interval_s:.0f} Hz sensor: give --nominal-rate-hz")
+        origin = timing.t_s[0]
+        t_s = timing.t_s - origin
+        t_host_s = t_in - origin
+        notes += _report_retiming(timing, lines)
+        metadata.update({
+            "retimed_from": f"{time_col} ({args.time_unit})",
+            "retimed_rate_hz": f"{timing.rate_hz:.6f}",
+            "retimed_lost_samples": str(int(timing.lost_before.sum())),
+            "retimed_gaps": str(len(timing.gaps)),
+            "retimed_blind_rows": str(timing.blind_rows),
+            "retimed_floor_max_ms": f"{timing.floor_s.max() * 1e3:.3f}",
+        })
+        if args.check_time_col:
+            empty = [line for line, v in zip(lines, values["check"]) if not isinstance(v, int) and math.isnan(v)]
+            if empty:
+                raise RecordingError(f"{args.foreign}:{empty[0]}: column {args.check_time_col!r}: empty cell "
+                                     "(the check needs a time in every row)")
+            err = timing_error(t_s, _seconds(values["check"], args.time_unit))
+            notes.append(f"  against {args.check_time_col!r}: timing error max {err.max_s * 1e3:.2f} ms, "
+                         f"RMS {err.rms_s * 1e3:.2f} ms, sample-spacing RMS {err.interval_rms_s * 1e3:.3f} ms "
+                         f"(after removing a constant {err.offset_s:.4f} s)")
+    else:
+        t_s, t_host_s = t_in, None
+
     scale = UNIT_SCALES[args.acc_unit] * args.acc_scale
     columns = {"t_s": t_s, "acc_x_mps2": np.array(values["acc"], dtype=float) * scale}
     if "acc_y" in values:
         columns["acc_y_mps2"] = np.array(values["acc_y"], dtype=float) * scale
     if "temp" in values:
         columns["temp_c"] = np.array(values["temp"], dtype=float)
-    metadata = {
-        "source": "import",
-        "axis": "x",
-        "imported_from": args.foreign.replace("\n", " "),
-        "imported_columns": f"time={args.time_col} ({args.time_unit}), acc_x={args.acc_col} ({args.acc_unit} × {args.acc_scale:g})"
-        + (f", acc_y={args.acc_y_col}" if args.acc_y_col else ""),
-    }
+    if t_host_s is not None:
+        columns["t_host_s"] = t_host_s
+    ref_scale = LENGTH_SCALES[args.ref_unit] * args.ref_scale
+    for role, column in REFERENCE_ROLES.items():
+        if role in values:
+            columns[column] = np.array(values[role], dtype=float) * ref_scale
+    if "hint" in values:
+        columns[HINT_COLUMN] = np.array(values["hint"], dtype=float)
+
+    metadata["imported_columns"] = (
+        f"time={time_col} ({args.time_unit}), acc_x={args.acc_col} ({args.acc_unit} × {args.acc_scale:g})"
+        + (f", acc_y={args.acc_y_col}" if args.acc_y_col else "")
+        + "".join(f", {REFERENCE_ROLES[r]}={getattr(args, r + '_col')} ({args.ref_unit} × {args.ref_scale:g})"
+                  for r in REFERENCE_ROLES if r in values)
+        + (f", {HINT_COLUMN}={args.hint_col}" if args.hint_col else "")
+    )
     write_recording(args.out, metadata, columns)
     rate = (t_s.size - 1) / t_s[-1]
     print(f"wrote {args.out}: {t_s.size} samples, {t_s[-1]:.3f} s, {rate:.1f} samples/s; "
-          f"skipped {skipped} rows without {args.time_col!r}/{args.acc_col!r}", file=sys.stderr)
+          f"skipped {skipped} rows without {time_col!r}/{args.acc_col!r}", file=sys.stderr)
+    for note in notes:
+        print(note, file=sys.stderr)
     return 0

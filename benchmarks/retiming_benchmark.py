@@ -1,0 +1,108 @@
+"""Re-timing foreign loggers' arrival times, scored on the Leiria robot recordings.
+
+    PYTHONPATH=. python benchmarks/retiming_benchmark.py
+
+For each file of datasets/leiria-robot/ (V1000_LSM9DS0.csv is held out: reported, never
+tuned on), three imports with `adxlgw import`: on the sensor's own clock
+(`--time-col sensor_time_s`), on the raw arrival times taken as sample times
+(`--time-col arrival_time_s`, what the importer did before it could re-time), and
+re-timed from the arrival times (`--arrival-col arrival_time_s`), without and with the
+sensor's configured rate (`--nominal-rate-hz`, from the dataset README). Prints the re-timing's
+report and its error against the sensor clock, then `adxlgw estimate` on each import:
+the worst move's displacement error, per move between two of the robot's rests
+(`robot_at_rest`), as the dataset's README scores it. One process.
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime
+import io
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from benchmarks.machine_info import machine  # noqa: E402
+from gateway.cli import main as adxlgw  # noqa: E402
+from gateway.recording import HINT_COLUMN, read_recording  # noqa: E402
+
+LEIRIA = REPO / "datasets" / "leiria-robot"
+# file, role, the sensor's configured rate (the dataset README's period: 11.5 ms, 10.0 ms)
+FILES = (("eV50p_MPU6050RM3100.csv", "tuning", 1 / 0.0115), ("V1000_LSM9DS0.csv", "HELD OUT", 100.0))
+RETIME = ["--arrival-col", "arrival_time_s", "--check-time-col", "sensor_time_s"]
+TIMINGS = {
+    "sensor clock": ["--time-col", "sensor_time_s"],
+    "arrival times as they are": ["--time-col", "arrival_time_s"],
+    "re-timed arrival times": RETIME,
+    "re-timed, nominal rate given": RETIME + ["--nominal-rate-hz", "{nominal}"],
+}
+METHODS = ("paper", "realtime", "smoothed")
+MIN_MOVE_M = 0.05  # the README's moves are 327–961 mm; smaller steps between rests are not moves
+
+
+def run(*args) -> tuple[int, str]:
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        code = adxlgw([str(a) for a in args])
+    return code, err.getvalue()
+
+
+def worst_move_percent(recording: Path, estimate: Path) -> tuple[float, list[str]]:
+    """Per move between two rests of the hint column: |estimated − robot| displacement, % of the move."""
+    rec = read_recording(recording)
+    rest = rec.columns[HINT_COLUMN] == 1
+    ref = rec.columns["ref_pos_m"]
+    pos = np.genfromtxt(estimate, delimiter=",", names=True, comments="#")["pos_m"]
+    edges = np.flatnonzero(np.diff(np.r_[0, rest.astype(np.int8), 0]))
+    rests = list(zip(edges[::2], edges[1::2]))  # (start, stop) of each rest
+    worst, moves = 0.0, []
+    for (_, end), (start, _) in zip(rests, rests[1:]):
+        i, j = end - 1, start  # the last sample of one rest, the first of the next
+        d_ref, d_est = ref[j] - ref[i], pos[j] - pos[i]
+        if abs(d_ref) < MIN_MOVE_M:
+            continue
+        pct = 100.0 * abs(d_est - d_ref) / abs(d_ref)
+        worst = max(worst, pct)
+        moves.append(f"{d_ref * 1e3:+.0f} mm: {pct:.1f} %")
+    return worst, moves
+
+
+def main() -> int:
+    print(f"# {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, role, nominal in FILES:
+            print(f"\n## {name} ({role})")
+            scores = {}
+            for timing, flags in TIMINGS.items():
+                rec = Path(tmp) / "rec.csv"
+                flags = [f.format(nominal=f"{nominal:.3f}") for f in flags]
+                code, err = run("import", LEIRIA / name, *flags, "--acc-col", "acc_z_g", "--acc-unit", "g",
+                                "--ref-pos-col", "ref_z_m", "--ref-vel-col", "ref_vz_mps",
+                                "--hint-col", "robot_at_rest", "--out", rec)
+                if code:
+                    print(f"{timing}: import refused (exit {code}): {err.strip()}")
+                    continue
+                if timing.startswith("re-timed"):
+                    print(f"{timing}:")
+                    print("\n".join("    " + line for line in err.strip().splitlines()[1:]))
+                for method in METHODS:
+                    est = Path(tmp) / "est.csv"
+                    code, err = run("estimate", rec, "--method", method, "--out", est)
+                    scores[timing, method] = (worst_move_percent(rec, est) if code == 0
+                                              else (float("nan"), [err.strip().splitlines()[-1]]))
+            print(f"\nworst move's displacement error (per move in brackets)")
+            print(f"| timing | " + " | ".join(METHODS) + " |")
+            print("| --- |" + " --- |" * len(METHODS))
+            for timing in TIMINGS:
+                cells = [f"{scores[timing, m][0]:.1f} % ({'; '.join(scores[timing, m][1])})"
+                         if (timing, m) in scores else "import refused" for m in METHODS]
+                print(f"| {timing} | " + " | ".join(cells) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
