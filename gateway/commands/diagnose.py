@@ -40,6 +40,9 @@ def add_parser(sub) -> None:
     p.add_argument("--returns-to-start", action="store_true",
                    help="the motion ends where it began: without a reference, the final position is the "
                         "distance error the gain is measured by")
+    p.add_argument("--other-axis-still", action="store_true",
+                   help="the other axis does not move in this recording: only then is cross_axis looked for "
+                        "(without a reference for it, its own motion would read as cross-talk)")
     p.add_argument("--list-effects", action="store_true", help="list the effects looked for and exit")
     p.set_defaults(run=run, _parser=p)
 
@@ -52,7 +55,7 @@ def _progress(msg: str) -> None:
     print(f"diagnose: {msg}", file=sys.stderr)
 
 
-def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
+def build_input(path: str, rec, series, notes: list[str], other_axis_still: bool = False) -> DiagnosisInput:
     ref = series.reference
     present = [k for k in REFERENCE_COLUMNS if k in ref]
     complete = len(present) == len(REFERENCE_COLUMNS)
@@ -79,6 +82,7 @@ def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
         # the ADXL202 saturates at ±2 g; a foreign sensor's range is not known
         range_mps2=sensor.range_g * STANDARD_GRAVITY_MPS2 if raw else math.inf,
         raw_form=raw,
+        other_axis_still=other_axis_still,
     )
 
 
@@ -102,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     if n_valid < MIN_VALID_SAMPLES:
         raise _nothing(path, f"{n_valid} valid samples, the diagnosis needs at least {MIN_VALID_SAMPLES}")
     notes: list[str] = []
-    data = build_input(path, rec, series, notes)
+    data = build_input(path, rec, series, notes, other_axis_still=args.other_axis_still)
     no_rest = ("no reference motion and no standstill to start the smoothed estimate from "
                "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
     try:

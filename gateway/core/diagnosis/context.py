@@ -39,6 +39,9 @@ class DiagnosisInput:
     sensor_bandwidth_hz: float | None = None
     range_mps2: float = 2.0 * G
     raw_form: bool = True
+    # the user says the other axis does not move (--other-axis-still): only then can its
+    # reading of our motion be told from its own motion, which has no reference
+    other_axis_still: bool = False
 
     def __post_init__(self) -> None:
         self.t_s = np.asarray(self.t_s, dtype=float)

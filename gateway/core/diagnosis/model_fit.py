@@ -7,6 +7,7 @@ Jacobian at the optimum, scaled by the whitened residual's variance.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -129,3 +130,32 @@ def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = Non
     except np.linalg.LinAlgError:
         std = np.full(theta.size, np.nan)
     return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size)
+
+
+def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dict[str, np.ndarray],
+                       base_start: np.ndarray) -> list[float]:
+    """Cross-validation: each model fitted on one half of the record, the log-likelihood
+    gain of adding the effect on the *other* half (whitened residual, the variance of the
+    smaller model's out-of-sample residual). One value per fold."""
+    from gateway.core.diagnosis.judgement import halves
+
+    first, second = halves(prep)
+    saved = prep.fit_mask
+    measured = np.nan_to_num(prep.data.acc_mps2)
+    gains = []
+    try:
+        for train, test in ((first, second), (second, first)):
+            if train.sum() < 50 or test.sum() < 50:
+                return []
+            prep.fit_mask = train
+            sse = []
+            for effects in (effects_without, effects_with):
+                fit = fit_model(prep, effects, {k: v for k, v in start.items()}, base_start=base_start)
+                r = np.where(test, measured - predict(prep, fit.effects, fit.theta), 0.0)
+                w = prep.noise.whiten(r)[test]
+                sse.append(float(np.dot(w, w)))
+            n = int(test.sum())
+            gains.append(-0.5 * n * math.log(max(sse[1], 1e-300) / max(sse[0], 1e-300)))
+    finally:
+        prep.fit_mask = saved
+    return gains
