@@ -35,6 +35,10 @@ CAPACITOR_TOLERANCE_FRAC = 0.20
 # a point sample differs by up to half a period; one period is allowed
 TIME_CONVENTION_PERIODS = 1.0
 
+# a USB adapter's latency timer is set in whole ms (1–255, default 16); a hold-back
+# under 2 ms is what an ordinary serial link's jitter (a few tenths of a ms) fits as
+ORDINARY_HOLD_BACK_S = 2e-3
+
 # "matters": the share of the baseline's residual variance, or the distance error
 MIN_RESIDUAL_SHARE = 0.01
 MIN_DISTANCE_GAIN_MM = 0.5
@@ -56,13 +60,17 @@ def period_s(prep: Prepared) -> float:
 
 
 def setup_range(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
-    """If the fitted value lies inside what the setup itself allows: its description."""
+    """If the fitted value lies inside what the setup itself allows: its description.
+    theta: the effect's fitted parameters (timing: the hold-back in seconds)."""
     if name == "scale_factor" and abs(theta[0]) <= SENSITIVITY_TOLERANCE_FRAC:
         return (f"sensitivity {100 * theta[0]:+.2f} %: within the calibration's "
                 f"±{100 * SENSITIVITY_TOLERANCE_FRAC:g} %")
     if name == "reference_delay" and abs(theta[0]) <= TIME_CONVENTION_PERIODS * period_s(prep):
         return (f"reference timing {1e3 * theta[0]:+.2f} ms: within {TIME_CONVENTION_PERIODS:g} sample period "
                 "(where in its period a sample reads)")
+    if name == "timing" and theta[0] < ORDINARY_HOLD_BACK_S:
+        return (f"host arrival jitter fitted as a hold-back of {1e3 * theta[0]:.2f} ms: an ordinary link's "
+                f"jitter (below {1e3 * ORDINARY_HOLD_BACK_S:g} ms)")
     if name == "bandwidth":
         # an extra pole's lag 1/(2π fc) within the capacitor's spread of the sensor's own
         # pole plus half a period of timing convention

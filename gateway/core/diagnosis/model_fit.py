@@ -135,8 +135,8 @@ def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = Non
 def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dict[str, np.ndarray],
                        base_start: np.ndarray) -> list[float]:
     """Cross-validation: each model fitted on one half of the record, the log-likelihood
-    gain of adding the effect on the *other* half (whitened residual, the variance of the
-    smaller model's out-of-sample residual). One value per fold."""
+    gain of adding the effect on the *other* half, whose offset and drift are refitted
+    there (whitened residual, Gaussian with its own variance). One value per fold."""
     from gateway.core.diagnosis.judgement import halves
 
     first, second = halves(prep)
@@ -153,6 +153,11 @@ def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dic
                 fit = fit_model(prep, effects, {k: v for k, v in start.items()}, base_start=base_start)
                 r = np.where(test, measured - predict(prep, fit.effects, fit.theta), 0.0)
                 w = prep.noise.whiten(r)[test]
+                # offset and drift are the baseline's, refitted on the half they are judged on
+                # (a level extrapolated from the other half would decide the comparison)
+                cols = np.column_stack([prep.noise.whiten(np.where(test, c, 0.0))[test]
+                                        for c in (np.ones(test.size), prep.drift_shape)])
+                w = w - cols @ np.linalg.lstsq(cols, w, rcond=None)[0]
                 sse.append(float(np.dot(w, w)))
             n = int(test.sum())
             gains.append(-0.5 * n * math.log(max(sse[1], 1e-300) / max(sse[0], 1e-300)))

@@ -293,7 +293,9 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             if test.rms_unit is not None:  # the same key shape as a signal effect's residual_rms_mps2
                 gain[f"residual_rms_{test.rms_unit}"] = [test.rms_before, test.rms_after]
             result = EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail)
-            if _classify(result, None, effects, setup, negligible, candidates):
+            hold = test.params.get("hold_back_ms", (math.inf, 0.0))[0] * 1e-3
+            in_setup = setup_range(s.name, prep, np.array([hold])) if s.name == "timing" else None
+            if _classify(result, in_setup, effects, setup, negligible, candidates):
                 before_plan = step_plan
 
     regs = candidate_regressors(prep, prep.reading_mps2, data.ref_pos_m)
