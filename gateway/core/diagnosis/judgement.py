@@ -34,6 +34,9 @@ CAPACITOR_TOLERANCE_FRAC = 0.20
 # where inside its period a sample reads: a period-mean convention against an edge or
 # a point sample differs by up to half a period; one period is allowed
 TIME_CONVENTION_PERIODS = 1.0
+# (the command's) a coarse reference is compared over this many of its own intervals;
+# interpolated between its samples it is off by up to half an interval
+REFERENCE_INTERVALS_PER_BLOCK = 4
 
 # a USB adapter's latency timer is set in whole ms (1–255, default 16); a hold-back
 # under 2 ms is what an ordinary serial link's jitter (a few tenths of a ms) fits as
@@ -65,9 +68,11 @@ def setup_range(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
     if name == "scale_factor" and abs(theta[0]) <= SENSITIVITY_TOLERANCE_FRAC:
         return (f"sensitivity {100 * theta[0]:+.2f} %: within the calibration's "
                 f"±{100 * SENSITIVITY_TOLERANCE_FRAC:g} %")
-    if name == "reference_delay" and abs(theta[0]) <= TIME_CONVENTION_PERIODS * period_s(prep):
-        return (f"reference timing {1e3 * theta[0]:+.2f} ms: within {TIME_CONVENTION_PERIODS:g} sample period "
-                "(where in its period a sample reads)")
+    # a coarse reference interpolated between its own samples is also off by up to half its interval
+    allowed_delay = (TIME_CONVENTION_PERIODS + 0.5 * (prep.block - 1) / REFERENCE_INTERVALS_PER_BLOCK) * period_s(prep)
+    if name == "reference_delay" and abs(theta[0]) <= allowed_delay:
+        return (f"reference timing {1e3 * theta[0]:+.2f} ms: within {1e3 * allowed_delay:.1f} ms (where in its "
+                "period a sample reads" + (", half the reference's own interval" if prep.block > 1 else "") + ")")
     if name == "timing" and theta[0] < ORDINARY_HOLD_BACK_S:
         return (f"host arrival jitter fitted as a hold-back of {1e3 * theta[0]:.2f} ms: an ordinary link's "
                 f"jitter (below {1e3 * ORDINARY_HOLD_BACK_S:g} ms)")

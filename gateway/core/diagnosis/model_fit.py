@@ -80,8 +80,7 @@ def predict(prep: Prepared, effects: tuple[SignalEffect, ...], theta: np.ndarray
 
 
 def _whitened(prep: Prepared, residual: np.ndarray) -> np.ndarray:
-    r = np.where(prep.fit_mask, residual, 0.0)
-    return prep.noise.whiten(r)[prep.fit_mask]
+    return prep.whiten_masked(residual, prep.fit_mask)
 
 
 def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = None,
@@ -145,18 +144,17 @@ def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dic
     gains = []
     try:
         for train, test in ((first, second), (second, first)):
-            if train.sum() < 50 or test.sum() < 50:
+            if train.sum() < 50 * prep.block or test.sum() < 50 * prep.block:
                 return []
             prep.fit_mask = train
             sse = []
             for effects in (effects_without, effects_with):
                 fit = fit_model(prep, effects, {k: v for k, v in start.items()}, base_start=base_start)
                 r = np.where(test, measured - predict(prep, fit.effects, fit.theta), 0.0)
-                w = prep.noise.whiten(r)[test]
+                w = prep.whiten_masked(r, test)
                 # offset and drift are the baseline's, refitted on the half they are judged on
                 # (a level extrapolated from the other half would decide the comparison)
-                cols = np.column_stack([prep.noise.whiten(np.where(test, c, 0.0))[test]
-                                        for c in (np.ones(test.size), prep.drift_shape)])
+                cols = np.column_stack([prep.whiten_masked(c, test) for c in (np.ones(test.size), prep.drift_shape)])
                 w = w - cols @ np.linalg.lstsq(cols, w, rcond=None)[0]
                 sse.append(float(np.dot(w, w)))
             n = int(test.sum())

@@ -315,8 +315,7 @@ class ReferenceDelay(SignalEffect):
         # read the reference d later and make the baseline's reading of it anew: exact for
         # a piecewise-constant acceleration, where shifting the reading itself is not
         d = prep.data
-        level0, step_t, step_size = prep.reference_steps
-        sig.full = prep.full_reading(level0, step_t - theta[0], step_size)
+        sig.full = prep.delayed_reading(theta[0])
         if sig.pos_m is not None:
             sig.pos_m = shifted(d.t_s, sig.pos_m, theta[0])
 
