@@ -115,7 +115,9 @@ def summary_lines(result: DiagnosisResult, path: str) -> list[str]:
         f"baseline: offset {_num(off)} ± {_num(off_s, '.2g')} m/s², drift {_num(dr)} ± {_num(dr_s, '.2g')} m/s² "
         f"(amplitude of 1 − e^(−t/{DRIFT_TIME_CONSTANT_S:g} s): {_num(drift_over_record(result))} m/s² over the record)",
         f"residual whiteness p: {_p(result.whiteness_p_before)} before → {_p(result.whiteness_p_after)} after",
-        f"residual RMS: {_num(result.residual_rms_before)} → {_num(result.residual_rms_after)} m/s²",
+        f"residual RMS: {_num(result.residual_rms_before)} → {_num(result.residual_rms_after)} m/s²"
+        + (f" (means over {result.compare_block} samples: the reference's resolution)" if result.compare_block > 1
+           else ""),
     ]
 
 

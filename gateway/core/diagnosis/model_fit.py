@@ -38,9 +38,16 @@ class ModelFit:
     def bic(self) -> float:
         return -2.0 * self.loglik + self.n_params * np.log(self.n)
 
+    block: int = 1  # the comparison's block (Prepared.block): the RMS is taken at that rate
+
     @property
     def residual_rms(self) -> float:
-        r = self.residual[np.isfinite(self.residual)]
+        r = self.residual
+        if self.block > 1:
+            n = r.size // self.block * self.block
+            blocks = r[:n].reshape(-1, self.block)
+            r = blocks[np.isfinite(blocks).all(axis=1)].mean(axis=1)
+        r = r[np.isfinite(r)]
         return float(np.sqrt(np.mean((r - r.mean()) ** 2))) if r.size else float("nan")
 
     def effect_theta(self, effect: SignalEffect) -> tuple[np.ndarray, np.ndarray]:
@@ -128,7 +135,7 @@ def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = Non
         std = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
     except np.linalg.LinAlgError:
         std = np.full(theta.size, np.nan)
-    return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size)
+    return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size, prep.block)
 
 
 def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dict[str, np.ndarray],

@@ -90,6 +90,7 @@ class DiagnosisResult:
     residual_rms_after: float
     screening: dict
     cannot: list[str]
+    compare_block: int = 1  # model and measurement compared as means over this many samples
     setup: list[dict] = field(default_factory=list)  # measured properties of the setup (nuisance values)
     negligible: list[dict] = field(default_factory=list)  # significant, but too small to matter
     not_physical: list[dict] = field(default_factory=list)  # a shape that fits, with impossible values
@@ -122,6 +123,7 @@ class DiagnosisResult:
             "candidates": [c.__dict__ for c in self.candidates],
             "screening": self.screening,
             "cannot_analyse": self.cannot,
+            "compare_block_samples": self.compare_block,
             "setup": self.setup,
             "negligible": self.negligible,
             "not_physical": self.not_physical,
@@ -327,6 +329,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         residual_rms_after=current.residual_rms,
         screening=screening,
         cannot=cannot,
+        compare_block=prep.block,
         setup=setup,
         negligible=negligible,
         not_physical=not_physical,
