@@ -115,7 +115,9 @@ def summary_lines(result: DiagnosisResult, path: str) -> list[str]:
         f"baseline: offset {_num(off)} ± {_num(off_s, '.2g')} m/s², drift {_num(dr)} ± {_num(dr_s, '.2g')} m/s² "
         f"(amplitude of 1 − e^(−t/{DRIFT_TIME_CONSTANT_S:g} s): {_num(drift_over_record(result))} m/s² over the record)",
         f"residual whiteness p: {_p(result.whiteness_p_before)} before → {_p(result.whiteness_p_after)} after",
-        f"residual RMS: {_num(result.residual_rms_before)} → {_num(result.residual_rms_after)} m/s²",
+        f"residual RMS: {_num(result.residual_rms_before)} → {_num(result.residual_rms_after)} m/s²"
+        + (f" (means over {result.compare_block} samples: the reference's resolution)" if result.compare_block > 1
+           else ""),
     ]
 
 
@@ -125,6 +127,27 @@ def verdict_line(result: DiagnosisResult) -> str:
 
 def candidate_rows(result: DiagnosisResult) -> list[tuple[str, str, str, str, str]]:
     return [(c.name, c.status, _num(c.delta_bic, ".1f"), _p(c.p_value), c.reason) for c in result.candidates]
+
+
+def _size_text(row: dict) -> str:
+    parts = []
+    if row.get("residual_share") is not None:
+        parts.append(f"{100 * row['residual_share']:.2f} % of the residual variance")
+    if row.get("distance_improvement_mm") is not None:
+        parts.append(f"distance {row['distance_improvement_mm']:+.2f} mm")
+    return ", ".join(parts)
+
+
+def side_lists(result: DiagnosisResult) -> list[tuple[str, list[str]]]:
+    """The three lists beside the named effects, as (heading, lines)."""
+    return [
+        ("measured properties of the setup (inside what every setup has; kept in the model, not effects)",
+         [f"{r['name']}: {r['what']}" for r in result.setup]),
+        ("negligible (significant, but too small to matter)",
+         [f"{r['name']}: {params_text(r['params'])} — {r['why']}" for r in result.negligible]),
+        ("something of this shape, not physical as named — look elsewhere",
+         [f"{r['shape']}: {r['why']} (ΔBIC {_num(r['delta_bic'], '.1f')})" for r in result.not_physical]),
+    ]
 
 
 def text_summary(result: DiagnosisResult, path: str) -> str:
@@ -139,6 +162,11 @@ def text_summary(result: DiagnosisResult, path: str) -> str:
                 out.append(f"      {line}")
     else:
         out.append("effects found: none")
+    for heading, lines in side_lists(result):
+        if lines:
+            out.append("")
+            out.append(f"{heading}:")
+            out.extend(f"  {line}" for line in lines)
     out.append("")
     out.append("candidates:")
     rows = candidate_rows(result)
@@ -319,7 +347,12 @@ def report_markdown(result: DiagnosisResult, path: str, ref_kind: str) -> str:
         if details:
             out += [""] + details
     else:
-        out.append("None: no candidate beat the baseline by the BIC margin and the likelihood-ratio test.")
+        out.append("None: no candidate beat the baseline by the BIC margin and the likelihood-ratio test, "
+                   "predicted the other half of the record, was physical and mattered.")
+    for heading, lines in side_lists(result):
+        if lines:
+            out += ["", f"### {heading[0].upper()}{heading[1:]}", ""]
+            out.extend(f"- {line}" for line in lines)
     out += ["", "## Candidates", ""]
     out.extend(_md_table(("effect", "status", "ΔBIC", "p", "reason"),
                          [(f"`{r[0]}`",) + r[1:] for r in candidate_rows(result)]))

@@ -129,6 +129,7 @@ def make_case(effect_names: tuple[str, ...], seed: int) -> tuple[tuple[ErrorTerm
         reference="recorded", ref_pos_m=s.reference["ref_pos_m"], ref_vel_mps=s.reference["ref_vel_mps"],
         ref_acc_mps2=s.reference["ref_acc_mps2"], other_mps2=s.other_axis_mps2, temp_c=s.temp_c,
         t_host_s=s.t_host_s, sensor_bandwidth_hz=SENSOR.bandwidth_hz,
+        other_axis_still=True,  # the simulator's other axis never moves, and the case knows it
     )
     return terms, data
 

@@ -165,14 +165,32 @@ def test_no_reference_and_no_standstill_is_bad_input(tmp_path, capsys):
     assert "no reference motion and no standstill" in _one_line_error(capsys, path)
 
 
-def test_incomplete_reference_is_said_and_the_rest_analysed(clean, tmp_path, capsys):
+def _without_columns(clean, tmp_path, drop):
     lines = clean.read_text().splitlines()
     header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
     names = lines[header].split(",")
-    keep = [i for i, n in enumerate(names) if n not in ("ref_vel_mps", "ref_acc_mps2")]
+    keep = [i for i, n in enumerate(names) if n not in drop]
     partial = tmp_path / "partial.csv"
     partial.write_text("\n".join(lines[:header] + [",".join(line.split(",")[i] for i in keep)
                                                     for line in lines[header:]]) + "\n")
+    return partial
+
+
+def test_a_position_only_reference_is_used_with_what_it_lacks_derived(clean, tmp_path, capsys):
+    partial = _without_columns(clean, tmp_path, ("ref_vel_mps", "ref_acc_mps2"))
+    out = tmp_path / "partial.json"
+    assert main(["diagnose", str(partial), "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "adxlgw diagnose: warning: reference without ref_vel_mps, ref_acc_mps2: derived from the position" in err
+    doc = _strict_json(out)
+    assert doc["reference"] == "recorded"
+    assert doc["effects"] == [], doc["effects"]
+    scale = next(c for c in doc["candidates"] if c["name"] == "scale_factor")
+    assert scale["status"] != "not applicable"
+
+
+def test_a_reference_without_position_is_said_and_not_used(clean, tmp_path, capsys):
+    partial = _without_columns(clean, tmp_path, ("ref_pos_m",))
     out = tmp_path / "partial.json"
     assert main(["diagnose", str(partial), "--json", str(out)]) == 0
     err = capsys.readouterr().err
@@ -180,5 +198,19 @@ def test_incomplete_reference_is_said_and_the_rest_analysed(clean, tmp_path, cap
     doc = _strict_json(out)
     assert doc["reference"] == "estimated"
     assert any("reference incomplete" in c for c in doc["cannot_analyse"])
-    scale = next(c for c in doc["candidates"] if c["name"] == "scale_factor")
-    assert scale["status"] == "not applicable"
+
+
+def test_cross_axis_is_looked_for_only_when_the_other_axis_is_said_to_be_still(clean, tmp_path, capsys):
+    out = tmp_path / "d.json"
+    assert main(["diagnose", str(clean), "--json", str(out)]) == 0
+    cross = next(c for c in _strict_json(out)["candidates"] if c["name"] == "cross_axis")
+    assert cross["status"] == "not applicable" and "--other-axis-still" in cross["reason"]
+    assert main(["diagnose", str(clean), "--other-axis-still", "--json", str(out)]) == 0
+    cross = next(c for c in _strict_json(out)["candidates"] if c["name"] == "cross_axis")
+    assert cross["status"] == "rejected"
+
+
+def test_a_reference_block_below_one_is_bad_input(clean, capsys):
+    assert main(["diagnose", str(clean), "--reference-block", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith("--reference-block 0: must be a whole number of samples ≥ 1")

@@ -92,7 +92,9 @@ def test_clean_recordings_name_nothing_and_are_mostly_white():
 
 # --- (d) the code under test is never told the answer
 
-FORBIDDEN = ("gateway.core.sensor_effects", "gateway.core.simulator")
+# either generator: the simulator and its effects, or the independent one in tests/
+FORBIDDEN = ("gateway.core.sensor_effects", "gateway.core.simulator", "gateway.core.motion_profiles",
+             "tests.independent_generator", "tests")
 
 
 def _imported_modules(path: Path) -> list[str]:

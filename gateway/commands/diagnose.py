@@ -10,6 +10,8 @@ import numpy as np
 
 from gateway.commands.estimate import settings_for
 from gateway.core.diagnosis import DiagnosisInput, diagnose, list_effects
+from gateway.core.diagnosis.context import reference_resolution_block
+from gateway.core.diagnosis.judgement import REFERENCE_INTERVALS_PER_BLOCK
 from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
@@ -40,6 +42,13 @@ def add_parser(sub) -> None:
     p.add_argument("--returns-to-start", action="store_true",
                    help="the motion ends where it began: without a reference, the final position is the "
                         "distance error the gain is measured by")
+    p.add_argument("--other-axis-still", action="store_true",
+                   help="the other axis does not move in this recording: only then is cross_axis looked for "
+                        "(without a reference for it, its own motion would read as cross-talk)")
+    p.add_argument("--reference-block", type=int, metavar="N",
+                   help="compare model and measurement as means over N samples (default: 1 for a reference that "
+                        "resolves every sample, 4 of its own intervals for a coarse one, e.g. a robot position "
+                        "at a few Hz)")
     p.add_argument("--list-effects", action="store_true", help="list the effects looked for and exit")
     p.set_defaults(run=run, _parser=p)
 
@@ -52,14 +61,40 @@ def _progress(msg: str) -> None:
     print(f"diagnose: {msg}", file=sys.stderr)
 
 
-def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
+def build_input(path: str, rec, series, notes: list[str], other_axis_still: bool = False,
+                reference_block: int | None = None) -> DiagnosisInput:
     ref = series.reference
     present = [k for k in REFERENCE_COLUMNS if k in ref]
     complete = len(present) == len(REFERENCE_COLUMNS)
-    if present and not complete:
-        missing = [k for k in REFERENCE_COLUMNS if k not in ref]
-        notes.append(f"reference incomplete (has {', '.join(present)}, lacks {', '.join(missing)}): "
-                     "it is not used")
+    usable = "ref_pos_m" in ref
+    pos = vel = acc = None
+    if usable:
+        # a position reference as users have it (robot, encoder, laser): what it lacks is
+        # derived from it, and the comparison is made at its own resolution
+        pos = ref["ref_pos_m"]
+        vel = ref["ref_vel_mps"] if "ref_vel_mps" in ref else np.gradient(pos, series.t_s)
+        acc = ref["ref_acc_mps2"] if complete else np.gradient(vel, series.t_s)
+        if not complete:
+            missing = [k for k in REFERENCE_COLUMNS if k not in ref]
+            notes.append(f"reference without {', '.join(missing)}: derived from the position, and model and "
+                         "measurement compared at the reference's own resolution")
+    elif present:
+        notes.append(f"reference incomplete (has {', '.join(present)}, lacks ref_pos_m): it is not used")
+    block = 1
+    if usable and reference_block is not None:
+        block = reference_block
+    elif usable:
+        moving = np.abs(vel) > 1e-6
+        step = reference_resolution_block(series.t_s, pos, moving)
+        if step > 1:
+            # velocity from one interval of a logged position carries its timestamps' jitter
+            # (v·δt / interval): several intervals per block average it down
+            block = REFERENCE_INTERVALS_PER_BLOCK * step
+            period_ms = float(np.median(np.diff(series.t_s))) * 1e3
+            notes.append(f"the reference bends every {step} samples ({step * period_ms:.0f} ms): it resolves no "
+                         "acceleration within that; model and measurement are compared as means over "
+                         f"{block} samples ({block * period_ms:.0f} ms, {REFERENCE_INTERVALS_PER_BLOCK} of its "
+                         "intervals: velocity changes)")
     sensor = SensorParams()
     raw = rec.form == "raw"
     return DiagnosisInput(
@@ -67,10 +102,10 @@ def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
         acc_mps2=series.acc_mps2,
         valid=series.valid,
         lost_before=series.lost_before,
-        reference="recorded" if complete else None,
-        ref_pos_m=ref["ref_pos_m"] if complete else None,
-        ref_vel_mps=ref["ref_vel_mps"] if complete else None,
-        ref_acc_mps2=ref["ref_acc_mps2"] if complete else None,
+        reference="recorded" if usable else None,
+        ref_pos_m=pos,
+        ref_vel_mps=vel,
+        ref_acc_mps2=acc,
         other_mps2=series.other_axis_mps2,
         temp_c=series.temp_c,
         t_host_s=series.t_host_s,
@@ -79,6 +114,8 @@ def build_input(path: str, rec, series, notes: list[str]) -> DiagnosisInput:
         # the ADXL202 saturates at ±2 g; a foreign sensor's range is not known
         range_mps2=sensor.range_g * STANDARD_GRAVITY_MPS2 if raw else math.inf,
         raw_form=raw,
+        other_axis_still=other_axis_still,
+        reference_block=block,
     )
 
 
@@ -102,7 +139,10 @@ def run(args: argparse.Namespace) -> int:
     if n_valid < MIN_VALID_SAMPLES:
         raise _nothing(path, f"{n_valid} valid samples, the diagnosis needs at least {MIN_VALID_SAMPLES}")
     notes: list[str] = []
-    data = build_input(path, rec, series, notes)
+    if args.reference_block is not None and args.reference_block < 1:
+        raise InputError(f"--reference-block {args.reference_block}: must be a whole number of samples ≥ 1")
+    data = build_input(path, rec, series, notes, other_axis_still=args.other_axis_still,
+                       reference_block=args.reference_block)
     no_rest = ("no reference motion and no standstill to start the smoothed estimate from "
                "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
     try:

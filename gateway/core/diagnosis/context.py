@@ -6,6 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gateway.core.diagnosis.reading import NoiseModel, WHITE, reading_from_steps, reference_steps
+from gateway.core.filters import one_pole_lowpass
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 G = STANDARD_GRAVITY_MPS2
@@ -39,6 +40,12 @@ class DiagnosisInput:
     sensor_bandwidth_hz: float | None = None
     range_mps2: float = 2.0 * G
     raw_form: bool = True
+    # the user says the other axis does not move (--other-axis-still): only then can its
+    # reading of our motion be told from its own motion, which has no reference
+    other_axis_still: bool = False
+    # samples per interval of the reference's own resolution (1: it resolves every sample);
+    # see reference_resolution_block
+    reference_block: int = 1
 
     def __post_init__(self) -> None:
         self.t_s = np.asarray(self.t_s, dtype=float)
@@ -93,13 +100,61 @@ class Prepared:
     def n_fit(self) -> int:
         return int(self.fit_mask.sum())
 
+    # samples per comparison block: 1 compares every sample; a coarse reference (a robot
+    # position at a few Hz) has no acceleration detail within its own interval, so model
+    # and measurement are compared as block means there (= velocity changes per block)
+    block: int = 1
     where: np.ndarray = None  # received samples' places on the full grid (lost ones between)
     t_full: np.ndarray = None
     reading_full: np.ndarray = None  # reading_mps2 on the full grid
 
+    @property
+    def compare_period_s(self) -> float:
+        return self.data.period_s * self.block
+
+    def blocks(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Means of x over the comparison blocks whose samples all lie in mask (in order)."""
+        b = self.block
+        n = x.size // b * b
+        xb = np.where(mask, x, 0.0)[:n].reshape(-1, b).mean(axis=1)
+        full = mask[:n].reshape(-1, b).all(axis=1)
+        return xb[full]
+
+    def whiten_masked(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """x over mask, as the models are compared: whitened by the noise model, per sample
+        or per comparison block."""
+        if self.block == 1:
+            return self.noise.whiten(np.where(mask, x, 0.0))[mask]
+        return self.noise.whiten(self.blocks(np.nan_to_num(x), mask))
+
+    def noise_series(self, residual: np.ndarray) -> np.ndarray:
+        """The residual over the rests, at the comparison's rate: what the noise model is fitted on."""
+        if self.block == 1:
+            return residual[self.rest]
+        return self.blocks(np.nan_to_num(residual), self.rest & np.isfinite(residual))
+
     def full_reading(self, level0: float, step_t, step_size) -> np.ndarray:
         """The baseline sensor's reading of a piecewise-constant motion on the full grid."""
         return reading_from_steps(self.t_full, level0, step_t, step_size, self.data.sensor_bandwidth_hz)
+
+    def delayed_reading(self, delay_s: float) -> np.ndarray:
+        """The baseline's reading of the reference read delay_s later (the motion at t is
+        the reference at t + d), on the full grid.
+
+        A fine reference is piecewise-constant acceleration: its steps move, and the
+        filtered period means are made anew exactly. A coarse one (block > 1) is not:
+        each period's mean acceleration is its velocity change over the period, exact
+        for any motion, then the sensor's filter (one pole, discretised per period)."""
+        if self.block == 1:
+            level0, step_t, step_size = self.reference_steps
+            return self.full_reading(level0, step_t - delay_s, step_size)
+        d = self.data
+        t = self.t_full
+        edges = np.append(t, t[-1] + d.period_s) + delay_s
+        v = np.interp(edges, d.t_s, d.ref_vel_mps)
+        mean = np.diff(v) / np.diff(edges)
+        bw = d.sensor_bandwidth_hz
+        return mean if bw is None or not np.isfinite(bw) else one_pole_lowpass(mean, d.period_s, bw)
 
     def set_reading(self, full: np.ndarray) -> None:
         self.reading_full = full
@@ -133,8 +188,46 @@ def prepare(data: DiagnosisInput) -> Prepared:
     prep.t_full = np.interp(np.arange(n_full), prep.where, t) if t.size else t
     prep.set_reading(np.zeros(n_full))
     if data.has_reference:
+        prep.block = max(1, int(data.reference_block))
         prep.reference_steps = reference_steps(t, data.ref_vel_mps, data.ref_acc_mps2)
-        prep.set_reading(prep.full_reading(*prep.reference_steps))
+        prep.set_reading(prep.delayed_reading(0.0))
         prep.rest = rest_mask(t, data.ref_vel_mps, data.ref_acc_mps2)
     prep.rest &= data.valid
     return prep
+
+
+def reference_resolution_block(t_s, ref_pos_m, moving: np.ndarray | None = None) -> int:
+    """How many samples one step of a coarse position reference spans.
+
+    A position logged at a few Hz and interpolated (linearly) to the samples bends only
+    at its own samples: the median time between bends while moving, in sample periods.
+    A reference that resolves every sample (a simulation's truth, a fast encoder) bends
+    at every sample of an acceleration phase and gives 1.
+    """
+    t = np.asarray(t_s, dtype=float)
+    x = np.asarray(ref_pos_m, dtype=float)
+    if t.size < 10:
+        return 1
+    period = float(np.median(np.diff(t)))
+    slope = np.diff(x) / np.diff(t)
+    # a bend: a slope change above 10 % of the largest (sample times rounded to timer
+    # ticks make small ones, ~5 %, all along a cruise)
+    change = np.abs(np.diff(slope))
+    bend = change > 0.1 * max(float(np.max(change)), 1e-12)
+    idx = np.flatnonzero(bend) + 1
+    if moving is not None:
+        idx = idx[np.asarray(moving, dtype=bool)[idx]]
+    if idx.size < 5:
+        return 1
+    # runs of consecutive bends: a knot inside a sample interval bends the line on both
+    # sides of it (runs of 1–2); a fine reference bends on every sample of an
+    # acceleration phase (long runs)
+    starts = np.concatenate([[True], np.diff(idx) > 1])
+    run_len = np.diff(np.append(np.flatnonzero(starts), idx.size))
+    if np.median(run_len) > 2:
+        return 1
+    idx = idx[starts]
+    if idx.size < 5:
+        return 1
+    gaps = np.diff(t[idx]) / period
+    return max(1, int(round(float(np.median(gaps)))))

@@ -7,6 +7,7 @@ Jacobian at the optimum, scaled by the whitened residual's variance.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,9 +38,16 @@ class ModelFit:
     def bic(self) -> float:
         return -2.0 * self.loglik + self.n_params * np.log(self.n)
 
+    block: int = 1  # the comparison's block (Prepared.block): the RMS is taken at that rate
+
     @property
     def residual_rms(self) -> float:
-        r = self.residual[np.isfinite(self.residual)]
+        r = self.residual
+        if self.block > 1:
+            n = r.size // self.block * self.block
+            blocks = r[:n].reshape(-1, self.block)
+            r = blocks[np.isfinite(blocks).all(axis=1)].mean(axis=1)
+        r = r[np.isfinite(r)]
         return float(np.sqrt(np.mean((r - r.mean()) ** 2))) if r.size else float("nan")
 
     def effect_theta(self, effect: SignalEffect) -> tuple[np.ndarray, np.ndarray]:
@@ -79,8 +87,7 @@ def predict(prep: Prepared, effects: tuple[SignalEffect, ...], theta: np.ndarray
 
 
 def _whitened(prep: Prepared, residual: np.ndarray) -> np.ndarray:
-    r = np.where(prep.fit_mask, residual, 0.0)
-    return prep.noise.whiten(r)[prep.fit_mask]
+    return prep.whiten_masked(residual, prep.fit_mask)
 
 
 def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = None,
@@ -128,4 +135,37 @@ def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = Non
         std = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
     except np.linalg.LinAlgError:
         std = np.full(theta.size, np.nan)
-    return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size)
+    return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size, prep.block)
+
+
+def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dict[str, np.ndarray],
+                       base_start: np.ndarray) -> list[float]:
+    """Cross-validation: each model fitted on one half of the record, the log-likelihood
+    gain of adding the effect on the *other* half, whose offset and drift are refitted
+    there (whitened residual, Gaussian with its own variance). One value per fold."""
+    from gateway.core.diagnosis.judgement import halves
+
+    first, second = halves(prep)
+    saved = prep.fit_mask
+    measured = np.nan_to_num(prep.data.acc_mps2)
+    gains = []
+    try:
+        for train, test in ((first, second), (second, first)):
+            if train.sum() < 50 * prep.block or test.sum() < 50 * prep.block:
+                return []
+            prep.fit_mask = train
+            sse = []
+            for effects in (effects_without, effects_with):
+                fit = fit_model(prep, effects, {k: v for k, v in start.items()}, base_start=base_start)
+                r = np.where(test, measured - predict(prep, fit.effects, fit.theta), 0.0)
+                w = prep.whiten_masked(r, test)
+                # offset and drift are the baseline's, refitted on the half they are judged on
+                # (a level extrapolated from the other half would decide the comparison)
+                cols = np.column_stack([prep.whiten_masked(c, test) for c in (np.ones(test.size), prep.drift_shape)])
+                w = w - cols @ np.linalg.lstsq(cols, w, rcond=None)[0]
+                sse.append(float(np.dot(w, w)))
+            n = int(test.sum())
+            gains.append(-0.5 * n * math.log(max(sse[1], 1e-300) / max(sse[0], 1e-300)))
+    finally:
+        prep.fit_mask = saved
+    return gains

@@ -22,7 +22,7 @@ WHITENESS_BLOCK_S = 0.01
 
 
 def block_whiteness_p(prep: Prepared, whitened: np.ndarray) -> float:
-    b = max(1, int(round(WHITENESS_BLOCK_S / prep.data.period_s)))
+    b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
     m = whitened[: whitened.size // b * b].reshape(-1, b).mean(axis=1)
     if m.size < 10:
         return float("nan")
@@ -30,7 +30,7 @@ def block_whiteness_p(prep: Prepared, whitened: np.ndarray) -> float:
 
 
 def spectrum_peaks(prep: Prepared, whitened: np.ndarray, top: int = 3) -> list[dict]:
-    fs = 1.0 / prep.data.period_s
+    fs = 1.0 / prep.compare_period_s
     if whitened.size < 64:
         return []
     f, pxx = welch(whitened, fs=fs, nperseg=min(1024, whitened.size // 4))
@@ -75,7 +75,7 @@ def candidate_regressors(prep: Prepared, reading: np.ndarray, pos: np.ndarray | 
 
 def correlations(prep: Prepared, residual: np.ndarray, regressors: dict[str, np.ndarray]) -> list[dict]:
     m = prep.fit_mask
-    w = prep.noise.whiten(np.where(m, np.nan_to_num(residual), 0.0))[m]
+    w = prep.whiten_masked(np.nan_to_num(residual), m)
     w = w - w.mean()
     rows = []
     for name, x in regressors.items():
@@ -86,7 +86,7 @@ def correlations(prep: Prepared, residual: np.ndarray, regressors: dict[str, np.
         x = np.where(good, x, np.nanmean(x))
         if float(np.std(x[m])) == 0.0:
             continue
-        wx = prep.noise.whiten(x - x[m].mean())[m]
+        wx = prep.whiten_masked(x - x[m].mean(), m)
         wx = wx - wx.mean()
         den = math.sqrt(float(np.dot(w, w)) * float(np.dot(wx, wx)))
         r = float(np.dot(w, wx)) / den if den > 0 else 0.0

@@ -82,6 +82,9 @@ class CrossAxis(SideEffect):
             return "needs the recorded reference motion"
         if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < 0.9:
             return "needs the other axis"
+        if not d.other_axis_still:
+            return ("the other axis has no reference, so its own motion would read as cross-talk: "
+                    "looked for only when it stands still (--other-axis-still)")
         return None
 
     def test(self, prep, residual):

@@ -284,11 +284,17 @@ class Clipping(SignalEffect):
     def implausible(self, prep, theta) -> str | None:
         """A part that clips reads its limit, again and again: a fit whose limits no run
         of samples sits at is trimming a model's overshoot, not finding saturation."""
-        acc = prep.data.acc_mps2[prep.data.valid]
+        # samples at rest read the offset (1 g on a vertical axis): a limit there clips
+        # nothing the motion did, so only moving samples count
+        moving = prep.data.valid & ~prep.rest
+        acc = prep.data.acc_mps2[moving]
         tol = CLIP_TOLERANCE_G * G
         at_limit = int(np.count_nonzero(np.abs(acc - theta[0]) < tol) + np.count_nonzero(np.abs(acc - theta[1]) < tol))
         if at_limit < CLIP_MIN_SAMPLES:
-            return f"only {at_limit} samples within {CLIP_TOLERANCE_G * 1e3:g} mg of the fitted limits"
+            return f"only {at_limit} moving samples within {CLIP_TOLERANCE_G * 1e3:g} mg of the fitted limits"
+        rest = prep.data.acc_mps2[prep.data.valid & prep.rest]
+        if rest.size and not (theta[1] < float(rest.min()) and float(rest.max()) < theta[0]):
+            return "the fitted limits cut into the readings at rest"
         return None
 
     def compensate(self, prep, theta, acc, pos_est):
@@ -315,8 +321,7 @@ class ReferenceDelay(SignalEffect):
         # read the reference d later and make the baseline's reading of it anew: exact for
         # a piecewise-constant acceleration, where shifting the reading itself is not
         d = prep.data
-        level0, step_t, step_size = prep.reference_steps
-        sig.full = prep.full_reading(level0, step_t - theta[0], step_size)
+        sig.full = prep.delayed_reading(theta[0])
         if sig.pos_m is not None:
             sig.pos_m = shifted(d.t_s, sig.pos_m, theta[0])
 
