@@ -5,7 +5,8 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from gateway.core.retiming import RetimingError, RetimingSettings, fit_floor_line, retime, timing_error
+from gateway.core.retiming import (RetimingError, RetimingSettings, fit_floor_line, on_sample_clock, retime,
+                                   timing_error)
 
 TRANSFER_S = 0.0025  # one sample's transfer when a backlog is flushed (the loggers' 2.5 ms)
 # between the last arrival on the floor before a gap and the first after it, arrivals cannot
@@ -158,3 +159,12 @@ def test_any_non_decreasing_arrivals_give_increasing_causal_times(increments, st
     assert np.all(r.t_s <= arrival + 1e-6 * max(1.0, abs(start) * 1e-9))
     assert np.all(r.lost_before >= 0) and np.all(np.diff(r.sample_index) >= 1)
     assert r.period_s > 0 and np.all(r.delay_s >= -1e-6)
+
+
+def test_a_signal_logged_at_other_times_onto_the_sample_clock():
+    t_logged = np.array([0.0, 0.1, 0.1, 0.25, 0.4, 0.5])  # arrival times: bursts share a stamp
+    values = np.array([1.0, 2.0, 2.0, np.nan, 5.0, 6.0])  # an empty cell is skipped
+    t_s = np.array([-0.05, 0.0, 0.05, 0.25, 0.45, 0.5, 0.6])
+    np.testing.assert_allclose(on_sample_clock(t_logged, values, t_s),
+                               [np.nan, 1.0, 1.5, 3.5, 5.5, 6.0, np.nan])  # never extrapolated
+    assert np.isnan(on_sample_clock([0.0, 1.0], [np.nan, 2.0], [0.5])).all()  # one value: unknown

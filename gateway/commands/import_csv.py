@@ -16,7 +16,8 @@ from decimal import Decimal
 import numpy as np
 
 from gateway.commands.common import positive_float
-from gateway.core.retiming import Retiming, RetimingError, RetimingSettings, retime, timing_error
+from gateway.core.retiming import (Retiming, RetimingError, RetimingSettings, on_sample_clock, retime,
+                                   timing_error)
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
 from gateway.recording import HINT_COLUMN, write_recording
@@ -68,6 +69,13 @@ def add_parser(sub) -> None:
                    help="length unit of the reference columns: m (m, m/s, m/s²) or mm (default: m)")
     p.add_argument("--ref-scale", type=float, default=1.0,
                    help="extra factor on the reference, e.g. -1 when it counts the other way (default: 1)")
+    p.add_argument("--ref-clock", choices=("sample", "arrival"), default="sample",
+                   help="when each row's reference was taken: at the row's sample (default), or when the "
+                        "PC received the row (--arrival-col): then it is interpolated at the recovered "
+                        "sample times, empty cells between filled, none extrapolated")
+    p.add_argument("--ref-delay-s", type=float, default=0.0,
+                   help="the reference is this late: the value taken at time t is the motion at t − delay "
+                        "(e.g. a robot controller's reporting lag); interpolated (default: 0)")
     p.add_argument("--hint-col", help=f"the machine's standstill hint → {HINT_COLUMN} (1 rest, 0 moving, "
                                       "empty unknown)")
     p.add_argument("--hint-rest-value", default="1", help="cell value meaning 'at rest' (default: 1)")
@@ -131,6 +139,10 @@ def _check_args(args) -> None:
             raise RecordingError(f"--{name.replace('_', '-')} {value!r} must be a finite non-zero number")
     if args.check_time_col and not args.arrival_col:
         raise RecordingError("--check-time-col needs --arrival-col (it checks the re-timed sample times)")
+    if args.ref_clock == "arrival" and not args.arrival_col:
+        raise RecordingError("--ref-clock arrival needs --arrival-col (the arrival times it was taken at)")
+    if not math.isfinite(args.ref_delay_s):
+        raise RecordingError(f"--ref-delay-s {args.ref_delay_s!r} must be a finite number of seconds")
     if args.nominal_rate_hz and not args.arrival_col:
         raise RecordingError("--nominal-rate-hz needs --arrival-col (it guides the re-timing)")
     if args.hint_rest_value == args.hint_moving_value:
@@ -278,9 +290,14 @@ def run(args: argparse.Namespace) -> int:
     if t_host_s is not None:
         columns["t_host_s"] = t_host_s
     ref_scale = LENGTH_SCALES[args.ref_unit] * args.ref_scale
+    # the reference as a signal of time: taken at t_ref (sample or arrival time), describing
+    # the motion at t_ref − delay, wanted at the sample times
+    t_ref = t_host_s if args.ref_clock == "arrival" else t_s
+    resample = args.ref_clock == "arrival" or args.ref_delay_s != 0
     for role, column in REFERENCE_ROLES.items():
         if role in values:
-            columns[column] = np.array(values[role], dtype=float) * ref_scale
+            ref = np.array(values[role], dtype=float) * ref_scale
+            columns[column] = on_sample_clock(t_ref - args.ref_delay_s, ref, t_s) if resample else ref
     if "hint" in values:
         columns[HINT_COLUMN] = np.array(values["hint"], dtype=float)
 
@@ -289,6 +306,8 @@ def run(args: argparse.Namespace) -> int:
         + (f", acc_y={args.acc_y_col}" if args.acc_y_col else "")
         + "".join(f", {REFERENCE_ROLES[r]}={getattr(args, r + '_col')} ({args.ref_unit} × {args.ref_scale:g})"
                   for r in REFERENCE_ROLES if r in values)
+        + (f", reference taken at the {args.ref_clock} time, {args.ref_delay_s:g} s late"
+           if any(r in values for r in REFERENCE_ROLES) else "")
         + (f", {HINT_COLUMN}={args.hint_col}" if args.hint_col else "")
     )
     write_recording(args.out, metadata, columns)

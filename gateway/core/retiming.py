@@ -352,3 +352,15 @@ def timing_error(t_recovered_s, t_true_s) -> TimingError:
     de = np.diff(e)
     return TimingError(offset, float(np.abs(e).max()), float(np.sqrt(np.mean(e ** 2))),
                        float(np.sqrt(np.mean(de ** 2))) if de.size else 0.0)
+
+
+def on_sample_clock(t_logged_s, values, t_s) -> np.ndarray:
+    """A signal logged at other times (e.g. a robot's position written when each sample
+    arrived), linearly interpolated at the sample times t_s; empty (NaN) cells are skipped,
+    and outside the logged span it is unknown (NaN), not extrapolated."""
+    t_logged = np.asarray(t_logged_s, dtype=float)
+    v = np.asarray(values, dtype=float)
+    ok = np.isfinite(v) & np.isfinite(t_logged)
+    if np.count_nonzero(ok) < 2:
+        return np.full(np.shape(t_s), np.nan)
+    return np.interp(t_s, t_logged[ok], v[ok], left=np.nan, right=np.nan)
