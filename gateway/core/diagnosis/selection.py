@@ -244,11 +244,12 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 changed = True
                 break
 
-    # the gains, in order of acceptance, each against the model without it
+    # the gains, in order of acceptance, each against the model without it — all under
+    # the final noise model (log-likelihoods under different noise models do not compare)
     history = []
     for i, e in enumerate(accepted):
-        before = base if i == 0 else fit_model(prep, tuple(accepted[:i]), {x.name: start[x.name] for x in accepted[:i]},
-                                               base_start=current.theta[:2])
+        before = fit_model(prep, tuple(accepted[:i]), {x.name: start[x.name] for x in accepted[:i]},
+                           base_start=current.theta[:2])
         after = current if i == len(accepted) - 1 else fit_model(
             prep, tuple(accepted[:i + 1]), {x.name: start[x.name] for x in accepted[:i + 1]},
             base_start=current.theta[:2])
