@@ -112,12 +112,31 @@ def sample_at(buf, pos):
     return seq, t1x, t1y, t2, i64(buf[pos + 12])
 
 
-def samples_lost(last_seq, seq):
-    """Samples missing between the SAMPLE (or HELLO) with `last_seq` and one with `seq`
-    (mod 65536); 0 when `last_seq` is −1 (nothing seen yet). Numba-compilable."""
+# A forward step of seq up to this is a gap (step − 1 samples lost); a larger one is the
+# counter running backwards (a board that restarted without its HELLO reaching us, a
+# replayed or spliced stream): a loss that large and a counter running back cannot be
+# told apart, and half the counter is where the reading flips. Taken as 65 535 lost
+# samples it would put two minutes of time into one gap.
+MAX_GAP_STEP: Final = SEQ_MODULUS // 2 - 1
+SEQ_IN_ORDER: Final = 0  # seq_step's verdicts
+SEQ_REPEAT: Final = 1
+SEQ_BACKWARDS: Final = 2
+
+
+def seq_step(last_seq, seq):
+    """(samples lost, verdict) between the SAMPLE (or HELLO) with `last_seq` and one with
+    `seq`: the one rule for seq continuity, live and offline. Verdict SEQ_IN_ORDER (the
+    next one, or a gap of lost samples), SEQ_REPEAT (the same seq again) or SEQ_BACKWARDS
+    (a step back, see MAX_GAP_STEP); those lose no samples. `last_seq` −1: nothing seen
+    yet. Numba-compilable."""
     if last_seq < 0:
-        return 0
-    return (seq - last_seq - 1) & 0xFFFF
+        return 0, SEQ_IN_ORDER
+    step = (seq - last_seq) & 0xFFFF
+    if step == 0:
+        return 0, SEQ_REPEAT
+    if step > MAX_GAP_STEP:
+        return 0, SEQ_BACKWARDS
+    return step - 1, SEQ_IN_ORDER
 
 
 # --- decoded frames -------------------------------------------------------------------
@@ -390,10 +409,13 @@ class DecoderCounters:
     unknown_types: int = 0
     #: Runs of skipped bytes: how often the decoder lost and searched for sync.
     sync_losses: int = 0
-    #: Samples missing according to seq (mod 65536); continuity restarts at HELLO.
+    #: Samples missing according to seq (gaps, see seq_step); continuity restarts at HELLO.
     samples_lost: int = 0
     #: SAMPLEs whose seq was not the expected one (each gap counted once).
     seq_gaps: int = 0
+    #: SAMPLEs whose seq repeated the previous one, or stepped back (seq_step): no loss.
+    seq_repeats: int = 0
+    seq_backwards: int = 0
     #: HELLO frames seen, i.e. board restarts announced.
     board_resets: int = 0
 
@@ -406,10 +428,10 @@ class SampleSink(Protocol):
     a HELLO between two samples resets what follows it.
     """
 
-    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int]:
+    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
         """Take the run of whole, CRC-valid SAMPLE frames from `buf[pos]` on (using
-        `sample_at` and `samples_lost`): (end, samples, last seq, samples lost, gaps).
-        0 samples: the frame at `pos` is not a good one."""
+        `sample_at` and `seq_step`): (end, samples, last seq, samples lost, gaps, seq
+        repeats, seq backward steps). 0 samples: the frame at `pos` is not a good one."""
         ...
 
     def on_report(self, frame: "Status | Hello") -> None: ...
@@ -483,7 +505,7 @@ class StreamDecoder:
         crc_hqx = binascii.crc_hqx
         unpack_report = _REPORT_PAYLOAD_CRC.unpack_from
         last_seq = self._last_seq
-        samples = reports = hellos = lost_total = gaps = 0
+        samples = reports = hellos = lost_total = gaps = repeats = backwards = 0
         pos = 0
 
         while True:
@@ -510,13 +532,16 @@ class StreamDecoder:
                 if sink is not None:
                     if array is None:
                         array = np.frombuffer(buf, np.uint8)
-                    end, taken, last_seq, lost, run_gaps = sink.take_samples(array, pos, last_seq)
+                    end, taken, last_seq, lost, run_gaps, run_repeats, run_backwards = sink.take_samples(
+                        array, pos, last_seq)
                 else:
                     seq, t1x, t1y, t2, flags = map(int, sample_at(buf, pos))
                     taken = seq >= 0
                     if taken:
-                        lost = int(samples_lost(last_seq, seq))
+                        lost, verdict = seq_step(last_seq, seq)
                         run_gaps = 1 if lost else 0
+                        run_repeats = 1 if verdict == SEQ_REPEAT else 0
+                        run_backwards = 1 if verdict == SEQ_BACKWARDS else 0
                         last_seq = seq
                         frames.append(Sample(seq, t1x, t1y, t2, flags, lost))
                         end = pos + SAMPLE_FRAME_LENGTH
@@ -528,6 +553,8 @@ class StreamDecoder:
                 samples += taken
                 lost_total += lost
                 gaps += run_gaps
+                repeats += run_repeats
+                backwards += run_backwards
                 self._in_bad_run = False
                 pos = end
                 continue
@@ -577,6 +604,8 @@ class StreamDecoder:
         counters.frames_decoded += samples + reports + hellos
         counters.samples_lost += lost_total
         counters.seq_gaps += gaps
+        counters.seq_repeats += repeats
+        counters.seq_backwards += backwards
         return frames
 
 

@@ -9,7 +9,7 @@ How: a `StreamDecoder` finds the frames and hands them here (this class is its
 `SampleSink`). Reports (STATUS/HELLO) come one by one in Python: tick rate, board
 temperature, resets. Runs of SAMPLE frames go to `run_samples`, one call per run, which
 for each frame decodes it (`board_protocol.sample_at`), counts the samples lost before
-it (`samples_lost`), times it (`conversion.advance_sample_time`), converts its duty cycle
+it (`seq_step`), times it (`conversion.advance_sample_time`), converts its duty cycle
 (`conversion.duty_to_mps2`), judges validity and clipping, and steps the estimator
 (`estimator_kernel.step`). `run_samples` is compiled by numba when it can be (at 500
 samples/s, on a VM that wakes the daemon cold each time, Python per sample was most of
@@ -26,7 +26,7 @@ import numpy as np
 
 from drivers.board_protocol import (
     FLAG_TIMER_OVERFLOW, FLAG_X_TIMED_OUT, FLAG_Y_TIMED_OUT, FLAGS_RESERVED, SAMPLE_FRAME_LENGTH, Hello,
-    DecoderCounters, Status, StreamDecoder, sample_at, samples_lost,
+    DecoderCounters, Status, StreamDecoder, sample_at, seq_step, SEQ_BACKWARDS, SEQ_REPEAT,
 )
 from gateway.core import estimator_kernel as K
 from gateway.core.conversion import Calibration, advance_sample_time, duty_to_mps2
@@ -67,7 +67,7 @@ _F_ENTRY = K.F_ENTRY
 _F_FAULT = K.F_FAULT
 _O_FLAGS = K.O_FLAGS
 _compiled_sample_at = jit(sample_at)
-_compiled_samples_lost = jit(samples_lost)
+_compiled_seq_step = jit(seq_step)
 
 
 @jit
@@ -75,7 +75,8 @@ def run_samples(buf, pos, last_seq, st, kstate, prm):
     """The run of whole, CRC-valid SAMPLE frames from `buf[pos]` on, each through
     decoding, continuity, timing, conversion and one estimator step.
 
-    Returns (end, samples, last_seq, lost, gaps) as `SampleSink.take_samples`; the
+    Returns (end, samples, last_seq, lost, gaps, repeats, backwards) as
+    `SampleSink.take_samples`; the
     timeline in `st` moves on, the run's results are in its R_* slots.
     """
     timed = st[S_TIMED] > 0.0
@@ -90,6 +91,8 @@ def run_samples(buf, pos, last_seq, st, kstate, prm):
     n = 0
     lost_total = 0
     gaps = 0
+    repeats = 0
+    backwards = 0
     invalid = 0
     saturated_n = 0
     no_tick = 0
@@ -101,10 +104,14 @@ def run_samples(buf, pos, last_seq, st, kstate, prm):
             break
         pos += _FRAME
         n += 1
-        lost = _compiled_samples_lost(last_seq, seq)
+        lost, verdict = _compiled_seq_step(last_seq, seq)
         if lost:
             lost_total += lost
             gaps += 1
+        elif verdict == SEQ_REPEAT:
+            repeats += 1
+        elif verdict == SEQ_BACKWARDS:
+            backwards += 1
         last_seq = seq
         if tick_hz <= 0.0:  # no STATUS/HELLO yet: the sample's time cannot be told
             no_tick += 1
@@ -137,7 +144,7 @@ def run_samples(buf, pos, last_seq, st, kstate, prm):
     st[R_NO_TICK] = no_tick
     st[R_ENTRY] = 1.0 if entry else 0.0
     st[R_FAULT] = 1.0 if fault else 0.0
-    return pos, n, last_seq, lost_total, gaps
+    return pos, n, last_seq, lost_total, gaps, repeats, backwards
 
 
 @dataclass(slots=True)
@@ -214,11 +221,11 @@ class SamplePipeline:
         self._decoder.feed(data)
         return result
 
-    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int]:
+    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
         """`SampleSink`: a run of SAMPLE frames through `run_samples` (the decoder calls it)."""
         st = self._st
-        end, taken, last_seq, lost_total, gaps = run_samples(buf, pos, last_seq, st, self.estimator.state,
-                                                             self.estimator.params)
+        end, taken, last_seq, lost_total, gaps, repeats, backwards = run_samples(
+            buf, pos, last_seq, st, self.estimator.state, self.estimator.params)
         (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:N_SLOTS].tolist()
         c = self.counters
         r = self._result
@@ -241,7 +248,7 @@ class SamplePipeline:
             r.estimator_fault = True
             self._start_over()
         # plain ints: run as plain Python (no numba), the run's numbers are numpy's
-        return int(end), int(taken), int(last_seq), int(lost_total), int(gaps)
+        return int(end), int(taken), int(last_seq), int(lost_total), int(gaps), int(repeats), int(backwards)
 
     def on_report(self, frame: Status | Hello) -> None:
         """`SampleSink`: a STATUS or HELLO; a board reset loses time continuity."""

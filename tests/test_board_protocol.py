@@ -15,6 +15,9 @@ from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from drivers.board_protocol import (
+    MAX_GAP_STEP,
+    SEQ_BACKWARDS,
+    SEQ_IN_ORDER,
     HELLO_SEQ,
     MAX_FRAME_LENGTH,
     SAMPLE_FRAME_LENGTH,
@@ -26,6 +29,7 @@ from drivers.board_protocol import (
     Status,
     StreamDecoder,
     crc16_ccitt_false,
+    seq_step,
     decode_frames,
     encode,
     encode_frame,
@@ -90,7 +94,10 @@ def reference_decode(stream: bytes) -> list[Located]:
         if ftype == 1:
             seq = u16(0)
             if last_seq is not None:
-                lost = (seq - last_seq - 1) % 65536
+                # a step forward of up to half the counter is a gap; a repeat or a step
+                # back (a board restarted without its HELLO reaching us) loses nothing
+                step = (seq - last_seq) % 65536
+                lost = step - 1 if 2 <= step < 32768 else 0
             last_seq = seq
             frame: Frame = Sample(seq, u16(2), u16(4), u16(6), p[8])
         else:
@@ -532,3 +539,18 @@ def test_continuity_survives_chunk_boundaries():
     decoder = StreamDecoder()
     got = decoder.feed(stream[:20]) + decoder.feed(stream[20:])
     assert [s.lost_before for s in got] == [0, 0, 2]
+
+
+def test_a_repeated_or_backward_seq_is_counted_not_taken_as_lost_samples():
+    """A board that restarts without its HELLO reaching us starts again at seq 0: taken as
+    a gap, that would be ~65 000 lost samples, two minutes of time in one step."""
+    frames = [encode_sample(s, 1, 1, 2) for s in (100, 101, 101, 7, 8, 12, 65535, 0)]
+    dec = StreamDecoder()
+    decoded = dec.feed(b"".join(frames))
+    assert [f.lost_before for f in decoded] == [0, 0, 0, 0, 0, 3, 0, 0]
+    c = dec.counters
+    # 101 → 7 is a step back; 12 → 65535 is 65 523 forward, i.e. 13 back: a step back too
+    assert (c.seq_repeats, c.seq_backwards, c.seq_gaps, c.samples_lost) == (1, 2, 1, 3)
+    assert seq_step(12, 65535) == (0, SEQ_BACKWARDS) and seq_step(65535, 0) == (0, SEQ_IN_ORDER)
+    assert seq_step(0, MAX_GAP_STEP) == (MAX_GAP_STEP - 1, SEQ_IN_ORDER)
+    assert seq_step(0, MAX_GAP_STEP + 1) == (0, SEQ_BACKWARDS)

@@ -305,3 +305,15 @@ def test_the_kernel_flags_a_non_finite_state():
     state.x[0] = math.nan  # memory corrupted
     K.step(state, prm, 0.202, 0.0, True, 0)
     assert int(state.out[K.O_FLAGS]) & K.F_FAULT
+
+
+def test_a_seq_that_steps_back_costs_no_time():
+    """A board that restarted without its HELLO reaching us: seq starts again low. Read as
+    a gap it would put ~2 minutes into one step; it is counted and costs one period."""
+    p = pipeline()
+    p.feed(encode_hello(uptime_s=0, **REPORT))
+    at_rest(p, 5000, 100)
+    before = p.latest().t_s
+    r = p.feed(encode_sample(3, 921, 921, 1843))
+    assert r.samples_lost == 0 and p.decoder_counters.seq_backwards == 1
+    assert p.latest().t_s == pytest.approx(before + 1843 / 921_600)
