@@ -94,3 +94,27 @@ def test_cli_regmap_json_and_dbc_match_the_shipped_files():
     r = subprocess.run([sys.executable, "-m", "gateway.cli", "dbc"], capture_output=True, text=True)
     assert r.returncode == 0
     assert r.stdout == (root / "config" / "adxl-gateway.dbc").read_text()
+
+
+@pytest.mark.parametrize("key, value, complaint", [
+    ("max_connections", 0, "must be ≥ 1"),
+    ("idle_timeout_s", -1.0, "must be ≥ 0"),
+    ("peer_log_interval_s", 0.0, "must be ≥ 0.1"),
+    ("priority_clients", ["plc.local"], "is not an IP address or network"),
+    ("device_name", "x" * 33, "is longer than 32 characters"),
+    ("device_name", "Zürich", "must be printable ASCII"),
+])
+def test_modbus_robustness_and_identity_keys_are_checked(key, value, complaint):
+    with pytest.raises(ConfigError) as caught:
+        validate({"modbus": {key: value}}, "gw.toml")
+    assert str(caught.value).startswith(f"gw.toml: modbus.{key} = ") and complaint in str(caught.value)
+
+
+def test_modbus_keys_reach_the_server_config():
+    from gateway.daemon import modbus_config_from
+
+    cfg = validate({"modbus": {"max_connections": 8, "priority_clients": ["10.1.0.0/16"], "idle_timeout_s": 30,
+                               "peer_log_interval_s": 2.5, "device_name": "press 4"}}, "gw.toml")
+    server = modbus_config_from(cfg)
+    assert (server.max_connections, server.priority_clients, server.idle_timeout_s, server.peer_log_interval_s,
+            server.device_name) == (8, ("10.1.0.0/16",), 30.0, 2.5, "press 4")
