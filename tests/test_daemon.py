@@ -10,6 +10,7 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.can_frames import dbc_text
+from drivers.modbus_map import MAP_VERSION
 from drivers.published_values import StatusBits
 from tests.daemon_helpers import Emulator, gateway_config, read_inputs, running_gateway, wait_for
 
@@ -44,7 +45,7 @@ def test_board_to_modbus_and_can(tmp_path, board):
             assert not status & (StatusBits.STALE | StatusBits.BOARD_LOST)
             assert regs["SAMPLE_COUNTER"] > 1000 and regs["LAST_SAMPLE_AGE"] < 100
             assert regs["BOARD_TEMPERATURE"] == 2500  # 0.01 °C units
-            assert regs["MAP_VERSION"] == 1 and regs["CRC_ERRORS"] == 0
+            assert regs["MAP_VERSION"] == MAP_VERSION and regs["CRC_ERRORS"] == 0
             # the emulated robot strokes between 0 and 0.3 m
             assert -0.02 < regs["POSITION"] < 0.32
             assert regs["POSITION_UM"] == pytest.approx(regs["POSITION"] * 1e6, abs=2)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from drivers.modbus_map import MAP_VERSION
 from drivers.published_values import StatusBits
 from tests.daemon_helpers import CLI, Emulator
 
@@ -99,7 +100,7 @@ def test_ready_watchdog_reload_and_clean_stop(tmp_path):
         wait_for_valid(port)
         out = mbpoll(port, "-t", "3", "-r", "0", "-c", "2")
         values = mbpoll_values(out)
-        assert values[0] == "1"  # MAP_VERSION
+        assert values[0] == str(MAP_VERSION)
         assert int(values[1]) & StatusBits.VALID
         out = mbpoll(port, "-t", "3:float", "-B", "-r", "4", "-c", "1")
         position = float(mbpoll_values(out)[4])
