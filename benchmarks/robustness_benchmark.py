@@ -55,7 +55,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.machine_info import machine  # noqa: E402
-from drivers.modbus_map import BY_NAME  # noqa: E402
+from drivers.modbus_map import BY_NAME, WordOrder, decode_register  # noqa: E402
 from drivers.published_values import StatusBits  # noqa: E402
 
 ADXLGW = Path(sys.executable).with_name("adxlgw")
@@ -63,6 +63,7 @@ PLC_IP = "127.0.0.2"
 FLOOD_IP = "127.0.0.1"
 POLL_PERIOD_S = 0.02
 READ_10 = b"\x04\x00\x00\x00\x0a"  # FC04 from address 0, 10 registers (status, position…)
+COUNTERS = ("MODBUS_CLIENTS", "MODBUS_REFUSED_CONNECTIONS", "MODBUS_CLOSED_CONNECTIONS", "MODBUS_REJECTED_FRAMES")
 
 
 def mbap(transaction: int, pdu: bytes, protocol: int = 0, length: int | None = None) -> bytes:
@@ -168,6 +169,20 @@ class Plc:
             raise ConnectionError(f"unexpected answer {answer.hex()}")
         return answer[9:]
 
+    def counters(self) -> dict[str, int]:
+        """The server's own counters, read over Modbus like any client would."""
+        first = BY_NAME["MODBUS_REQUESTS"].address
+        last = BY_NAME["MODBUS_CLOSED_CONNECTIONS"]
+        count = last.address + last.words - first
+        if self.sock is None:
+            self._connect()
+        self.transaction = (self.transaction + 1) & 0xFFFF
+        self.sock.sendall(mbap(self.transaction, struct.pack(">BHH", 4, first, count)))
+        answer = recv_exactly(self.sock, 9 + 2 * count)
+        words = list(struct.unpack(f">{count}H", answer[9:]))
+        return {name: decode_register(BY_NAME[name], words[BY_NAME[name].address - first:], WordOrder.ABCD)
+                for name in COUNTERS}
+
     def poll(self, count: int) -> tuple[list[float], int, bytes]:
         """`count` polls every POLL_PERIOD_S: round trips (s), failures, last data."""
         latencies, failures, last = [], 0, b""
@@ -226,11 +241,21 @@ def run_case(name: str, daemon: Daemon, polls: int, attack=None, check=None, plc
     log_before = daemon.log_bytes()
     started = time.monotonic()
     plc = Plc(daemon.port)
-    if plc_first:
-        plc.read()
+    before = plc.counters()
+    if not plc_first:
+        plc.close()  # connect again once the attack is in place
     held = attack() if attack else None
     latencies, failures, _ = plc.poll(polls)
     ok_check, detail = check(held) if check else (True, "")
+    plc.close()  # a check may have outlasted the idle timeout: a fresh connection
+    try:
+        after = plc.counters()
+        counts = (f"clients {after['MODBUS_CLIENTS']}, refused +{after['MODBUS_REFUSED_CONNECTIONS'] - before['MODBUS_REFUSED_CONNECTIONS']}, "
+                  f"closed +{after['MODBUS_CLOSED_CONNECTIONS'] - before['MODBUS_CLOSED_CONNECTIONS']}, "
+                  f"rejected frames +{after['MODBUS_REJECTED_FRAMES'] - before['MODBUS_REJECTED_FRAMES']}")
+    except OSError as err:
+        ok_check, counts = False, f"counters not readable: {err}"
+    detail = f"{detail}; {counts}" if detail else counts
     if plc.errors:
         detail += f"; PLC errors: {sorted(set(plc.errors))[:3]}"
     if isinstance(held, dict):
@@ -283,7 +308,7 @@ def slowloris(daemon: Daemon, count: int = 200):
         remaining = max(0.0, held["t0"] + 5.0 + 2.0 - time.monotonic())  # idle timeout 5 s, sweep margin
         time.sleep(remaining)
         closed = sum(closed_at_once(sock, 0.05) for sock in held["sockets"])
-        return closed == len(held["sockets"]), f"{closed} of {len(held['sockets'])} closed by the idle timeout"
+        return closed == len(held["sockets"]), f"{closed} of {len(held['sockets'])} closed (refused at once or by the idle timeout)"
 
     return attack, check
 
