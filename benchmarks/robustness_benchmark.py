@@ -247,9 +247,12 @@ def run_case(name: str, daemon: Daemon, polls: int, attack=None, check=None, plc
     held = attack() if attack else None
     latencies, failures, _ = plc.poll(polls)
     ok_check, detail = check(held) if check else (True, "")
-    plc.close()  # a check may have outlasted the idle timeout: a fresh connection
     try:
-        after = plc.counters()
+        try:
+            after = plc.counters()
+        except OSError:  # a check may have outlasted the idle timeout: a fresh connection
+            plc.close()
+            after = plc.counters()
         counts = (f"clients {after['MODBUS_CLIENTS']}, refused +{after['MODBUS_REFUSED_CONNECTIONS'] - before['MODBUS_REFUSED_CONNECTIONS']}, "
                   f"closed +{after['MODBUS_CLOSED_CONNECTIONS'] - before['MODBUS_CLOSED_CONNECTIONS']}, "
                   f"rejected frames +{after['MODBUS_REJECTED_FRAMES'] - before['MODBUS_REJECTED_FRAMES']}")
