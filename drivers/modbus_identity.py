@@ -23,8 +23,6 @@ from pymodbus.constants import ExcCodes
 BASIC, REGULAR, EXTENDED, SPECIFIC = 1, 2, 3, 4
 #: 0x83: basic, regular and extended identification, stream and individual access.
 CONFORMITY_LEVEL = 0x83
-#: Device names travel in 16 registers (two ASCII characters each).
-DEVICE_NAME_CHARS = 32
 _CATEGORY_LAST = {BASIC: 0x02, REGULAR: 0x7F, EXTENDED: 0xFF}
 
 
@@ -40,15 +38,6 @@ def version_numbers(version: str) -> tuple[int, int, int]:
     """(major, minor, patch) of a version string; missing or non-numeric parts read 0."""
     parts = [int(m.group()) if (m := re.match(r"\d+", p)) else 0 for p in version.split(".")[:3]]
     return tuple(min(p, 0xFFFF) for p in (parts + [0, 0, 0])[:3])  # type: ignore[return-value]
-
-
-def check_device_name(name: str) -> str | None:
-    """Why `name` cannot be the device name (ASCII, printable, ≤ 32 characters), or None."""
-    if len(name) > DEVICE_NAME_CHARS:
-        return f"longer than {DEVICE_NAME_CHARS} characters"
-    if not (name.isascii() and name.isprintable()):
-        return "must be printable ASCII"
-    return None
 
 
 @dataclass(frozen=True, slots=True)

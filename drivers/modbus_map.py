@@ -66,6 +66,16 @@ class RegType(enum.StrEnum):
 
 #: Registers of a string32 value: 32 ASCII characters, two per register.
 STRING32_WORDS = 16
+STRING32_CHARS = 2 * STRING32_WORDS
+
+
+def string32_complaint(text: str) -> str | None:
+    """Why `text` cannot be a string32 value (printable ASCII, ≤ 32 characters), or None."""
+    if len(text) > STRING32_CHARS:
+        return f"is longer than {STRING32_CHARS} characters"
+    if not (text.isascii() and text.isprintable()):
+        return "must be printable ASCII"
+    return None
 
 
 class WordOrder(enum.StrEnum):

@@ -67,7 +67,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 from pymodbus.transaction import TransactionManager
 
 from .modbus_admission import Connection, Network, address_in, admit, idle, parse_networks
-from .modbus_identity import CONFORMITY_LEVEL, DeviceIdentity, check_device_name, device_information, version_numbers
+from .modbus_identity import CONFORMITY_LEVEL, DeviceIdentity, device_information, version_numbers
 from .modbus_map import (
     BY_NAME,
     HOLDING_REGISTERS,
@@ -80,6 +80,7 @@ from .modbus_map import (
     WordOrder,
     encode_input_registers,
     encode_rows,
+    string32_complaint,
 )
 from .modbus_ports import RtuPortProblem, probe_rtu_port, tcp_listen_problem
 from .peer_log import PeerLogLimiter
@@ -212,7 +213,7 @@ class ModbusServerConfig:
             raise ModbusServerError(f"idle_timeout_s {self.idle_timeout_s} must be a finite number ≥ 0")
         if not (math.isfinite(self.peer_log_interval_s) and self.peer_log_interval_s > 0):
             raise ModbusServerError(f"peer_log_interval_s {self.peer_log_interval_s} must be > 0")
-        complaint = check_device_name(self.device_name)
+        complaint = string32_complaint(self.device_name)  # it fills the DEVICE_NAME registers
         if complaint:
             raise ModbusServerError(f"device_name {self.device_name!r:.60}: {complaint}")
         object.__setattr__(self, "write_allow", tuple(self.write_allow))

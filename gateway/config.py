@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from drivers.modbus_map import string32_complaint
 from gateway.errors import ConfigError
 
 
@@ -60,12 +61,6 @@ def _addresses(v):
         except ValueError:
             return f"{item!r} is not an IP address or network"
     return None
-
-
-def _device_name(v):
-    if len(v) > 32:
-        return "is longer than 32 characters"
-    return None if v.isascii() and v.isprintable() else "must be printable ASCII"
 
 
 def _nonempty(v):
@@ -128,7 +123,7 @@ SCHEMA: tuple[Key, ...] = (
         "per client and interval, with a count, s.", _range(0.1, 3600)),
     Key("modbus", "device_name", "", str,
         "Name of this gateway on Modbus (device identification object 6, registers DEVICE_NAME): "
-        "printable ASCII, at most 32 characters.", _device_name),
+        "printable ASCII, at most 32 characters.", string32_complaint),
     # --- CAN ---------------------------------------------------------------
     Key("can", "enabled", True, bool, "Publish on CAN."),
     Key("can", "interface", "socketcan", str,

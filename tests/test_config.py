@@ -131,3 +131,27 @@ def test_a_file_that_is_not_utf8_is_named_with_the_byte_offset(tmp_path):
     with pytest.raises(ConfigError) as info:
         load_config(path)
     assert str(info.value) == f"{path}: not UTF-8: byte 0xff at offset {content.index(0xFF)}"
+
+
+@pytest.mark.parametrize("key, value, complaint", [
+    ("max_connections", 0, "must be ≥ 1"),
+    ("idle_timeout_s", -1.0, "must be ≥ 0"),
+    ("peer_log_interval_s", 0.0, "must be ≥ 0.1"),
+    ("priority_clients", ["plc.local"], "is not an IP address or network"),
+    ("device_name", "x" * 33, "is longer than 32 characters"),
+    ("device_name", "Zürich", "must be printable ASCII"),
+])
+def test_modbus_robustness_and_identity_keys_are_checked(key, value, complaint):
+    with pytest.raises(ConfigError) as caught:
+        validate({"modbus": {key: value}}, "gw.toml")
+    assert str(caught.value).startswith(f"gw.toml: modbus.{key} = ") and complaint in str(caught.value)
+
+
+def test_modbus_keys_reach_the_server_config():
+    from gateway.daemon_settings import modbus_config_from
+
+    cfg = validate({"modbus": {"max_connections": 8, "priority_clients": ["10.1.0.0/16"], "idle_timeout_s": 30,
+                               "peer_log_interval_s": 2.5, "device_name": "press 4"}}, "gw.toml")
+    server = modbus_config_from(cfg)
+    assert (server.max_connections, server.priority_clients, server.idle_timeout_s, server.peer_log_interval_s,
+            server.device_name) == (8, ("10.1.0.0/16",), 30.0, 2.5, "press 4")
