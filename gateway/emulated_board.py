@@ -37,10 +37,11 @@ class EmulatedBoard:
             *cmd, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )
-        try:
-            line = await asyncio.wait_for(self.proc.stdout.readline(), timeout=30)
-        except asyncio.TimeoutError:
-            line = b""
+        # No time limit of its own: a child that dies ends the wait (EOF), a stop cancels
+        # it, and under systemd TimeoutStartSec bounds it. A fixed 30 s was too short on
+        # an emulated CPU (qemu without KVM: ~10x slower imports), and the daemon then
+        # went on without a board (tests/test_systemd_vm.py found it).
+        line = await self.proc.stdout.readline()
         if not line:
             await self.stop()
             raise DeviceError("the emulated board did not start")

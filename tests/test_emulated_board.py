@@ -37,3 +37,23 @@ def test_the_board_dies_with_a_parent_killed_by_sigkill():
     if survived:
         os.kill(board, signal.SIGKILL)  # the orphan the test found must not outlive it
     assert not survived, f"emulated board {board} outlived its parent"
+
+
+def test_a_board_that_cannot_start_is_a_device_error_not_a_wait():
+    """No time limit of its own, but a child that dies ends the wait at once."""
+    import asyncio
+
+    import pytest
+
+    from gateway.emulated_board import EmulatedBoard
+    from gateway.errors import DeviceError
+
+    async def start():
+        board = EmulatedBoard(extra_args=("--strokes", "0"))  # refused by emulate's own arguments
+        try:
+            await board.start()
+        finally:
+            await board.stop()
+
+    with pytest.raises(DeviceError, match="the emulated board did not start"):
+        asyncio.run(asyncio.wait_for(start(), timeout=120))
