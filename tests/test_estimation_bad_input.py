@@ -55,22 +55,49 @@ def test_nan_inf_and_flagged_samples_are_held_and_flagged(strokes, method):
         assert abs(s.stops[-1].error_m) < 5e-3  # 60 held samples of 2 ms: still millimetres
 
 
-def test_a_gap_widens_the_position_uncertainty_and_is_flagged(strokes):
-    run, t, z = strokes
-    i = np.searchsorted(t, 2.15)  # in the first stroke's acceleration
+def _with_gap(t, z, start_s, samples):
+    i = np.searchsorted(t, start_s)
     keep = np.ones(t.size, bool)
-    keep[i:i + 5] = False
+    keep[i:i + samples] = False
     lost = np.zeros(keep.sum(), np.int64)
-    lost[i] = 5
-    tg, zg = t[keep], z[keep]
+    lost[i] = samples
+    return i, t[keep], z[keep], lost
+
+
+def test_a_gap_inside_a_steady_motion_is_bridged_and_flagged(strokes):
+    """5 samples lost mid-cruise (2.1–2.3 s): the neighbours agree, the gap costs little."""
+    run, t, z = strokes
+    i, tg, zg, lost = _with_gap(t, z, 2.15, 5)
+    with_gap = estimate_series(tg, zg, method="realtime", settings=SETTINGS, lost_before=lost)
+    _finite(with_gap)
+    assert with_gap.flags[i] & K.F_GAP
+    keep = np.isin(t, tg)
+    err = with_gap.pos_m - run.ref_pos_m[keep]
+    assert np.all(np.abs(err) <= 3 * with_gap.pos_std_m + 1e-4)
+    assert abs(err[-1]) < 2e-3 and not with_gap.untrusted.any()
+    # from the time axis alone (acceleration-form recordings) the same gap is found
+    assert np.array_equal(estimate_series(tg, zg, method="realtime", settings=SETTINGS).flags, with_gap.flags)
+
+
+def test_a_gap_across_a_change_of_acceleration_loses_the_velocity_and_says_so(strokes):
+    """20 ms lost across the end of the first acceleration (10 m/s² → cruise at 2.1 s): the
+    velocity is unknown by ~0.1 m/s. The uncertainty grows, the position is flagged not
+    trustworthy at once, and no quiet stretch after it is taken as a stop on the strength
+    of a velocity the filter no longer has: the flag holds to the end (1 s dwells are
+    shorter than quiet_stop_s), and the true error stays inside the 3σ band."""
+    run, t, z = strokes
+    i, tg, zg, lost = _with_gap(t, z, 2.09, 10)
     with_gap = estimate_series(tg, zg, method="realtime", settings=SETTINGS, lost_before=lost)
     without = estimate_series(t, z, method="realtime", settings=SETTINGS)
     _finite(with_gap)
     assert with_gap.flags[i] & K.F_GAP
     j = np.searchsorted(tg, 2.3)
     assert with_gap.pos_std_m[j] > 3 * without.pos_std_m[np.searchsorted(t, 2.3)]
-    # from the time axis alone (acceleration-form recordings) the same gap is found
-    assert np.array_equal(estimate_series(tg, zg, method="realtime", settings=SETTINGS).flags, with_gap.flags)
+    assert not without.untrusted.any()
+    assert with_gap.untrusted[i:].all()  # from the gap on, to the end
+    assert not with_gap.standstill[i:].any()
+    err = with_gap.pos_m - run.ref_pos_m[np.isin(t, tg)]
+    assert np.all(np.abs(err) <= 3 * with_gap.pos_std_m + 1e-4)
 
 
 @pytest.mark.parametrize("method", ["paper", "realtime", "smoothed"])

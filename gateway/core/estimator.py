@@ -60,6 +60,11 @@ class Estimate:
     def gap(self) -> bool:
         return bool(self.flags & K.F_GAP)
 
+    @property
+    def untrusted(self) -> bool:
+        """Position not trustworthy now: the estimator cannot tell a cruise from a stop."""
+        return bool(self.flags & K.F_UNTRUSTED)
+
 
 class RealtimeEstimator:
     """Causal estimator: one sample in, one estimate out.
@@ -109,6 +114,12 @@ class RealtimeEstimator:
         return (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._prm, self._gain,
                 self._out)
 
+    def set_hint(self, hint: float | None) -> None:
+        """The machine's standstill hint from now on: 1 at rest, 0 moving, None unknown
+        (set None when a wire's hint expires). Evidence, not an order: a rest hint while
+        a window of the accelerometer shows motion is flagged (F_HINT_CONFLICT), not obeyed."""
+        K.set_hint(self._m, hint)
+
     def tare(self) -> None:
         """Position := 0 here; it is then exact by definition (no variance, no correlation)."""
         self._x[0] = 0.0
@@ -157,6 +168,11 @@ class EstimateTrack:
     @property
     def initialised(self) -> np.ndarray:
         return (self.flags & K.F_INITIALISED) != 0
+
+    @property
+    def untrusted(self) -> np.ndarray:
+        """Position not trustworthy: a quiet stretch may be a cruise or a stop (F_UNTRUSTED)."""
+        return (self.flags & K.F_UNTRUSTED) != 0
 
     def columns(self) -> dict[str, np.ndarray]:
         return {
@@ -224,7 +240,7 @@ def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
                   zeros, zeros, zeros, zeros, flags, notes)
 
 
-def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
+def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
     prm = settings.kernel_params()
     n = t.size
     x, P, m, ring_z, ring_ok, snap, gain, out = K.new_state(prm)
@@ -244,7 +260,7 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
         capacity = 1
     for _attempt in range(2):
         zupt_index, zupt_data = np.empty(capacity, dtype=np.int64), np.empty((capacity, 5))
-        n_zupt = K.run_forward(prm, t, z, ok, lost, x, P, m, ring_z, ring_ok, snap, gain, out,
+        n_zupt = K.run_forward(prm, t, z, ok, lost, hint, x, P, m, ring_z, ring_ok, snap, gain, out,
                                cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
                                cols["vel_var"], cols["bias_var"], cols["innov"], cols["nis"], cols["zupt"],
                                flags, smooth, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data)
@@ -278,11 +294,14 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
 
 def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
                     settings: EstimatorSettings | None = None, lost_before=None,
-                    known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY) -> EstimateTrack:
+                    known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY,
+                    standstill_hint=None) -> EstimateTrack:
     """Estimate position and velocity for every sample of a recording.
 
     valid: False where the sample is unusable (NaN/inf are invalid anyway).
     lost_before: samples lost before each one (from seq gaps); None → from time gaps.
+    standstill_hint: the machine's word per sample — 1 at rest, 0 moving, NaN unknown
+        (realtime and smoothed only; evidence, not an order: estimator_kernel step 2).
     known_bias_mps2: the true bias per sample (simulation only) — the noise floor: the
         realtime/smoothed filter is fed z − b_true and told the bias is exactly zero.
     Raises NoRestError when nothing can be estimated (no standstill to start from).
@@ -314,13 +333,27 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
     if known_bias_mps2 is not None:
         acc = acc - np.asarray(known_bias_mps2, dtype=float)
         settings = settings.with_known_bias()
-    track = _filter(t, acc, ok, lost, settings, method == "smoothed", notes)
+    if standstill_hint is None:
+        hint = np.full(t.size, np.nan)
+    else:
+        hint = np.ascontiguousarray(standstill_hint, dtype=float)
+        if hint.size != t.size:
+            raise ValueError("standstill_hint and t_s differ in length")
+    track = _filter(t, acc, ok, lost, hint, settings, method == "smoothed", notes)
     init = track.initialised
     if not init.any():
         raise NoRestError(
             "no standstill found: the estimator needs a quiet stretch of "
             f"{settings.window_samples} valid samples ({settings.standstill_window_s:g} s) to measure the bias"
         )
+    conflicts = int(np.count_nonzero(track.flags & K.F_HINT_CONFLICT))
+    if conflicts:
+        notes.append(f"{conflicts} samples hinted 'at rest' while the accelerometer shows motion: hint not obeyed there")
+    untrusted = track.untrusted
+    if untrusted.any():
+        notes.append(f"position not trustworthy for {int(np.count_nonzero(untrusted))} samples "
+                     f"({100.0 * untrusted.mean():.0f} %; from {t[int(np.argmax(untrusted))] - t[0]:.3f} s): "
+                     "a quiet stretch there may be a cruise or a stop (flag 256)")
     first = int(np.argmax(init))
     if first > 0:
         notes.append(f"the first {first} samples ({t[first] - t[0]:.3f} s) came before the first standstill: "
