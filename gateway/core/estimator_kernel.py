@@ -359,8 +359,12 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
         trusted_entry = still
         # a rest hint is contradicted by a window that moves, or whose mean is further off
         # the bias than any offset step (P_STEP_MAX): the axis is still accelerating
-        hint_fits = var_ok and (mean_ok or abs(mean - x[2]) <= prm[P_STEP_MAX] + prm[P_MEAN_SIGMAS] * math.sqrt(
-            prm[P_R] / max(n_valid, 1) + P[2, 2]))
+        # (an offset step is believed only on a whole window inside the hinted rest, quiet
+        # on the noise alone: a window still holding the end of a deceleration is neither)
+        hint_fits = var_ok and (mean_ok or (
+            m[M_HINT_RUN] >= w and not vibrating
+            and abs(mean - x[2]) <= prm[P_STEP_MAX] + prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1)
+                                                                                   + P[2, 2])))
         if hint > 0.0 and regime_prev == MOTION and hint_fits and not mean_ok and m[M_STEP_OPEN] == 0.0:
             # The machine says it stands and the window is quiet, but not at the filter's
             # bias: the offset stepped somewhere in the motion since the latest stop.
