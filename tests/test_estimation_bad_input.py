@@ -1,6 +1,7 @@
 """Bad input: NaN/inf, a flagged axis, a gap, a recording too short — the estimator holds,
 flags the health output, never produces NaN; the command says what it could not do."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from gateway.core import estimator_kernel as K
 from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
 from gateway.core.estimator import RealtimeEstimator, estimate_series
 from gateway.core.estimator_settings import from_sensor_model
-from gateway.core.evaluation import summarise_errors
+from gateway.core.evaluation import move_errors, summarise_errors
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
@@ -194,3 +195,49 @@ def test_command_warns_about_invalid_samples_and_still_writes(tmp_path, capsys):
     assert "warning: 10 samples invalid" in captured.err
     data = np.genfromtxt(out, delimiter=",", names=True)
     assert data.size == t.size and np.all(np.isfinite(data["pos_m"]))
+
+
+ROBOT = Path(__file__).resolve().parent.parent / "datasets" / "leiria-robot" / "eV50p_MPU6050RM3100.csv"
+
+
+def _robot_recording(path, first_row):
+    """The real robot file (~87 samples/s, far from the ADXL's 500) from first_row on, with its reference."""
+    d = np.genfromtxt(ROBOT, delimiter=",", names=True)[first_row:]
+    t = d["sensor_time_s"] - d["sensor_time_s"][0]
+    write_recording(path, {"source": "test"}, {
+        "t_s": t, "acc_x_mps2": d["acc_z_g"] * 9.80665, "ref_pos_m": d["ref_z_m"] - d["ref_z_m"][0],
+        "ref_vel_mps": d["ref_vz_mps"]})
+    return d
+
+
+def test_a_short_initial_rest_at_87_samples_per_second_still_estimates(tmp_path, capsys):
+    """0.3 s of rest (26 samples: too few for an Allan deviation) used to be a traceback;
+    the noise now comes from the rest's long-run variance and the source says so."""
+    d = _robot_recording(tmp_path / "short.csv", 0)
+    start = int(np.flatnonzero(d["robot_at_rest"] == 0)[0]) - 26
+    _robot_recording(tmp_path / "short.csv", start)
+    out = tmp_path / "o.csv"
+    assert main(["estimate", str(tmp_path / "short.csv"), "--out", str(out)]) == 0
+    assert "too short for an Allan deviation" in capsys.readouterr().out
+    assert np.all(np.isfinite(np.genfromtxt(out, delimiter=",", names=True)["pos_m"]))
+
+
+@pytest.mark.parametrize("method", ["paper", "realtime", "smoothed"])
+def test_a_recording_that_starts_moving_is_exit_2_in_one_line(tmp_path, capsys, method):
+    d = np.genfromtxt(ROBOT, delimiter=",", names=True)
+    moving = int(np.flatnonzero(d["robot_at_rest"] == 0)[0]) + 20
+    _robot_recording(tmp_path / "moving.csv", moving)
+    assert main(["estimate", str(tmp_path / "moving.csv"), "--method", method, "--out",
+                 str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot estimate" in err[0] and "rest" in err[0]
+
+
+def test_move_errors_take_each_move_from_rest_end_to_rest_end():
+    at_rest = np.array([1, 1, 0, 0, 1, 1, 0, 1, 0, 0, 1])
+    ref = np.array([0, 0, .1, .3, .5, .5, .5, .5, .4, .2, .1])  # +0.5, then 0 (skipped), then −0.4
+    est = ref + np.array([0, 0, 0, 0, .05, .05, 0, .05, 0, 0, .01])
+    moves = move_errors(est, ref, at_rest)
+    assert [(m.start, m.end) for m in moves] == [(1, 5), (7, 10)]
+    assert moves[0].error_m == pytest.approx(0.05) and moves[0].percent == pytest.approx(10.0)
+    assert moves[1].ref_m == pytest.approx(-0.4) and moves[1].error_m == pytest.approx(-0.04)

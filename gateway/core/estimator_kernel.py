@@ -358,10 +358,11 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
         still = var_ok and mean_ok and vel_ok
         trusted_entry = still
         # a rest hint is contradicted by a window that moves, or whose mean is further off
-        # the bias than any offset step (P_STEP_MAX): the axis is still accelerating
+        # the bias than any offset step (P_STEP_MAX): the axis is still accelerating;
         # (an offset step is believed only on a whole window inside the hinted rest, quiet
         # on the noise alone: a window still holding the end of a deceleration is neither)
-        hint_fits = var_ok and (mean_ok or (
+        # ... and so is one while the filter knows, decisively, that it moves (a cruise)
+        hint_fits = var_ok and not (decidable and abs(x[1]) > floor) and (mean_ok or (
             m[M_HINT_RUN] >= w and not vibrating
             and abs(mean - x[2]) <= prm[P_STEP_MAX] + prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1)
                                                                                    + P[2, 2])))
