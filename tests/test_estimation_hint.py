@@ -129,3 +129,45 @@ def test_a_hint_cell_other_than_0_1_or_empty_is_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     # two metadata lines, the header, then the rows: t = 0.06 s (the first 2) is line 10
     assert len(err) == 1 and "standstill_hint" in err[0] and "bad_hint.csv:10:" in err[0]
+
+
+def test_a_restart_mid_cruise_does_not_take_the_cruise_for_a_rest():
+    """Restarted (board reset, daemon restart) in the first cruise: today's reset() would take
+    the quiet cruise as the reference rest. restart() starts in motion with the velocity
+    unknown: flagged not trustworthy at once, no stop on the 1 s dwells, the error inside
+    the 3σ band; a quiet stretch longer than quiet_stop_s (the final 12 s rest) is a stop."""
+    run = simulate(reciprocating_strokes(StrokeSettings(strokes=2, rest_end_s=12.0)), SensorParams(), seed=141)
+    t = sample_times_s(run.t2, run.tick_hz)
+    z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
+    k0 = np.searchsorted(t, 2.15)  # mid-cruise of the first stroke (2.1–2.3 s)
+    est = RealtimeEstimator(SETTINGS)
+    for k in range(k0):
+        est.step(t[k], z[k])
+    est.restart()
+    estimates = [est.step(t[k], z[k]) for k in range(k0, t.size)]
+    flags = np.array([e.flags for e in estimates])
+    pos = np.array([e.pos_m for e in estimates])
+    std = np.array([e.pos_std_m for e in estimates])
+    initialised = (flags & K.F_INITIALISED) != 0
+    assert initialised.any()
+    first = int(np.argmax(initialised))
+    assert t[k0 + first] - t[k0] <= 2 * SETTINGS.standstill_window_s
+    assert np.all(flags[first:] & K.F_UNTRUSTED)  # kept: no stop is ever decided on evidence here
+    ref = run.ref_pos_m[k0:] - run.ref_pos_m[k0 + first]  # the restart's origin
+    still = (flags & K.F_STANDSTILL) != 0
+    last_move = t[np.flatnonzero(run.ref_vel_mps != 0.0)[-1]]
+    assert not still[t[k0:] < last_move + SETTINGS.quiet_stop_s].any()
+    assert still[-1]
+    err = np.abs(pos - ref)[first:]
+    assert np.all(err <= 3 * std[first:] + 1e-4)
+
+
+def test_a_restart_at_rest_with_the_hint_is_trusted_at_once():
+    est = RealtimeEstimator(SETTINGS)
+    est.restart()
+    est.set_hint(1)
+    rng = np.random.default_rng(142)
+    dt = SETTINGS.sample_period_s
+    for k in range(200):
+        e = est.step(k * dt, 0.1 + rng.normal(0, SETTINGS.sample_noise_std_mps2))
+    assert e.standstill and not e.untrusted

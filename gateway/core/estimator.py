@@ -84,6 +84,15 @@ class RealtimeEstimator:
         (self._x, self._P, self._m, self._ring_z, self._ring_ok, self._snap, self._gain,
          self._out) = K.new_state(self._prm)
 
+    def restart(self) -> None:
+        """Start over after a board reset or a restart that may come mid-move: unlike reset(),
+        the first quiet window is not taken as a rest (it may be a cruise). The filter starts
+        in motion with the velocity unknown (restart_speed_std_mps) and the position flagged
+        not trustworthy until a stop is recognised on evidence: the machine's rest hint, or a
+        quiet stretch longer than quiet_stop_s."""
+        self.reset()
+        K.mark_velocity_unknown(self._m)
+
     def step(self, t_s: float, acc_mps2: float | None, lost_before: int = 0) -> Estimate:
         valid = acc_mps2 is not None
         z = float(acc_mps2) if valid else 0.0

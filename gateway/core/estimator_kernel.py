@@ -49,7 +49,8 @@ P_LAG = 14  # the sensor filter's time constant τ (s): the outputs undo its lag
 P_QUIET_STOP_S = 15  # a quiet stretch this long is a stop even when the velocity cannot decide
 P_VIBRATION = 16  # a window whose velocity swing stays below this (m/s) is vibration, not motion
 P_STEP_MAX = 17  # the largest offset step (m/s²) a rest hint may explain; beyond it the axis moves
-N_PARAMS = 18
+P_RESTART_VEL_VAR = 18  # velocity variance (m/s)² after a restart with the axis possibly moving
+N_PARAMS = 19
 
 # ---- misc state layout ----------------------------------------------------------------
 M_T_PREV = 0
@@ -74,7 +75,8 @@ M_UNTRUSTED = 16  # position not trustworthy: held until a stop is accepted deci
 M_QUIET_T0 = 17  # start of the current undecidable quiet stretch in motion (NaN: none)
 M_PERIOD = 18  # the latest sample period (s), for the window's velocity swing
 M_HAVE_U = 19  # M_U_PREV holds a valid sample (not only the 0 it starts with)
-N_MISC = 20
+M_VEL_UNKNOWN = 20  # restarted with the axis possibly moving: the first quiet window is no rest
+N_MISC = 21
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -249,6 +251,12 @@ def open_offset_step(P, delta, since_s):
     P[2, 2] += d2
 
 
+def mark_velocity_unknown(m) -> None:
+    """After a restart or a board reset mid-operation (fresh state): the axis may be moving,
+    so the first quiet window is not taken as a rest (see step 2)."""
+    m[M_VEL_UNKNOWN] = 1.0
+
+
 @jit
 def hint_code(hint):
     """A recording's or a wire's hint (1 at rest, 0 moving, NaN unknown) → M_HINT's +1/−1/0."""
@@ -404,7 +412,26 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
             # motion at the old one — one axis of acceleration cannot tell which
             m[M_UNTRUSTED] = 1.0
             flags |= F_OFFSET_STEP
-        if still:
+        if still and not initialised and m[M_VEL_UNKNOWN] > 0.0 and hint <= 0.0:
+            # Restarted (board reset, daemon restart) with the axis possibly moving: a quiet
+            # window is a rest or a cruise. Its mean is the bias either way; the velocity is
+            # unknown within the machine's speed. Start in motion, position not trustworthy,
+            # until a stop is recognised on evidence (the velocity test cannot pass yet).
+            x[0] = 0.0
+            x[1] = 0.0
+            x[2] = mean
+            for i in range(3):
+                for j in range(3):
+                    P[i, j] = 0.0
+            P[1, 1] = prm[P_RESTART_VEL_VAR]
+            P[2, 2] = prm[P_R] / n_valid
+            m[M_VEL_UNKNOWN] = 0.0
+            m[M_UNTRUSTED] = 1.0
+            m[M_LAST_STILL_T] = t_s
+            m[M_PEAK_SPEED] = 0.0
+            transition = T_RESET
+            regime = MOTION
+        elif still:
             regime = STANDSTILL
         elif initialised:
             regime = MOTION

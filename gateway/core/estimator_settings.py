@@ -82,6 +82,10 @@ class EstimatorSettings:
     # position stays flagged untrusted. 10 s: twice the robot's longest cruise (5 s,
     # datasets/leiria-robot), fifty times the paper's (0.2 s).
     quiet_stop_s: float = 10.0
+    # After a restart or a board reset that may come mid-move (RealtimeEstimator.restart):
+    # the velocity is unknown within the machine's speed. 2 m/s: twice the paper's cruise
+    # and the robot's fastest programmed speed.
+    restart_speed_std_mps: float = 2.0
     # A body at rest has v = 0 exactly; this only keeps the update regular.
     zupt_velocity_std_mps: float = 1e-5
     # Time constant of the sensor's own low-pass filter, 1/(2π f−3dB): the outputs undo
@@ -101,7 +105,7 @@ class EstimatorSettings:
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         for name in ("bias_random_walk_mps2_per_rts", "bias_initial_std_mps2", "missing_acc_std_mps2",
                      "standstill_speed_floor_mps", "sensor_lag_s", "standstill_vibration_mps",
-                     "offset_step_max_mps2"):
+                     "offset_step_max_mps2", "restart_speed_std_mps"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be ≥ 0 and finite, got {value!r}")
@@ -163,6 +167,7 @@ class EstimatorSettings:
         p[k.P_QUIET_STOP_S] = self.quiet_stop_s
         p[k.P_VIBRATION] = self.standstill_vibration_mps
         p[k.P_STEP_MAX] = self.offset_step_max_mps2
+        p[k.P_RESTART_VEL_VAR] = self.restart_speed_std_mps**2
         return p
 
     def with_known_bias(self) -> "EstimatorSettings":
