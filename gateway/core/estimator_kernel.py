@@ -335,9 +335,10 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
     m[M_RING_FILL] = fill
     n_valid, mean, var = window_statistics(ring_z, ring_ok, fill)
     vibrating = False
-    # (not worth its loop while the filter moves above the floor: no stop could follow)
+    # (not worth its loop while the filter decisively moves above the floor: no stop follows)
     if regime_prev != UNINITIALISED and fill >= w and n_valid >= 2 and var > prm[P_VAR_MAX] and (
-            regime_prev == STANDSTILL or abs(x[1]) <= prm[P_SPEED_FLOOR] or m[M_HINT] > 0.0):
+            regime_prev == STANDSTILL or abs(x[1]) <= prm[P_SPEED_FLOOR] or m[M_HINT] > 0.0
+            or prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)) > prm[P_SPEED_FLOOR]):
         # a vibrating mount is not motion: the velocity its acceleration (the bias removed)
         # would give swings by little over the window; a start of motion makes it grow
         swing = velocity_swing(ring_z, ring_ok, (pos + 1) % w, w, x[2], m[M_PERIOD])
