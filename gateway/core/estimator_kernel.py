@@ -368,23 +368,34 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
             vel_ok = False
         still = var_ok and mean_ok and vel_ok
         trusted_entry = still
-        # a rest hint is contradicted by a window that moves, or whose mean is further off
-        # the bias than any offset step (P_STEP_MAX): the axis is still accelerating;
-        # (an offset step is believed only on a whole window inside the hinted rest, quiet
-        # on the noise alone: a window still holding the end of a deceleration is neither)
-        # ... and so is one while the filter knows, decisively, that it moves (a cruise)
-        hint_fits = var_ok and not (decidable and abs(x[1]) > floor) and (mean_ok or (
-            m[M_HINT_RUN] >= w and not vibrating
-            and abs(mean - x[2]) <= prm[P_STEP_MAX] + prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1)
-                                                                                   + P[2, 2])))
-        if hint > 0.0 and regime_prev == MOTION and hint_fits and not mean_ok and m[M_STEP_OPEN] == 0.0:
-            # The machine says it stands and the window is quiet, but not at the filter's
-            # bias: the offset stepped somewhere in the motion since the latest stop.
-            # Open that hypothesis in the covariance, so that the stop's ZUPT and ZARU
-            # put the error where it belongs (bias, velocity, position).
+        # A window quiet on the noise alone (no vibration, no end of a deceleration in it)
+        # but off the bias by no more than an offset step (P_STEP_MAX) after a move: the
+        # offset may have stepped somewhere in the motion since the latest stop. Believed
+        # when the machine says it stands (over a whole window inside the hinted rest), or
+        # after a move above the speed floor (the filter's velocity may already be off by
+        # the step) — there "stopped at a new offset" and "accelerating slowly at the old
+        # one" are the same signal: the hypothesis costs only uncertainty if it is wrong.
+        # The hypothesis goes into the covariance (open_offset_step): the uncertainty grows
+        # to the error's scale, and a stop accepted afterwards (hint, or the velocity test
+        # if it can still decide) puts the correction where it belongs through its ZUPT and
+        # ZARU. Once per motion.
+        off_by_a_step = var_ok and not vibrating and not mean_ok and abs(mean - x[2]) <= prm[P_STEP_MAX] + \
+            prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1) + P[2, 2])
+        if regime_prev == MOTION and off_by_a_step and m[M_STEP_OPEN] == 0.0 and (
+                (hint > 0.0 and m[M_HINT_RUN] >= w) or m[M_PEAK_SPEED] > floor):
             open_offset_step(P, mean - x[2], t_s - m[M_LAST_STILL_T])
             m[M_STEP_OPEN] = 1.0
+            m[M_UNTRUSTED] = 1.0
             flags |= F_OFFSET_STEP
+            var_ok, mean_ok, vel_ok, decidable = standstill_tests(
+                initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
+                prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
+            still = var_ok and mean_ok and vel_ok
+            trusted_entry = still
+        # A rest hint is contradicted by a window that moves, or whose mean is off the bias
+        # (beyond the offset step just opened, if any: the axis is still decelerating), or
+        # while the filter knows, decisively, that it moves (a cruise above the floor).
+        hint_fits = var_ok and mean_ok and not (decidable and abs(x[1]) > floor)
         if hint > 0.0:
             if hint_fits:
                 # evidence, not an order: obeyed while the accelerometer does not contradict it
@@ -411,8 +422,7 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
             m[M_UNTRUSTED] = 1.0
         if regime_prev == MOTION and not still and not vibrating and var_ok and not mean_ok \
                 and abs(x[1]) <= floor and m[M_PEAK_SPEED] > floor:
-            # quiet after a move, off the bias, slow: a stop at a new offset or a slow steady
-            # motion at the old one — one axis of acceleration cannot tell which
+            # quiet after a move, off the bias (beyond any step), slow: not a stop we can accept
             m[M_UNTRUSTED] = 1.0
             flags |= F_OFFSET_STEP
         if still and not initialised and m[M_VEL_UNKNOWN] > 0.0 and hint <= 0.0:
