@@ -291,6 +291,12 @@ def step(x, P, m, ring_z, ring_ok, snap, prm, gain, t_s, z, z_valid, lost_before
         if dt > 0.0:
             t_prev = m[M_T_PREV]
             ddrift = drift_at(t_s, prm) - drift_at(t_prev, prm)
+            if regime_prev == STANDSTILL and lost_before > 0:
+                # Samples lost at rest: the axis may have started moving in the gap. Not
+                # held: propagated as motion (bridged between the samples either side, so
+                # a start inside the gap shows as uncertainty), and the stop must be found
+                # again by the detector.
+                regime_prev = MOTION
             if regime_prev == MOTION:
                 u = m[M_U_PREV]
                 missing_var = prm[P_MISSING_VAR]
