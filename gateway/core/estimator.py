@@ -333,6 +333,13 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         notes.append(f"{int(np.count_nonzero(lost))} gaps, {int(lost.sum())} samples lost: "
                      "propagated with the last acceleration and a wider variance")
     period = float(np.median(np.diff(t)))
+    bursts = int(np.count_nonzero(np.diff(t) < 0.5 * period))
+    if bursts:
+        # the filter takes the times as the samples' true times; a logger's arrival times
+        # (backlogs flushed in bursts) are not, and no flag can see that from the samples
+        notes.append(f"{bursts} sample intervals are under half the median period ({period * 1e3:.3g} ms): "
+                     "these look like arrival times, not sample times — the estimate assumes true "
+                     "sample times (re-time them first)")
     if method == "raw":
         return _raw(t, acc, ok, lost, notes)
     if method == "paper":
