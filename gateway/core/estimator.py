@@ -331,7 +331,7 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         notes.append(f"{bad} samples invalid (NaN/inf/flagged): the estimate holds over them")
     if np.any(lost > 0):
         notes.append(f"{int(np.count_nonzero(lost))} gaps, {int(lost.sum())} samples lost: "
-                     "propagated with the last acceleration and a wider variance")
+                     "bridged between the valid samples either side, with their difference as uncertainty")
     period = float(np.median(np.diff(t)))
     bursts = int(np.count_nonzero(np.diff(t) < 0.5 * period))
     if bursts:

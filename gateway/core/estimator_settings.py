@@ -61,11 +61,12 @@ class EstimatorSettings:
     standstill_mean_sigmas: float = 5.0
     standstill_velocity_sigmas: float = 5.0
     # Application choice: the slowest cruise that must never be called a standstill.
-    # The velocity test accepts a standstill only if |v| < max(5σ_v, this floor); the
+    # The velocity test accepts a standstill only if |v| ≤ this floor and 5σ_v ≤ it (else
+    # it cannot tell a cruise at the floor speed from a stop: undecidable, flag 256); the
     # floor covers errors the model lacks (tilt, scale). 0.1 m/s is a tenth of the
     # paper's 1 m/s cruise.
     standstill_speed_floor_mps: float = 0.1
-    # A window whose acceleration (mean removed) swings the velocity by less than this is
+    # A window whose acceleration (bias removed) swings the velocity by less than this is
     # a vibrating mount, not motion: the robot arm of datasets/leiria-robot settles for
     # ~0.5 s after each stop with 1.5–2× the initial rest's noise, a swing of ≤ 3 mm/s in
     # 90 % of its rest windows (cruise windows: 3–5 mm/s, told apart by the velocity
@@ -184,8 +185,10 @@ class EstimatorSettings:
             f"bias random walk K = {self.bias_random_walk_mps2_per_rts / G * 1e6:.3g} µg/√s; drift C1 = "
             f"{self.drift_c1_mps2 / G * 1e3:.3g} mg, T = {self.drift_time_constant_s:.4g} s",
             f"standstill: window {self.window_samples} samples, variance ≤ "
-            f"{math.sqrt(self.window_variance_threshold_mps2_sq) / G * 1e3:.3g} mg rms, |v| ≤ "
-            f"max({self.standstill_velocity_sigmas:g} σ_v, {self.standstill_speed_floor_mps:g} m/s)",
+            f"{math.sqrt(self.window_variance_threshold_mps2_sq) / G * 1e3:.3g} mg rms (or a vibration swinging "
+            f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), |v| ≤ {self.standstill_speed_floor_mps:g} m/s "
+            f"known to {self.standstill_velocity_sigmas:g} σ_v ≤ {self.standstill_speed_floor_mps:g} m/s (else "
+            f"undecidable: flag 256; a stop after {self.quiet_stop_s:g} s of quiet)",
         ]
 
 
