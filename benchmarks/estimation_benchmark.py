@@ -12,7 +12,13 @@ imported with `adxlgw import` (Z axis, X as second axis), settings from their ow
 initial rest; they end where they began, so the final position is the error. The
 recordings' gyroscope (not part of the one-axis recording) tells how much of that
 error the hand's rotation explains.
-Prints a table; writes plots to --img. Uses at most two processes.
+Part 3 — the Leiria robot recordings (datasets/leiria-robot: an IMU on an industrial robot
+moving in straight lines), imported with `adxlgw import` on the sensor clock and on the
+logger's arrival times, settings as `adxlgw estimate` picks them; per move between two
+rests of the robot, the estimated displacement against the robot's; paper, realtime and
+smoothed, with and without the robot's "in position" state as the standstill hint. The
+held-out file (V1000_LSM9DS0.csv) is reported separately.
+Prints the tables; writes plots to --img. Uses at most two processes.
 """
 from __future__ import annotations
 
@@ -37,7 +43,8 @@ from gateway.cli import main as adxlgw  # noqa: E402
 from gateway.core.drift_model import drift_g  # noqa: E402
 from gateway.core.estimator import EstimateTrack, estimate_series  # noqa: E402
 from gateway.core.estimator_settings import from_rest, from_sensor_model  # noqa: E402
-from gateway.core.evaluation import summarise_errors  # noqa: E402
+from gateway.commands.estimate import settings_for  # noqa: E402
+from gateway.core.evaluation import move_errors, summarise_errors  # noqa: E402
 from gateway.core.reference_point import find_initial_rest  # noqa: E402
 from gateway.core.sensor_model import SensorParams  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
@@ -45,6 +52,10 @@ from gateway.recording import read_recording, to_acceleration  # noqa: E402
 
 METHODS = ("raw", "paper", "realtime", "smoothed", "floor")
 DATASETS = REPO / "datasets" / "airbrakes-imu"
+ROBOT = REPO / "datasets" / "leiria-robot"
+DESIGN_FILE = "eV50p_MPU6050RM3100.csv"  # used in design decisions (datasets/README.md)
+HELD_OUT_FILE = "V1000_LSM9DS0.csv"  # never used to choose anything: run and reported only
+CLOCKS = {"sensor": "sensor_time_s", "arrival": "arrival_time_s"}
 
 
 def quiet_adxlgw(argv: list[str]) -> int:
@@ -260,6 +271,127 @@ def real_data(img: Path) -> list[str]:
     return lines
 
 
+def robot_run(name: str, clock: str) -> dict:
+    """One robot file read as a user would: `adxlgw import` on the chosen clock (z axis, g),
+    settings as `adxlgw estimate` picks them (the recording's own initial rest), every
+    method; the robot's z and its "in position" state (the hint) by row — the importer of
+    today carries no reference columns, and keeps every row of these files."""
+    source = ROBOT / name
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "imported.csv")
+        code = quiet_adxlgw(["import", str(source), "--time-col", CLOCKS[clock], "--acc-col", "acc_z_g",
+                             "--acc-unit", "g", "--out", path])
+        if code != 0:
+            return {"error": f"adxlgw import exited {code}"}
+        series = to_acceleration(read_recording(path))
+    raw = np.genfromtxt(source, delimiter=",", names=True)
+    assert raw.size == series.t_s.size
+    ref, hint = raw["ref_z_m"], raw["robot_at_rest"]
+    t = series.t_s
+    out = {"t": t, "ref": ref, "hint": hint, "period_ms": float(np.median(np.diff(t))) * 1e3, "runs": {}}
+    try:
+        settings = settings_for(series, "acceleration", "auto", None)
+    except Exception as err:  # noqa: BLE001 — reported in the table, as the command would
+        out["error"] = f"{type(err).__name__}: {err}"
+        return out
+    for method, use_hint in (("paper", False), ("realtime", False), ("realtime", True), ("smoothed", False),
+                             ("smoothed", True)):
+        try:
+            track = estimate_series(t, series.acc_mps2, series.valid, method=method, settings=settings,
+                                    standstill_hint=hint if use_hint else None)
+        except Exception as err:  # noqa: BLE001
+            out["runs"][(method, use_hint)] = {"error": f"{type(err).__name__}: {err}"}
+            continue
+        moves = move_errors(track.pos_m, ref, hint)
+        ends = np.array([m.end for m in moves])
+        err_at_rest = np.abs(track.pos_m[ends] - ref[ends])
+        band = 3 * track.pos_std_m[ends]
+        out["runs"][(method, use_hint)] = {
+            "moves": moves, "track": track,
+            "inside_3sigma": int(np.count_nonzero(err_at_rest <= band)) if method != "paper" else None,
+            "untrusted_pct": 100.0 * float(track.untrusted.mean()) if method != "paper" else None,
+        }
+    return out
+
+
+def robot_table(results: dict[tuple[str, str], dict]) -> list[str]:
+    lines = ["| file | clock | method | hint | per move: robot → estimate (mm) | worst move | "
+             "position inside ±3σ at the rests | time flagged not trustworthy |", "|" + " --- |" * 8]
+    for (name, clock), res in results.items():
+        label = name.split("_")[0]
+        if "error" in res:
+            lines.append(f"| {label} | {clock} | all | — | {res['error']} | — | — | — |")
+            continue
+        for (method, use_hint), run in res["runs"].items():
+            hint = "yes" if use_hint else "no"
+            if "error" in run:
+                lines.append(f"| {label} | {clock} | {method} | {hint} | {run['error']} | — | — | — |")
+                continue
+            moves = run["moves"]
+            per = ", ".join(f"{m.ref_m * 1e3:+.0f} → {m.estimate_m * 1e3:+.0f}" for m in moves)
+            worst = max(m.percent for m in moves)
+            inside = "—" if run["inside_3sigma"] is None else f"{run['inside_3sigma']}/{len(moves)}"
+            flagged = "—" if run["untrusted_pct"] is None else f"{run['untrusted_pct']:.0f} %"
+            lines.append(f"| {label} | {clock} ({res['period_ms']:.2f} ms median period) | {method} | {hint} "
+                         f"| {per} | **{worst:.1f} %** | {inside} | {flagged} |")
+    return lines
+
+
+def plot_robot(img: Path, name: str, res: dict) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t, ref = res["t"], res["ref"]
+    fig, axes = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
+    for ax in axes:
+        ax.fill_between(t, 0, 1, where=res["hint"] > 0.5, transform=ax.get_xaxis_transform(), color="0.92", lw=0,
+                        label="robot in position (the hint)")
+    axes[0].plot(t, ref, "k", lw=2, label="robot z")
+    for (method, use_hint), style in ((("paper", False), ":"), (("realtime", False), "-"), (("realtime", True), "--"),
+                                      (("smoothed", True), "-.")):
+        run = res["runs"].get((method, use_hint), {})
+        if "track" not in run:
+            continue
+        label = f"{method}{' + hint' if use_hint else ''}"
+        tr = run["track"]
+        axes[0].plot(t, tr.pos_m, style, label=label)
+        axes[1].plot(t, (tr.pos_m - ref) * 1e3, style, label=label)
+        if (method, use_hint) == ("realtime", False):
+            axes[1].fill_between(t, -3e3 * tr.pos_std_m, 3e3 * tr.pos_std_m, alpha=0.15, label="±3σ realtime")
+            flagged = tr.untrusted
+            axes[0].fill_between(t, 0, 0.05, where=flagged, transform=axes[0].get_xaxis_transform(), color="r",
+                                 alpha=0.4, lw=0, label="realtime: not trustworthy (flag 256)")
+    axes[0].set_ylabel("z (m)")
+    axes[1].set_ylabel("error (mm)")
+    axes[1].set_ylim(-150, 150)
+    axes[1].set_xlabel("time on the sensor clock (s)")
+    for ax in axes:
+        ax.legend(fontsize=7, loc="best")
+        ax.grid(alpha=0.3)
+    axes[0].set_title(f"{name}: position against the robot (sensor clock)")
+    fig.tight_layout()
+    fname = f"estimation_robot_{name.split('_')[0]}.png"
+    fig.savefig(img / fname, dpi=80)
+    plt.close(fig)
+    return fname
+
+
+def robot_data(img: Path) -> list[str]:
+    lines = []
+    for title, names in (("design file (used in design decisions)", (DESIGN_FILE,)),
+                         ("HELD-OUT file (never used to choose anything; run and reported only)", (HELD_OUT_FILE,))):
+        results = {(name, clock): robot_run(name, clock) for name in names for clock in CLOCKS}
+        lines += ["", f"Leiria robot, {title}:", ""]
+        lines += robot_table(results)
+        for name in names:
+            res = results[(name, "sensor")]
+            if "runs" in res and res["runs"]:
+                lines.append(f"wrote {img / plot_robot(img, name, res)}")
+    return lines
+
+
 def drift_identification(img: Path, hours: float) -> list[str]:
     """The paper's fig. 1 experiment: a long standstill (in memory — 12 h is 1.3 GB as CSV),
     fitted and judged exactly as `adxlgw fit-drift` does."""
@@ -289,14 +421,18 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--img", default=str(REPO / "docs" / "img"))
     parser.add_argument("--drift-hours", type=float, default=12.0, help="standstill for the drift fit (0: skip)")
+    parser.add_argument("--robot-only", action="store_true", help="only the Leiria robot recordings")
     args = parser.parse_args()
     img = Path(args.img)
     img.mkdir(parents=True, exist_ok=True)
     print(f"command: PYTHONPATH=. python benchmarks/estimation_benchmark.py --seeds {args.seeds} "
-          f"--drift-hours {args.drift_hours:g}")
+          f"--drift-hours {args.drift_hours:g}" + (" --robot-only" if args.robot_only else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")
+    print("\n".join(robot_data(img)))
     print()
+    if args.robot_only:
+        return 0
     start = time.perf_counter()
     with Pool(min(2, args.seeds)) as pool:
         results = pool.map(run_seed, range(args.seeds))

@@ -28,6 +28,9 @@ FORMAT_ID = "adxl-recording/1"
 RAW_REQUIRED = ("seq", "t1x", "t1y", "t2")
 ACC_REQUIRED = ("t_s", "acc_x_mps2")
 REFERENCE_COLUMNS = ("ref_pos_m", "ref_vel_mps", "ref_acc_mps2")
+# the machine's word on the axis (PLC / robot controller "in position"): 1 at rest, 0 moving,
+# empty unknown; `adxlgw estimate` uses it unless --ignore-hint
+HINT_COLUMN = "standstill_hint"
 INTEGER_COLUMNS = ("seq", "t1x", "t1y", "t2", "flags")
 HINT_COLUMN = "standstill_hint"  # the machine's word on the axis: 1 at rest, 0 moving, empty unknown
 
@@ -76,6 +79,8 @@ class AccelerationSeries:
     temp_c: np.ndarray | None = None
     t_host_s: np.ndarray | None = None
     axis: str = "x"
+    standstill_hint: np.ndarray | None = None  # 1 at rest, 0 moving, NaN unknown
+
 
     def __len__(self) -> int:
         return self.t_s.size
@@ -184,6 +189,12 @@ def parse_recording(text: str, path: str = "<recording>") -> Recording:
         back = np.flatnonzero(np.diff(t) <= 0)
         if back.size:
             raise _error(path, header_line + 2 + int(back[0]), "t_s", "sample times must increase")
+    if HINT_COLUMN in columns:
+        hint = columns[HINT_COLUMN]
+        bad = np.flatnonzero(np.isfinite(hint) & (hint != 0.0) & (hint != 1.0))
+        if bad.size:
+            raise _error(path, header_line + 1 + int(bad[0]), HINT_COLUMN,
+                         f"{float(hint[bad[0]])!r} is not 1 (at rest), 0 (moving) or empty (unknown)")
     return Recording(path, metadata, columns, form)
 
 
@@ -226,6 +237,7 @@ def to_acceleration(rec: Recording, calibration: Calibration | None = None) -> A
         temp_c=c.get("temp_c"),
         t_host_s=c.get("t_host_s"),
         axis=axis,
+        standstill_hint=c.get(HINT_COLUMN),
     )
 
 

@@ -111,7 +111,7 @@ def _forward_with_records(settings, t, z, ok, lost):
     st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
     st_trans, st_zaru = np.empty(n, np.int8), np.empty((n, 2))
     zi, zd = np.empty(n, np.int64), np.empty((n, 5))
-    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, state, *cols, flags,
+    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, np.full(n, np.nan), state, *cols, flags,
                        True, st_x, st_p, st_trans, st_zaru, zi, zd)
     return prm, st_x.copy(), st_p.copy(), st_trans, st_zaru, zi[:nz], zd[:nz], flags
 
@@ -125,7 +125,7 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data):
     kf = KalmanFilter(dim_x=3, dim_z=1)
     zupt = {int(i): row for i, row in zip(zupt_index, zupt_data)}
     xs, ps, priors, prior_ps, phis = [], [], [], [], []
-    u_prev, prev_invalid = 0.0, False
+    u_prev, prev_invalid, have_u = 0.0, False, False
     kf.x, kf.P = np.zeros(3), np.diag([0.0, 0.0, prm[K.P_BIAS0_VAR]])
     for k in range(t.size):
         tr = st_trans[k]
@@ -136,27 +136,34 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data):
             if tr == K.T_MOTION:
                 phi, Q = _van_loan(dt, prm[K.P_QV], prm[K.P_QB])
                 missing = dt if prev_invalid else (dt * lost[k] / (lost[k] + 1.0) if lost[k] else 0.0)
+                u_in, missing_var = u_prev, prm[K.P_MISSING_VAR]
+                if missing > 0 and ok[k] and have_u:  # between the valid neighbours (kernel step 1)
+                    half = 0.5 * (z[k] - u_prev)
+                    u_in, missing_var = u_prev + half * missing / dt, half * half + prm[K.P_R]
                 g = np.array([0.5 * missing**2, missing, 0.0])
-                Q = Q + prm[K.P_MISSING_VAR] * np.outer(g, g)
+                Q = Q + missing_var * np.outer(g, g)
                 B = np.array([[0.5 * dt * dt, 0.0], [dt, 0.0], [0.0, 1.0]])
             else:
                 phi = np.diag([1.0, 0.0, 1.0])
                 Q = np.diag([0.0, 0.0, prm[K.P_QB] * dt])
                 B = np.array([[0.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
-            kf.predict(u=np.array([u_prev, ddrift]), B=B, F=phi, Q=Q)
+                u_in = u_prev
+            kf.predict(u=np.array([u_in, ddrift]), B=B, F=phi, Q=Q)
         elif tr == K.T_RESET:
             kf.x, kf.P = np.zeros(3), np.diag([0.0, 0.0, prm[K.P_BIAS0_VAR]])
         priors.append(kf.x.copy())
         prior_ps.append(kf.P.copy())
         phis.append(phi)
         if k in zupt:
-            kf.update(np.array([0.0]), R=np.array([[prm[K.P_R_ZUPT]]]), H=np.array([[0.0, 1.0, 0.0]]))
+            # zero true velocity; the state's v lags it by τ·(z − b) (the sensor's filter)
+            lagged = -prm[K.P_LAG] * (z[k] - kf.x[2]) if ok[k] else 0.0
+            kf.update(np.array([lagged]), R=np.array([[prm[K.P_R_ZUPT]]]), H=np.array([[0.0, 1.0, 0.0]]))
         if st_zaru[k, 1] > 0:
             kf.update(np.array([z[k]]), R=np.array([[prm[K.P_R]]]), H=np.array([[0.0, 0.0, 1.0]]))
         xs.append(kf.x.copy())
         ps.append(kf.P.copy())
         if ok[k]:
-            u_prev, prev_invalid = z[k], False
+            u_prev, prev_invalid, have_u = z[k], False, True
         else:
             prev_invalid = True
     return np.array(xs), np.array(ps), np.array(priors), np.array(prior_ps), np.array(phis)

@@ -1,5 +1,5 @@
-"""Property: whatever the sequence of samples, the covariance stays symmetric and positive
-(semi)definite and the outputs stay finite.
+"""Property: whatever the sequence of samples (hints and restarts included), the covariance
+stays symmetric and positive (semi)definite and the outputs stay finite.
 
 Semidefinite, not definite, by design: at standstill the velocity is exactly zero (its
 row of P is 0), and at the reference point or after a tare the position is exact. The
@@ -28,6 +28,8 @@ segment = st.one_of(
     st.tuples(st.just("time_back"), st.just(1), st.just(0.0)),
     st.tuples(st.just("tare"), st.just(0), st.just(0.0)),
     st.tuples(st.just("reestimate"), st.just(0), st.just(0.0)),
+    st.tuples(st.just("hint"), st.just(0), st.sampled_from([1.0, 0.0, None])),  # the machine's word
+    st.tuples(st.just("restart"), st.just(0), st.just(0.0)),  # velocity unknown from here
 )
 
 
@@ -64,6 +66,13 @@ def test_covariance_stays_symmetric_psd_and_outputs_finite(segments, seed):
             continue
         if kind == "reestimate":
             est.request_bias_reestimate()
+            continue
+        if kind == "hint":
+            est.set_hint(value)
+            continue
+        if kind == "restart":
+            est.restart()
+            prev = None
             continue
         for _ in range(count):
             lost = 0

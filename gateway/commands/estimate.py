@@ -41,6 +41,9 @@ def add_parser(sub) -> None:
                         "acceleration form, i.e. another sensor)")
     p.add_argument("--drift-model", metavar="DRIFT.json",
                    help="fitted drift and noise (adxlgw fit-drift --model-out) instead of the data-sheet values")
+    p.add_argument("--ignore-hint", action="store_true",
+                   help="do not use the recording's standstill_hint column (the machine's 'at rest' / "
+                        "'moving'; realtime and smoothed use it when present)")
     p.add_argument("--returns-to-start", action="store_true",
                    help="the motion ends where it began (net displacement zero): print the final position as its error")
     p.set_defaults(run=run)
@@ -55,7 +58,10 @@ def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: 
         raise InputError("--drift-model describes the ADXL202; it cannot be combined with noise from the rest")
     period = float(np.median(np.diff(series.t_s)))
     rest = find_initial_rest(series.acc_mps2, series.valid, period)
-    return from_rest(series.acc_mps2[rest.start:rest.stop], period)
+    try:
+        return from_rest(series.acc_mps2[rest.start:rest.stop], period)
+    except ValueError as err:  # the rest cannot give the noise: say so as a missing rest does
+        raise NoRestError(f"the initial rest ({rest.samples} samples) cannot give the noise settings: {err}") from err
 
 
 def write_track(path: str, track: EstimateTrack) -> None:
@@ -121,9 +127,20 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.method in ("realtime", "smoothed"):
             settings = settings_for(series, rec.form, args.noise_from, drift)
+        hint = None
+        if series.standstill_hint is not None and args.method in ("realtime", "smoothed"):
+            if args.ignore_hint:
+                print("adxlgw estimate: the recording's standstill_hint column is ignored (--ignore-hint)",
+                      file=sys.stderr)
+            else:
+                hint = series.standstill_hint
+                known = np.isfinite(hint)
+                print(f"adxlgw estimate: using the recording's standstill_hint ({int(np.count_nonzero(hint == 1))} "
+                      f"samples 'at rest', {int(np.count_nonzero(hint == 0))} 'moving', "
+                      f"{int(np.count_nonzero(~known))} unknown)", file=sys.stderr)
         track = estimate_series(
             series.t_s, series.acc_mps2, series.valid, method=args.method, settings=settings,
-            lost_before=series.lost_before if rec.form == "raw" else None,
+            lost_before=series.lost_before if rec.form == "raw" else None, standstill_hint=hint,
         )
     except NoRestError as err:
         raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err

@@ -87,6 +87,11 @@ class Estimate:
     def bias_estimating(self) -> bool:
         return bool(self.flags & K.F_BIAS_ESTIMATING)
 
+    @property
+    def untrusted(self) -> bool:
+        """Position not trustworthy now: the estimator cannot tell a cruise from a stop."""
+        return bool(self.flags & K.F_UNTRUSTED)
+
 
 class RealtimeEstimator:
     """Causal estimator: one sample in, one estimate out — a thin wrapper of the kernel's
@@ -106,10 +111,25 @@ class RealtimeEstimator:
     def reset(self) -> None:
         self.state: K.KernelState = K.new_state(self.params)
 
+    def restart(self) -> None:
+        """Start over after a board reset or a restart that may come mid-move: unlike reset(),
+        the first quiet window is not taken as a rest (it may be a cruise). The filter starts
+        in motion with the velocity unknown (restart_speed_std_mps) and the position flagged
+        not trustworthy until a stop is recognised on evidence: the machine's rest hint, or a
+        quiet stretch longer than quiet_stop_s."""
+        self.reset()
+        K.mark_velocity_unknown(self.state)
+
     def step(self, t_s: float, acc_mps2: float | None, lost_before: int = 0) -> Estimate:
         valid = acc_mps2 is not None
         K.step(self.state, self.params, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before))
         return Estimate.from_kernel(t_s, self.state.out)
+
+    def set_hint(self, hint: float | None) -> None:
+        """The machine's standstill hint from now on: 1 at rest, 0 moving, None unknown
+        (set None when a wire's hint expires). Evidence, not an order: a rest hint while
+        a window of the accelerometer shows motion is flagged (F_HINT_CONFLICT), not obeyed."""
+        K.set_hint(self.state, hint)
 
     def tare(self) -> None:
         K.tare(self.state)
@@ -151,6 +171,11 @@ class EstimateTrack:
     @property
     def initialised(self) -> np.ndarray:
         return (self.flags & K.F_INITIALISED) != 0
+
+    @property
+    def untrusted(self) -> np.ndarray:
+        """Position not trustworthy: a quiet stretch may be a cruise or a stop (F_UNTRUSTED)."""
+        return (self.flags & K.F_UNTRUSTED) != 0
 
     def columns(self) -> dict[str, np.ndarray]:
         return {
@@ -218,7 +243,7 @@ def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
                   zeros, zeros, zeros, zeros, flags, notes)
 
 
-def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
+def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
     prm = settings.kernel_params()
     n = t.size
     state = K.new_state(prm)
@@ -238,7 +263,7 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
         capacity = 1
     for _attempt in range(2):
         zupt_index, zupt_data = np.empty(capacity, dtype=np.int64), np.empty((capacity, 5))
-        n_zupt = K.run_forward(prm, t, z, ok, lost, state,
+        n_zupt = K.run_forward(prm, t, z, ok, lost, hint, state,
                                cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
                                cols["vel_var"], cols["bias_var"], cols["innov"], cols["nis"], cols["zupt"],
                                flags, smooth, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data)
@@ -271,11 +296,14 @@ def _filter(t, acc, valid, lost, settings: EstimatorSettings, smooth: bool, note
 
 def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
                     settings: EstimatorSettings | None = None, lost_before=None,
-                    known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY) -> EstimateTrack:
+                    known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY,
+                    standstill_hint=None) -> EstimateTrack:
     """Estimate position and velocity for every sample of a recording.
 
     valid: False where the sample is unusable (NaN/inf are invalid anyway).
     lost_before: samples lost before each one (from seq gaps); None → from time gaps.
+    standstill_hint: the machine's word per sample — 1 at rest, 0 moving, NaN unknown
+        (realtime and smoothed only; evidence, not an order: estimator_kernel step 2).
     known_bias_mps2: the true bias per sample (simulation only) — the noise floor: the
         realtime/smoothed filter is fed z − b_true and told the bias is exactly zero.
     Raises NoRestError when nothing can be estimated (no standstill to start from).
@@ -296,8 +324,15 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         notes.append(f"{bad} samples invalid (NaN/inf/flagged): the estimate holds over them")
     if np.any(lost > 0):
         notes.append(f"{int(np.count_nonzero(lost))} gaps, {int(lost.sum())} samples lost: "
-                     "propagated with the last acceleration and a wider variance")
+                     "bridged between the valid samples either side, with their difference as uncertainty")
     period = float(np.median(np.diff(t)))
+    bursts = int(np.count_nonzero(np.diff(t) < 0.5 * period))
+    if bursts:
+        # the filter takes the times as the samples' true times; a logger's arrival times
+        # (backlogs flushed in bursts) are not, and no flag can see that from the samples
+        notes.append(f"{bursts} sample intervals are under half the median period ({period * 1e3:.3g} ms): "
+                     "these look like arrival times, not sample times — the estimate assumes true "
+                     "sample times (re-time them first)")
     if method == "raw":
         return _raw(t, acc, ok, lost, notes)
     if method == "paper":
@@ -307,13 +342,27 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
     if known_bias_mps2 is not None:
         acc = acc - np.asarray(known_bias_mps2, dtype=float)
         settings = settings.with_known_bias()
-    track = _filter(t, acc, ok, lost, settings, method == "smoothed", notes)
+    if standstill_hint is None:
+        hint = np.full(t.size, np.nan)
+    else:
+        hint = np.ascontiguousarray(standstill_hint, dtype=float)
+        if hint.size != t.size:
+            raise ValueError("standstill_hint and t_s differ in length")
+    track = _filter(t, acc, ok, lost, hint, settings, method == "smoothed", notes)
     init = track.initialised
     if not init.any():
         raise NoRestError(
             "no standstill found: the estimator needs a quiet stretch of "
             f"{settings.window_samples} valid samples ({settings.standstill_window_s:g} s) to measure the bias"
         )
+    conflicts = int(np.count_nonzero(track.flags & K.F_HINT_CONFLICT))
+    if conflicts:
+        notes.append(f"{conflicts} samples hinted 'at rest' while the accelerometer shows motion: hint not obeyed there")
+    untrusted = track.untrusted
+    if untrusted.any():
+        notes.append(f"position not trustworthy for {int(np.count_nonzero(untrusted))} samples "
+                     f"({100.0 * untrusted.mean():.0f} %; from {t[int(np.argmax(untrusted))] - t[0]:.3f} s): "
+                     "a quiet stretch there may be a cruise or a stop (flag 256)")
     first = int(np.argmax(init))
     if first > 0:
         notes.append(f"the first {first} samples ({t[first] - t[0]:.3f} s) came before the first standstill: "

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gateway.core.jit import jit
-from gateway.core.standstill import standstill_tests, window_statistics
+from gateway.core.standstill import standstill_tests, velocity_swing, window_statistics
 
 # ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
 P_QV = 0  # velocity process noise density N²/2
@@ -47,7 +47,11 @@ P_R_ZUPT = 11
 P_MISSING_VAR = 12
 P_BIAS0_VAR = 13
 P_LAG = 14  # the sensor filter's time constant τ (s): the outputs undo its lag
-N_PARAMS = 15
+P_QUIET_STOP_S = 15  # a quiet stretch this long is a stop even when the velocity cannot decide
+P_VIBRATION = 16  # a window whose velocity swing stays below this (m/s) is vibration, not motion
+P_STEP_MAX = 17  # the largest offset step (m/s²) a rest hint may explain; beyond it the axis moves
+P_RESTART_VEL_VAR = 18  # velocity variance (m/s)² after a restart with the axis possibly moving
+N_PARAMS = 19
 
 # ---- misc state layout ----------------------------------------------------------------
 M_T_PREV = 0
@@ -61,8 +65,20 @@ M_RING_POS = 7
 M_RING_FILL = 8
 M_COUNT = 9  # samples processed
 M_STILL_START = 10  # sample number where the current standstill began
-M_BIAS_REQUESTED = 11  # 1: a re-estimation of the bias was asked for; the next standstill does it
-N_MISC = 12
+# The machine's own word on the axis, set by the caller before a step (set_hint):
+# +1 "at rest", −1 "moving", 0 unknown. Evidence, not an order (see step 2).
+M_HINT = 11
+M_HINT_RUN = 12  # consecutive samples with the rest hint (a window of them may contradict it)
+M_LAST_STILL_T = 13  # time of the latest standstill sample (start of the current motion)
+M_PEAK_SPEED = 14  # largest |v| since the latest standstill: was there a move?
+M_STEP_OPEN = 15  # the offset-step hypothesis has been opened in this motion
+M_UNTRUSTED = 16  # position not trustworthy: held until a stop is accepted decisively
+M_QUIET_T0 = 17  # start of the current undecidable quiet stretch in motion (NaN: none)
+M_PERIOD = 18  # the latest sample period (s), for the window's velocity swing
+M_HAVE_U = 19  # M_U_PREV holds a valid sample (not only the 0 it starts with)
+M_VEL_UNKNOWN = 20  # restarted with the axis possibly moving: the first quiet window is no rest
+M_BIAS_REQUESTED = 21  # 1: a re-estimation of the bias was asked for; the next standstill does it
+N_MISC = 22
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -111,8 +127,13 @@ F_ENTRY = 16  # a standstill began at this sample (ZUPT applied)
 F_UNDECIDED = 32  # too few valid samples in the window to judge: the previous regime is held
 F_TIME_ERROR = 64  # the sample time did not increase: not propagated
 F_ROLLBACK = 128  # a standstill ended: the zero-acceleration updates of the last window were undone
-F_FAULT = 256  # the state is not finite or has diverged: the numbers mean nothing (reset it)
-F_BIAS_ESTIMATING = 512  # the bias is not measured yet (before the first standstill, or asked anew)
+F_UNTRUSTED = 256  # position not trustworthy now: a quiet stretch may be a cruise or a stop (held until
+# a stop is accepted on evidence: the velocity test passing decisively, or the hint)
+F_HINT_CONFLICT = 512  # "at rest" hinted, but a whole window of the accelerometer shows motion: not obeyed
+F_OFFSET_STEP = 1024  # a quiet stretch after a move sits off the bias: the offset may have stepped
+F_HINT_REST = 2048  # this sample's standstill was accepted on the machine's hint
+F_FAULT = 4096  # the state is not finite or has diverged: the numbers mean nothing (reset it)
+F_BIAS_ESTIMATING = 8192  # the bias is not measured yet (before the first standstill, or asked anew)
 
 # a velocity beyond this is no motion of any machine the sensor rides on: the filter diverged
 DIVERGED_SPEED_MPS = 1000.0
@@ -242,6 +263,53 @@ class KernelState(NamedTuple):
 
 
 @jit
+def open_offset_step(P, delta, since_s):
+    """Widen P for an offset step of size delta at an unknown time in the last since_s.
+
+    A step Δ at time s before now leaves the errors (truth − estimate) Δ·g with
+    g = (−s²/2, −s, 1) in (p, v, b); with s uniform over [0, since_s] the added
+    covariance is Δ²·E[g gᵀ], E[s^k] = since_s^k/(k + 1) — positive semidefinite by
+    construction, so the next updates share the correction by these correlations."""
+    d2 = delta * delta
+    T = max(since_s, 0.0)
+    T2 = T * T
+    pp = d2 * T2 * T2 / 20.0
+    pv = d2 * T2 * T / 8.0
+    pb = -d2 * T2 / 6.0
+    vv = d2 * T2 / 3.0
+    vb = -d2 * T / 2.0
+    P[0, 0] += pp
+    P[0, 1] += pv
+    P[1, 0] += pv
+    P[0, 2] += pb
+    P[2, 0] += pb
+    P[1, 1] += vv
+    P[1, 2] += vb
+    P[2, 1] += vb
+    P[2, 2] += d2
+
+
+def mark_velocity_unknown(state: KernelState) -> None:
+    """After a restart or a board reset mid-operation (fresh state): the axis may be moving,
+    so the first quiet window is not taken as a rest (see step 2)."""
+    state.misc[M_VEL_UNKNOWN] = 1.0
+
+
+@jit
+def hint_code(hint):
+    """A recording's or a wire's hint (1 at rest, 0 moving, NaN unknown) → M_HINT's +1/−1/0."""
+    if not (hint == hint):  # NaN
+        return 0.0
+    return 1.0 if hint >= 0.5 else -1.0
+
+
+def set_hint(state: KernelState, hint) -> None:
+    """The machine's standstill hint for the next step: 1 at rest, 0 moving, None/NaN unknown.
+    It stays until set again (a wire's timeout is the caller's: set None when it expires)."""
+    state.misc[M_HINT] = hint_code(math.nan if hint is None else float(hint))
+
+
+@jit
 def step(state, prm, t_s, z, z_valid, lost_before):
     """One sample in, the estimate at t_s out (written to `state.out`, layout O_*)."""
     x, P, m, ring_z, ring_ok, snap, gain, out = state
@@ -250,6 +318,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     rollback_from = -1
     transition = T_NONE
     regime_prev = int(m[M_REGIME])
+    ok_now = z_valid and math.isfinite(z)
     # 1. propagate from the previous sample's time to this one
     if m[M_HAVE_PREV] > 0.0:
         dt = t_s - m[M_T_PREV]
@@ -261,20 +330,39 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         if dt > 0.0:
             t_prev = m[M_T_PREV]
             ddrift = drift_at(t_s, prm) - drift_at(t_prev, prm)
+            if regime_prev == STANDSTILL and lost_before > 0:
+                # Samples lost at rest: the axis may have started moving in the gap. Not
+                # held: propagated as motion (bridged between the samples either side, so
+                # a start inside the gap shows as uncertainty), and the stop must be found
+                # again by the detector.
+                regime_prev = MOTION
             if regime_prev == MOTION:
+                u = m[M_U_PREV]
+                missing_var = prm[P_MISSING_VAR]
                 if m[M_PREV_INVALID] > 0.0:
                     missing_dt = dt
                 elif lost_before > 0:
                     missing_dt = dt * lost_before / (lost_before + 1.0)
                 else:
                     missing_dt = 0.0
-                propagate_motion(x, P, dt, m[M_U_PREV], ddrift, prm[P_QV], prm[P_QB],
-                                 prm[P_MISSING_VAR], missing_dt)
+                if missing_dt > 0.0 and ok_now and m[M_HAVE_U] > 0.0:
+                    # The sensor's own low-pass keeps the acceleration of a lost or invalid
+                    # stretch between the valid samples on either side: take their mean over
+                    # it, with half their difference (and one sample's noise) as its
+                    # uncertainty — a stretch across a change of acceleration is as
+                    # uncertain as the change. Inside a longer outage (this sample invalid
+                    # too) nothing bounds it: the full range (P_MISSING_VAR).
+                    half = 0.5 * (z - u)
+                    u += half * missing_dt / dt
+                    missing_var = half * half + prm[P_R]
+                propagate_motion(x, P, dt, u, ddrift, prm[P_QV], prm[P_QB], missing_var, missing_dt)
                 transition = T_MOTION
             elif regime_prev == STANDSTILL:
                 propagate_standstill(x, P, dt, ddrift, prm[P_QB])
                 transition = T_STANDSTILL
             m[M_T_PREV] = t_s
+            if lost_before == 0:
+                m[M_PERIOD] = dt
     else:
         m[M_T_PREV] = t_s
         m[M_HAVE_PREV] = 1.0
@@ -291,18 +379,124 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     fill = min(int(m[M_RING_FILL]) + 1, w)
     m[M_RING_FILL] = fill
     n_valid, mean, var = window_statistics(ring_z, ring_ok, fill)
+    vibrating = False
+    # (not worth its loop while the filter decisively moves above the floor: no stop follows)
+    if regime_prev != UNINITIALISED and fill >= w and n_valid >= 2 and var > prm[P_VAR_MAX] and (
+            regime_prev == STANDSTILL or abs(x[1]) <= prm[P_SPEED_FLOOR] or m[M_HINT] > 0.0
+            or prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)) > prm[P_SPEED_FLOOR]):
+        # a vibrating mount is not motion: the velocity its acceleration (the bias removed)
+        # would give swings by little over the window; a start of motion makes it grow
+        swing = velocity_swing(ring_z, ring_ok, (pos + 1) % w, w, x[2], m[M_PERIOD])
+        if swing <= prm[P_VIBRATION]:
+            var = prm[P_VAR_MAX]
+            vibrating = True
     decided = ok and fill >= w and n_valid * 10 >= w * 8
     regime = regime_prev
+    hint = m[M_HINT]
+    if hint > 0.0:
+        m[M_HINT_RUN] += 1.0
+    else:
+        m[M_HINT_RUN] = 0.0
+    floor = prm[P_SPEED_FLOOR]
+    if regime_prev == MOTION:
+        m[M_PEAK_SPEED] = max(m[M_PEAK_SPEED], abs(x[1]))
+    trusted_entry = False
     if decided:
-        var_ok, mean_ok, vel_ok = standstill_tests(
-            regime_prev != UNINITIALISED, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
-            prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])
-        if var_ok and mean_ok and vel_ok:
+        initialised = regime_prev != UNINITIALISED
+        var_ok, mean_ok, vel_ok, decidable = standstill_tests(
+            initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
+            prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
+        if vibrating and regime_prev == MOTION and abs(x[1]) > prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)):
+            # a window that is quiet only as a vibration enters a standstill only if the
+            # filter's velocity is zero within its own uncertainty (not merely below the
+            # floor): the turn of a slow motion swings the velocity little, too
+            vel_ok = False
+        still = var_ok and mean_ok and vel_ok
+        trusted_entry = still
+        # A window quiet on the noise alone (no vibration, no end of a deceleration in it)
+        # but off the bias by no more than an offset step (P_STEP_MAX) after a move: the
+        # offset may have stepped somewhere in the motion since the latest stop. Believed
+        # when the machine says it stands (over a whole window inside the hinted rest), or
+        # after a move above the speed floor (the filter's velocity may already be off by
+        # the step) — there "stopped at a new offset" and "accelerating slowly at the old
+        # one" are the same signal: the hypothesis costs only uncertainty if it is wrong.
+        # The hypothesis goes into the covariance (open_offset_step): the uncertainty grows
+        # to the error's scale, and a stop accepted afterwards (hint, or the velocity test
+        # if it can still decide) puts the correction where it belongs through its ZUPT and
+        # ZARU. Once per motion.
+        off_by_a_step = var_ok and not vibrating and not mean_ok and abs(mean - x[2]) <= prm[P_STEP_MAX] + \
+            prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1) + P[2, 2])
+        if regime_prev == MOTION and off_by_a_step and m[M_STEP_OPEN] == 0.0 and (
+                (hint > 0.0 and m[M_HINT_RUN] >= w) or m[M_PEAK_SPEED] > floor):
+            open_offset_step(P, mean - x[2], t_s - m[M_LAST_STILL_T])
+            m[M_STEP_OPEN] = 1.0
+            m[M_UNTRUSTED] = 1.0
+            flags |= F_OFFSET_STEP
+            var_ok, mean_ok, vel_ok, decidable = standstill_tests(
+                initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
+                prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
+            still = var_ok and mean_ok and vel_ok
+            trusted_entry = still
+        # A rest hint is contradicted by a window that moves, or whose mean is off the bias
+        # (beyond the offset step just opened, if any: the axis is still decelerating), or
+        # while the filter knows, decisively, that it moves (a cruise above the floor).
+        hint_fits = var_ok and mean_ok and not (decidable and abs(x[1]) > floor)
+        if hint > 0.0:
+            if hint_fits:
+                # evidence, not an order: obeyed while the accelerometer does not contradict it
+                if not still:
+                    flags |= F_HINT_REST
+                still = True
+                trusted_entry = True
+            elif m[M_HINT_RUN] >= w:
+                flags |= F_HINT_CONFLICT  # a whole window inside the hinted rest shows motion
+        elif hint < 0.0:
+            still = False  # "moving": not even the reference point
+            trusted_entry = False
+        # A quiet stretch the velocity test cannot decide (the filter lost its velocity:
+        # a gap, an outage, a long time since the latest stop): a stop only once it has
+        # lasted longer than any cruise of the machine (P_QUIET_STOP_S); position untrusted.
+        if regime_prev == MOTION and not still and var_ok and mean_ok and not decidable and hint >= 0.0:
+            if math.isnan(m[M_QUIET_T0]):
+                m[M_QUIET_T0] = t_s
+            elif t_s - m[M_QUIET_T0] >= prm[P_QUIET_STOP_S]:
+                still = True
+        else:
+            m[M_QUIET_T0] = math.nan
+        if regime_prev == MOTION and not still and var_ok and not decidable:
+            m[M_UNTRUSTED] = 1.0
+        if regime_prev == MOTION and not still and not vibrating and var_ok and not mean_ok \
+                and abs(x[1]) <= floor and m[M_PEAK_SPEED] > floor:
+            # quiet after a move, off the bias (beyond any step), slow: not a stop we can accept
+            m[M_UNTRUSTED] = 1.0
+            flags |= F_OFFSET_STEP
+        if still and not initialised and m[M_VEL_UNKNOWN] > 0.0 and hint <= 0.0:
+            # Restarted (board reset, daemon restart) with the axis possibly moving: a quiet
+            # window is a rest or a cruise. Its mean is the bias either way; the velocity is
+            # unknown within the machine's speed. Start in motion, position not trustworthy,
+            # until a stop is recognised on evidence (the velocity test cannot pass yet).
+            x[0] = 0.0
+            x[1] = 0.0
+            x[2] = mean
+            for i in range(3):
+                for j in range(3):
+                    P[i, j] = 0.0
+            P[1, 1] = prm[P_RESTART_VEL_VAR]
+            P[2, 2] = prm[P_R] / n_valid
+            m[M_VEL_UNKNOWN] = 0.0
+            m[M_UNTRUSTED] = 1.0
+            m[M_LAST_STILL_T] = t_s
+            m[M_PEAK_SPEED] = 0.0
+            transition = T_RESET
+            regime = MOTION
+        elif still:
             regime = STANDSTILL
-        elif regime_prev != UNINITIALISED:
+        elif initialised:
             regime = MOTION
     else:
         flags |= F_UNDECIDED
+    if regime == MOTION and prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)) > floor:
+        m[M_UNTRUSTED] = 1.0  # the velocity is no longer known well enough to recognise a stop
 
     # 3b. Leaving a standstill: the motion began somewhere in the window that just failed.
     # A sharp start fails the tests on its first sample; a gentle one is seen late, after
@@ -329,6 +523,17 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             if score > best:
                 best = score
                 onset = i
+        # a start that ramps up (the sensor's own filter) shows first as a small deviation
+        # the change-point score passes over: take in the samples just before the onset
+        # that already deviate the same way by more than 3 noise σ
+        shift = z - b_ref
+        step_sigma = 3.0 * math.sqrt(prm[P_VAR_MAX])
+        while onset - 1 >= first:
+            j = (onset - 1) % w
+            if snap[j, 11] > 0.0 and (snap[j, 10] - b_ref) * shift > 0.0 and abs(snap[j, 10] - b_ref) > step_sigma:
+                onset -= 1
+            else:
+                break
         s = onset - 1
         if onset < count:
             j = s % w
@@ -410,7 +615,10 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             P[2, 2] = prm[P_BIAS0_VAR]
             transition = T_RESET
         elif regime_prev == MOTION:
-            zupt_y = -x[1]
+            # At rest the true velocity is zero; the state's v lags it by τ·y (the sensor's
+            # filter still settling, y = z − b): entering while the last of a stroke's
+            # acceleration is in the sample must not take that for a velocity error.
+            zupt_y = -(x[1] + prm[P_LAG] * (z - x[2]) if ok else x[1])
             zupt_s = scalar_update(x, P, 1, zupt_y, prm[P_R_ZUPT], gain)
             k0 = gain[0]
             k1 = gain[1]
@@ -425,6 +633,11 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         nis = zaru_y * zaru_y / zaru_s
         if regime_prev != STANDSTILL:
             m[M_STILL_START] = count
+            if regime_prev == UNINITIALISED or trusted_entry:
+                m[M_UNTRUSTED] = 0.0
+        m[M_LAST_STILL_T] = t_s
+        m[M_PEAK_SPEED] = 0.0
+        m[M_STEP_OPEN] = 0.0
 
     # the state after this sample, for a later rollback
     j = count % w
@@ -448,6 +661,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     if ok:
         m[M_U_PREV] = z
         m[M_PREV_INVALID] = 0.0
+        m[M_HAVE_U] = 1.0
     else:
         m[M_PREV_INVALID] = 1.0
     m[M_REGIME] = regime
@@ -486,6 +700,8 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     out[O_NIS] = nis
     out[O_ZUPT_INNOV] = m[M_ZUPT_INNOV]
     out[O_ZUPT_NIS] = m[M_ZUPT_NIS]
+    if m[M_UNTRUSTED] > 0.0:
+        flags |= F_UNTRUSTED
     out[O_FLAGS] = flags
     out[O_TRANSITION] = transition
     out[O_ZARU_Y] = zaru_y
@@ -506,6 +722,7 @@ def new_state(prm: np.ndarray) -> KernelState:
     P[2, 2] = prm[P_BIAS0_VAR]
     m = np.zeros(N_MISC)
     m[M_REGIME] = UNINITIALISED
+    m[M_QUIET_T0] = math.nan
     return KernelState(x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT))
 
 
@@ -524,18 +741,20 @@ def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:
 
 
 @jit
-def run_forward(prm, t_s, z, z_ok, lost, state,
+def run_forward(prm, t_s, z, z_ok, lost, hint, state,
                 pos, vel, acc, bias, pos_var, vel_var, bias_var, innov, nis, zupt_innov, flags,
                 store, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data):
-    """The step over whole arrays. With store, keeps what the smoother needs:
+    """The step over whole arrays (hint: the machine's standstill hint per sample, NaN unknown).
+    With store, keeps what the smoother needs:
     filtered x (N×3) and P (N×6: 00 01 02 11 12 22), the transition into each sample,
     ZARU (y, S) per sample, and the sparse ZUPT records (index; y, S, K0, K1, K2).
     After a rollback the records of the samples run again are rewritten (motion, no
     update), so the smoother sees the sequence the filter state now stands on.
     Returns the number of ZUPT records (more than zupt_index holds: run again with room)."""
-    x, P, out, snap = state.x, state.P, state.out, state.snap
+    x, P, m, out, snap = state.x, state.P, state.misc, state.out, state.snap
     n_zupt = 0
     for k in range(t_s.size):
+        m[M_HINT] = hint_code(hint[k])
         step(state, prm, t_s[k], z[k], z_ok[k], lost[k])
         pos[k] = out[O_POS]
         vel[k] = out[O_VEL]

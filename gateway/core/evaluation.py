@@ -59,3 +59,38 @@ def summarise_errors(t_s, pos_m, ref_pos_m, ref_vel_mps, ref_acc_mps2=None, vel_
     return ErrorSummary(stops=stops, final_m=float(err[-1]), rms_m=float(np.sqrt(np.mean(err**2))),
                         travelled_m=travelled, vel_rms_mps=vel_rms,
                         moving_max_m=float(np.max(np.abs(err[moving]))) if moving.any() else float("nan"))
+
+
+@dataclass(frozen=True)
+class MoveError:
+    """One move between two rests: the displacement from the end of one rest to the end of the next."""
+
+    start: int  # last sample of the rest before
+    end: int  # last sample of the rest after
+    ref_m: float
+    estimate_m: float
+
+    @property
+    def error_m(self) -> float:
+        return self.estimate_m - self.ref_m
+
+    @property
+    def percent(self) -> float:
+        return 100.0 * abs(self.error_m) / abs(self.ref_m)
+
+
+def move_errors(pos_m, ref_pos_m, at_rest, min_move_m: float = 0.01) -> list[MoveError]:
+    """Per move between two rests (runs of at_rest ≠ 0, e.g. a robot's "in position"): the
+    estimated displacement against the reference's, both taken at the last sample of each
+    rest. Moves of less than min_move_m (the axis stood while another one moved) are left out."""
+    rest = np.asarray(at_rest, dtype=float) > 0.5
+    edges = np.diff(np.concatenate([[0], rest.astype(np.int8), [0]]))
+    ends = np.flatnonzero(edges == -1) - 1  # last sample of each rest
+    pos = np.asarray(pos_m, dtype=float)
+    ref = np.asarray(ref_pos_m, dtype=float)
+    moves = []
+    for a, b in zip(ends[:-1], ends[1:]):
+        d_ref = float(ref[b] - ref[a])
+        if abs(d_ref) >= min_move_m:
+            moves.append(MoveError(int(a), int(b), d_ref, float(pos[b] - pos[a])))
+    return moves

@@ -7,15 +7,21 @@ three tests pass on the window of the last W samples (standstill_window_s):
 
 1. variance: the window's sample variance is what the sensor noise alone gives —
    s² ≤ σ²·χ²_ν(1 − p)/ν, with σ the per-sample noise, ν the window's effective
-   degrees of freedom for correlated noise, p the false-"motion" probability. Any
-   vibration or change of acceleration fails it.
+   degrees of freedom for correlated noise, p the false-"motion" probability — or, if
+   not, the window is a vibration: its acceleration, the bias removed, swings the
+   velocity by no more than standstill_vibration_mps (a robot arm settling after a stop; the
+   noise level is measured at the quiet initial rest). Any change of acceleration that
+   moves the axis fails it.
 2. mean: the window's mean equals the current bias estimate, |m − b| ≤ n·√(R/W + P_bb)
    (R/W: the mean's variance for white-equivalent noise of density N). A slow, steady
    acceleration that passes the variance test fails this one.
-3. velocity: the filter's own velocity is consistent with zero, |v| ≤ max(n·σ_v,
-   v_floor). This is what tells a cruise from a standstill: after a 10 m/s² ramp to
-   1 m/s, v ≈ 1 m/s with σ_v of mm/s. v_floor (an application choice, settings) keeps
-   unmodelled errors (tilt, scale) from blocking every stop.
+3. velocity: the filter's own velocity is below the floor, |v| ≤ v_floor, and the
+   filter knows it well enough to tell: n·σ_v ≤ v_floor. This is what tells a cruise
+   from a standstill: after a 10 m/s² ramp to 1 m/s, v ≈ 1 m/s with σ_v of mm/s.
+   v_floor (an application choice, settings) is the slowest cruise that must never be
+   called a standstill; it also covers errors the model lacks (tilt, scale). When
+   n·σ_v > v_floor the test is undecidable (a cruise at the floor speed and a stop look
+   the same to the filter) and fails: the estimator says so (F_UNTRUSTED) instead.
 
 Before the filter is initialised there is no velocity or bias yet: the first window
 that passes the variance test is the reference point (the filter starts there, at rest,
@@ -52,13 +58,35 @@ def window_statistics(ring_z, ring_ok, count):
 
 
 @jit
+def velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s):
+    """Largest |Σ (z − bias)·Ts| along the window in time order (from ring slot `oldest`):
+    how far the window's acceleration moves the velocity. Vibration of a mount at rest
+    swings it by mm/s; the start of a motion by far more."""
+    c = 0.0
+    peak = 0.0
+    for i in range(count):
+        j = (oldest + i) % count
+        if ring_ok[j] > 0.0:
+            c += (ring_z[j] - bias) * period_s
+            if abs(c) > peak:
+                peak = abs(c)
+    return peak
+
+
+@jit
 def standstill_tests(initialised, n_valid, mean, var, vel, vel_var, bias, bias_var,
                      var_max, sample_var_white, mean_sigmas, vel_sigmas, speed_floor):
-    """(variance ok, mean ok, velocity ok) for one window; see the module docstring."""
+    """(variance ok, mean ok, velocity ok, velocity decidable) for one window; see the module docstring.
+
+    The velocity test can only tell a stop from a cruise at the floor speed while the
+    filter knows its velocity well enough: vel_sigmas·σ_v ≤ v_floor. Past that (after a
+    gap, an outage, a long time without a stop) it is undecidable and never passes — a
+    quiet stretch is then not accepted as a stop on the strength of a velocity the filter
+    no longer has."""
     var_ok = var <= var_max
     if not initialised:
-        return var_ok, True, True
+        return var_ok, True, True, True
     mean_ok = abs(mean - bias) <= mean_sigmas * math.sqrt(sample_var_white / n_valid + bias_var)
-    gate = max(vel_sigmas * math.sqrt(max(vel_var, 0.0)), speed_floor)
-    vel_ok = abs(vel) <= gate
-    return var_ok, mean_ok, vel_ok
+    decidable = vel_sigmas * math.sqrt(max(vel_var, 0.0)) <= speed_floor
+    vel_ok = decidable and abs(vel) <= speed_floor
+    return var_ok, mean_ok, vel_ok, decidable
