@@ -89,27 +89,25 @@ def sample_at(buf, pos):
 
     The only place a SAMPLE frame is decoded. Written in the subset of Python that
     numba compiles: the gateway's sample pipeline compiles it into its per-chunk loop
-    (on a numpy uint8 array); `StreamDecoder` runs it as it is (on bytes).
+    (on a numpy uint8 array); run as plain Python it takes bytes (`StreamDecoder`).
     """
     end = pos + 15
     if end > len(buf) or buf[pos] != 0xA5 or buf[pos + 1] != 0x5A:
         return -1, 0, 0, 0, 0
     if buf[pos + 2] != _SAMPLE_TYPE_BYTE or buf[pos + 3] != _SAMPLE_N:
         return -1, 0, 0, 0, 0
-    # every byte as an int64 first: numba types int(uint8) as uint64 (a uint64 beside
-    # the int64 of the "no frame" return makes every field a float), and numpy's uint8
-    # overflows in plain Python
-    i64 = np.int64
+    # every byte `& 0xFF`: numba types that int64 (uint8 beside the int64 of the "no
+    # frame" return would make every field a float), and on bytes it is a plain int
     crc = 0xFFFF
     for i in range(pos + 2, end - 2):
-        crc = ((crc << 8) & 0xFFFF) ^ CRC16_TABLE[((crc >> 8) ^ i64(buf[i])) & 0xFF]
-    if crc != (i64(buf[end - 2]) << 8 | i64(buf[end - 1])):
+        crc = ((crc << 8) & 0xFFFF) ^ CRC16_TABLE[((crc >> 8) ^ buf[i]) & 0xFF]
+    if crc != ((buf[end - 2] & 0xFF) << 8 | (buf[end - 1] & 0xFF)):
         return -1, 0, 0, 0, 0
-    seq = i64(buf[pos + 4]) << 8 | i64(buf[pos + 5])
-    t1x = i64(buf[pos + 6]) << 8 | i64(buf[pos + 7])
-    t1y = i64(buf[pos + 8]) << 8 | i64(buf[pos + 9])
-    t2 = i64(buf[pos + 10]) << 8 | i64(buf[pos + 11])
-    return seq, t1x, t1y, t2, i64(buf[pos + 12])
+    seq = (buf[pos + 4] & 0xFF) << 8 | (buf[pos + 5] & 0xFF)
+    t1x = (buf[pos + 6] & 0xFF) << 8 | (buf[pos + 7] & 0xFF)
+    t1y = (buf[pos + 8] & 0xFF) << 8 | (buf[pos + 9] & 0xFF)
+    t2 = (buf[pos + 10] & 0xFF) << 8 | (buf[pos + 11] & 0xFF)
+    return seq, t1x, t1y, t2, buf[pos + 12] & 0xFF
 
 
 # A forward step of seq up to this is a gap (step − 1 samples lost); a larger one is the
@@ -313,7 +311,7 @@ assert SAMPLE_FRAME_DTYPE.itemsize == SAMPLE_FRAME_LENGTH
 # Byte-at-a-time CRC table for the non-reflected polynomial: table[b] is the CRC
 # register after shifting byte b through a zero register, which is exactly
 # crc_hqx(bytes([b]), 0).
-_CRC_TABLE: Final = np.array([binascii.crc_hqx(bytes((b,)), 0) for b in range(256)], dtype=np.uint16)
+_CRC_TABLE: Final = np.array(CRC16_TABLE, dtype=np.uint16)  # the one table, as numpy for whole records
 # Every SAMPLE frame's CRC input starts with the same two bytes (type 0x01, N 0x09),
 # so the register after them is a constant.
 _CRC_AFTER_SAMPLE_HEADER: Final = binascii.crc_hqx(bytes((FrameType.SAMPLE, 9)), CRC_INITIAL)
@@ -428,7 +426,7 @@ class SampleSink(Protocol):
     a HELLO between two samples resets what follows it.
     """
 
-    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
+    def take_samples(self, buf: bytes, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
         """Take the run of whole, CRC-valid SAMPLE frames from `buf[pos]` on (using
         `sample_at` and `seq_step`): (end, samples, last seq, samples lost, gaps, seq
         repeats, seq backward steps). 0 samples: the frame at `pos` is not a good one."""
@@ -500,7 +498,6 @@ class StreamDecoder:
         size = len(buf)
         frames: list[Frame] = []
         sink = self._sink
-        array = None  # buf as numpy, made once per feed for the sink
         find = buf.find
         crc_hqx = binascii.crc_hqx
         unpack_report = _REPORT_PAYLOAD_CRC.unpack_from
@@ -530,12 +527,10 @@ class StreamDecoder:
                 if pos + SAMPLE_FRAME_LENGTH > size:
                     break
                 if sink is not None:
-                    if array is None:
-                        array = np.frombuffer(buf, np.uint8)
                     end, taken, last_seq, lost, run_gaps, run_repeats, run_backwards = sink.take_samples(
-                        array, pos, last_seq)
+                        buf, pos, last_seq)
                 else:
-                    seq, t1x, t1y, t2, flags = map(int, sample_at(buf, pos))
+                    seq, t1x, t1y, t2, flags = sample_at(buf, pos)
                     taken = seq >= 0
                     if taken:
                         lost, verdict = seq_step(last_seq, seq)

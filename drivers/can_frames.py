@@ -144,6 +144,19 @@ VELOCITY_FRAME = FrameSpec(
                    ((_INT16_NA, "NotAvailable"),)),
     ),
 )
+_UINT32_NA = 2**32 - 1
+QUALITY_FRAME = FrameSpec(
+    "ADXL_Quality", 0x122, GATEWAY_NODE, PLC_NODE, 10,
+    "How far to trust the numbers: the position's standard deviation and the second status word, cyclic.",
+    _e2e_header("Qual", flags=True) + (
+        SignalSpec("Qual_PositionStd", 16, 32, False, 0.000001, 0, 4294.967294, "m",
+                   "1-sigma uncertainty of the position, 1 um per bit (saturates at the top); raw "
+                   "4294967295 = not available.", ((_UINT32_NA, "NotAvailable"),)),
+        SignalSpec("Qual_StatusExt", 48, 16, False, 1, 0, 65535, "",
+                   "StatusExtBits word, same bits as Modbus input register STATUS_EXT: 0 SIMULATED, "
+                   "1 HINT_AT_REST, 2 HINT_MOVING, 3 HINT_CONFLICT, 4 OFFSET_STEP, 5 STOP_BY_HINT."),
+    ),
+)
 COMMAND_FRAME = FrameSpec(
     "ADXL_Command", 0x130, PLC_NODE, GATEWAY_NODE, None,
     "Command to the gateway; executed only when commands are enabled and the E2E check passes.",
@@ -168,7 +181,7 @@ ACK_FRAME = FrameSpec(
 
 DEFAULT_BASE_ID = POSITION_FRAME.frame_id
 # where each frame sits above the base identifier
-_OFFSETS = {"position": 0x00, "velocity": 0x01, "command": 0x10, "ack": 0x11}
+_OFFSETS = {"position": 0x00, "velocity": 0x01, "quality": 0x02, "command": 0x10, "ack": 0x11}
 MAX_BASE_ID = 0x7FF - max(_OFFSETS.values())  # 11-bit identifiers
 
 
@@ -178,16 +191,17 @@ class FrameTable:
 
     position: FrameSpec
     velocity: FrameSpec
+    quality: FrameSpec
     command: FrameSpec
     ack: FrameSpec
 
     @property
     def frames(self) -> tuple[FrameSpec, ...]:
-        return (self.position, self.velocity, self.command, self.ack)
+        return (self.position, self.velocity, self.quality, self.command, self.ack)
 
     @property
     def cyclic(self) -> tuple[FrameSpec, ...]:
-        return (self.position, self.velocity)
+        return (self.position, self.velocity, self.quality)
 
     @property
     def base_id(self) -> int:
@@ -195,14 +209,14 @@ class FrameTable:
 
 
 def frame_table(base_id: int = DEFAULT_BASE_ID) -> FrameTable:
-    """The frames at base_id (position), +1 (velocity), +0x10 (command), +0x11 (ack); the
+    """The frames at base_id (position), +1 (velocity), +2 (quality), +0x10 (command), +0x11 (ack); the
     E2E data ID of each follows its identifier, so a frame read under another gateway's
     identifier fails its CRC."""
     if not 0 <= base_id <= MAX_BASE_ID:
         raise ValueError(f"CAN base identifier must be 0..0x{MAX_BASE_ID:03X}, got 0x{base_id:X}")
     frames = {name: replace(spec, frame_id=base_id + _OFFSETS[name]) for name, spec in
-              (("position", POSITION_FRAME), ("velocity", VELOCITY_FRAME), ("command", COMMAND_FRAME),
-               ("ack", ACK_FRAME))}
+              (("position", POSITION_FRAME), ("velocity", VELOCITY_FRAME), ("quality", QUALITY_FRAME),
+               ("command", COMMAND_FRAME), ("ack", ACK_FRAME))}
     return FrameTable(**frames)
 
 
@@ -296,8 +310,11 @@ class CyclicEncoder:
 
     def __init__(self, table: FrameTable = DEFAULT_FRAMES) -> None:
         self.table = table
-        pos_frame, vel_frame = table.position, table.velocity
-        self._pos_id, self._vel_id = pos_frame.frame_id, vel_frame.frame_id
+        pos_frame, vel_frame, qual_frame = table.position, table.velocity, table.quality
+        self._pos_id, self._vel_id, self._qual_id = pos_frame.frame_id, vel_frame.frame_id, qual_frame.frame_id
+        std, ext = qual_frame.signal("PositionStd"), qual_frame.signal("StatusExt")
+        self._std = (std.factor, std.start_bit, (1 << std.length) - 1)
+        self._ext_shift, self._ext_mask = ext.start_bit, (1 << ext.length) - 1
         pos = pos_frame.signal("Position")
         status = pos_frame.signal("Status")
         vel = vel_frame.signal("Velocity")
@@ -314,13 +331,13 @@ class CyclicEncoder:
             for name, bit in (("Valid", StatusBits.VALID), ("Standstill", StatusBits.STANDSTILL),
                               ("Stale", StatusBits.STALE), ("BoardLost", StatusBits.BOARD_LOST))
         )
-        assert all(vel_frame.signal(n).start_bit == pos_frame.signal(n).start_bit
+        assert all(f.signal(n).start_bit == pos_frame.signal(n).start_bit for f in (vel_frame, qual_frame)
                    for n in ("Valid", "Standstill", "Stale", "BoardLost"))
         self._counter_shift = pos_frame.signal("Counter").start_bit
         # the CRC register after each frame's data ID (E2E profile 1: initial value 0)
         self._after_id = {
             frame.frame_id: crc8(bytes((frame.data_id & 0xFF, frame.data_id >> 8)), init=0, xor_out=0)
-            for frame in (pos_frame, vel_frame)
+            for frame in (pos_frame, vel_frame, qual_frame)
         }
 
     def _scaled(self, value: float, spec: tuple) -> tuple[int, bool]:
@@ -335,8 +352,9 @@ class CyclicEncoder:
             return -high, True
         return round(scaled), False
 
-    def encode(self, values: PublishedValues, pos_counter: int, vel_counter: int) -> tuple[bytes, bytes]:
-        """Payloads of ADXL_Position and ADXL_Velocity with these alive counters."""
+    def encode(self, values: PublishedValues, pos_counter: int, vel_counter: int,
+               qual_counter: int = 0) -> tuple[bytes, bytes, bytes]:
+        """Payloads of ADXL_Position, ADXL_Velocity and ADXL_Quality with these alive counters."""
         position, clamped_p = self._scaled(values.position_m, self._pos)
         velocity, clamped_v = self._scaled(values.velocity_mps, self._vel)
         acceleration, clamped_a = self._scaled(values.acceleration_mps2, self._acc)
@@ -352,7 +370,19 @@ class CyclicEncoder:
         pos_word = (flags | (pos_counter << cs) | ((position & p[4]) << p[3])
                     | ((status & self._status_mask) << self._status_shift))
         vel_word = flags | (vel_counter << cs) | ((velocity & v[4]) << v[3]) | ((acceleration & a[4]) << a[3])
-        return self._protect(self._pos_id, pos_word), self._protect(self._vel_id, vel_word)
+        factor, std_shift, std_mask = self._std
+        std = values.position_std_m
+        # an uncertainty has no sign: NaN (unknown) is the n/a value, anything larger saturates below it
+        if math.isnan(std):
+            std_raw = std_mask
+        elif std / factor >= std_mask - 1:  # ±inf included
+            std_raw = std_mask - 1
+        else:
+            std_raw = max(round(std / factor), 0)
+        qual_word = (flags | (qual_counter << cs) | (std_raw << std_shift)
+                     | ((int(values.status_ext) & self._ext_mask) << self._ext_shift))
+        return (self._protect(self._pos_id, pos_word), self._protect(self._vel_id, vel_word),
+                self._protect(self._qual_id, qual_word))
 
     def _protect(self, frame_id: int, word: int) -> bytes:
         payload = bytearray(word.to_bytes(8, "little"))

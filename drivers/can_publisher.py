@@ -305,15 +305,18 @@ class CanPublisher:
 
     def _send_cycle(self, now: float) -> None:
         alive = self._alive
-        pos_id, vel_id = self.frames.position.frame_id, self.frames.velocity.frame_id
+        frames = self.frames
+        pos_id, vel_id, qual_id = frames.position.frame_id, frames.velocity.frame_id, frames.quality.frame_id
         self._in_cycle = True
         try:
             values = current(self._values)
         finally:
             self._in_cycle = False
-        pos_payload, vel_payload = self._encoder.encode(values, alive[pos_id], alive[vel_id])
+        pos_payload, vel_payload, qual_payload = self._encoder.encode(values, alive[pos_id], alive[vel_id],
+                                                                      alive[qual_id])
         self._send(pos_id, pos_payload)
         self._send(vel_id, vel_payload)
+        self._send(qual_id, qual_payload)
         self._last_send = now
 
     def _send(self, frame_id: int, payload: bytes) -> None:

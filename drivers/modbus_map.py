@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from .published_values import PublishedValues, StatusBits
 
 #: Bump whenever a row is added, moved or changes meaning; the PLC can check it.
-MAP_VERSION = 2
+MAP_VERSION = 3
 
 PLC_INPUT_BASE = 30001
 PLC_HOLDING_BASE = 40001
@@ -157,7 +157,7 @@ REGISTERS: tuple[Register, ...] = (
              "Status bits (StatusBits): 0 VALID, 1 STANDSTILL, 2 STALE, 3 BOARD_LOST, "
              "4 SATURATED, 5 NOT_REFERENCED, 6 ESTIMATOR_FAULT, 7 HOLDING, 8 AXIS_INVALID, "
              "9 CONFIG_RELOADED, 10 BOARD_RESET, 11 SAMPLES_LOST, 12 BIAS_ESTIMATING, "
-             "13 SCALED_CLAMPED, 15 MODBUS_RTU_DOWN.", "status"),
+             "13 SCALED_CLAMPED, 14 POSITION_UNTRUSTED, 15 MODBUS_RTU_DOWN.", "status"),
     Register("HEARTBEAT", _I, 2, _U16, "count", 1,
              "Incremented by the daemon every publish cycle; stops when the daemon hangs.",
              "heartbeat", wraps=True),
@@ -234,12 +234,25 @@ REGISTERS: tuple[Register, ...] = (
     Register("DEVICE_NAME", _I, 50, _STR, "", 1,
              "[modbus] device_name: ASCII, two characters per register (first in the high "
              "byte), NUL-padded; all zero when not configured.", "server.device_name"),
+    Register("STATUS_EXT", _I, 66, _BITS, "", 1,
+             "Second status word (StatusExtBits): 0 SIMULATED, 1 HINT_AT_REST, 2 HINT_MOVING, "
+             "3 HINT_CONFLICT, 4 OFFSET_STEP, 5 STOP_BY_HINT.", "status_ext"),
     Register("CMD_TARE", _H, 0, _U16, "", 1,
              "Write 1: position := 0 here (tare). Reads 0 (auto-clear). Writing 0 does nothing.",
              "command.TARE"),
     Register("CMD_REESTIMATE_BIAS", _H, 1, _U16, "", 1,
              "Write 1: re-estimate the accelerometer bias (only at standstill). Reads 0 "
              "(auto-clear). Writing 0 does nothing.", "command.REESTIMATE_BIAS"),
+    Register("CMD_HINT_AT_REST", _H, 2, _U16, "", 1,
+             "Write 1: the machine says the axis is at rest (in position). Evidence for the "
+             "standstill detector, in force for estimator.hint_timeout_ms (write it again "
+             "every cycle while it holds). Reads 0 (auto-clear).", "command.HINT_AT_REST"),
+    Register("CMD_HINT_MOVING", _H, 3, _U16, "", 1,
+             "Write 1: the machine says the axis is moving: no stop is accepted meanwhile. "
+             "In force for estimator.hint_timeout_ms. Reads 0 (auto-clear).", "command.HINT_MOVING"),
+    Register("CMD_HINT_UNKNOWN", _H, 4, _U16, "", 1,
+             "Write 1: withdraw the hint (the accelerometer alone decides). Reads 0 "
+             "(auto-clear).", "command.HINT_UNKNOWN"),
 )
 # fmt: on
 

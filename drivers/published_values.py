@@ -63,10 +63,35 @@ class StatusBits(enum.IntFlag):
     #: wire (int32 µm, µm/s, µm/s²; CAN int16) was clamped at its range limit. The
     #: float32 registers carry the unclamped value.
     SCALED_CLAMPED = 1 << 13
+    #: The position is not trustworthy now: the accelerometer cannot tell whether the
+    #: axis cruises or stands (a long quiet stretch the velocity test cannot decide,
+    #: after a gap, a restart or a board reset mid-move, a possible offset step). Held
+    #: until a stop is accepted on evidence (a decisive velocity test, the machine's rest
+    #: hint, or a quiet stretch longer than estimator quiet_stop_s). VALID is clear.
+    POSITION_UNTRUSTED = 1 << 14
     #: Set by the Modbus server, never by the daemon, and only in the Modbus registers:
     #: Modbus RTU is configured but its serial port is missing or lost; the server keeps
-    #: reopening it with back-off. (Bit 14 is left free for a bit the daemon sets.)
+    #: reopening it with back-off.
     MODBUS_RTU_DOWN = 1 << 15
+
+
+class StatusExtBits(enum.IntFlag):
+    """The second status word (Modbus STATUS_EXT, CAN ADXL_Quality Qual_StatusExt): what
+    the first has no room for. Never renumber, only add."""
+
+    #: The board is the built-in emulated one (`port = "emulated"`, `adxlgw demo`): the
+    #: numbers are a simulation's, not a machine's.
+    SIMULATED = 1 << 0
+    #: The machine's hint in force: "axis at rest" / "axis moving" (none: unknown or expired).
+    HINT_AT_REST = 1 << 1
+    HINT_MOVING = 1 << 2
+    #: "At rest" is hinted but a whole window of the accelerometer shows motion: the hint
+    #: is not obeyed (check the PLC's in-position signal or the sensor's mounting).
+    HINT_CONFLICT = 1 << 3
+    #: A quiet stretch after a move sits off the bias: the sensor's offset may have stepped.
+    OFFSET_STEP = 1 << 4
+    #: The current standstill was accepted on the machine's hint.
+    STOP_BY_HINT = 1 << 5
 
 
 #: Bits that say "do not use the numbers"; VALID must be clear when any is set.
@@ -76,6 +101,7 @@ NOT_USABLE_BITS = (
     | StatusBits.ESTIMATOR_FAULT
     | StatusBits.HOLDING
     | StatusBits.AXIS_INVALID
+    | StatusBits.POSITION_UNTRUSTED
 )
 
 
@@ -86,6 +112,11 @@ class Command(enum.IntEnum):
     TARE = 1
     #: Re-estimate the accelerometer bias; the daemon accepts it only at standstill.
     REESTIMATE_BIAS = 2
+    #: The machine's word on the axis (the PLC's "in position"): evidence for the
+    #: standstill detector, in force until another hint or estimator.hint_timeout_ms.
+    HINT_AT_REST = 3
+    HINT_MOVING = 4
+    HINT_UNKNOWN = 5
 
 
 #: Signature of the daemon's command callback. `source` names the wire and peer, e.g.
@@ -125,6 +156,8 @@ class PublishedValues:
     #: CAN sends that failed (copied by the daemon from CanPublisher.counters), so a
     #: Modbus client can see the health of the CAN side.
     can_send_errors: int = 0
+    #: The second status word (StatusExtBits).
+    status_ext: StatusExtBits = StatusExtBits(0)
 
     def with_status(self, status: StatusBits) -> PublishedValues:
         """The same snapshot with another status (publishers add SCALED_CLAMPED)."""

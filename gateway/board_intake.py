@@ -11,7 +11,8 @@ import logging
 import math
 from dataclasses import dataclass
 
-from drivers.published_values import PublishedValues
+from drivers.published_values import PublishedValues, StatusExtBits
+from gateway.core import estimator_kernel as K
 from gateway.core.estimator import Estimate
 from gateway.sample_pipeline import ChunkResult, SamplePipeline
 from gateway.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
@@ -45,6 +46,7 @@ class LinkHealth:
     lost_after_s: float
     config_reloaded_at_s: float | None = None
     can_send_errors: int = 0
+    simulated: bool = False  # the board is the built-in emulated one
 
 
 class BoardIntake:
@@ -140,7 +142,23 @@ class BoardIntake:
             samples_lost_at_s=ev.samples_lost_at_s,
             config_reloaded_at_s=health.config_reloaded_at_s,
             bias_estimating=bool(est and est.bias_estimating),
+            untrusted=bool(est and est.untrusted),
         )
+
+    def status_ext(self, health: LinkHealth) -> StatusExtBits:
+        est = self.pipeline.latest()
+        bits = StatusExtBits.SIMULATED if health.simulated else StatusExtBits(0)
+        hint = self.pipeline.hint
+        if hint is not None:
+            bits |= StatusExtBits.HINT_AT_REST if hint else StatusExtBits.HINT_MOVING
+        if est is not None:
+            if est.flags & K.F_HINT_CONFLICT:
+                bits |= StatusExtBits.HINT_CONFLICT
+            if est.flags & K.F_OFFSET_STEP:
+                bits |= StatusExtBits.OFFSET_STEP
+            if est.standstill and self.pipeline.stop_by_hint:
+                bits |= StatusExtBits.STOP_BY_HINT
+        return bits
 
     def _build(self, health: LinkHealth) -> PublishedValues:
         now = self._published_at
@@ -165,6 +183,7 @@ class BoardIntake:
             lost_samples=c.samples_lost, crc_errors=c.crc_errors,
             board_resets=p.counters.resets_announced + p.counters.resets_inferred,
             can_send_errors=health.can_send_errors,
+            status_ext=self.status_ext(health),
         )
 
 

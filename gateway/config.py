@@ -146,6 +146,14 @@ SCHEMA: tuple[Key, ...] = (
         "acknowledgement base_id + 0x11 (two gateways on one bus: base IDs at least 0x12 apart). "
         "`adxlgw dbc --config FILE` writes the DBC for these identifiers.", _range(0, 0x7FF - 0x11)),
     # --- estimator ---------------------------------------------------------
+    Key("estimator", "start_at_rest", False, bool,
+        "true: the axis is known to stand when the gateway starts (homed before it), so the first quiet "
+        "window is taken as a rest. false (safe): the gateway may start mid-move, so the position is "
+        "POSITION_UNTRUSTED until a stop is seen on evidence (the machine's rest hint, or quiet_stop_s of "
+        "quiet). A board reset always counts as possibly mid-move."),
+    Key("estimator", "hint_timeout_ms", 1000, int,
+        "How long the machine's standstill hint (Modbus CMD_HINT_*, CAN command codes 3-5) stays in "
+        "force after it was written; a PLC writes it every cycle while it holds.", _range(10, 600_000)),
     Key("estimator", "drift_model", "", str,
         "Zero-drift model of this sensor from 'adxlgw fit-drift --model-out' (JSON); empty: the "
         "sensor model's defaults."),

@@ -56,6 +56,8 @@ PUBLISH_TICK_S = 0.01  # staleness, heartbeat and republishing while no samples 
 # and estimated, if nothing needs the numbers sooner (see Gateway.receive).
 MAX_DEFER_S = PUBLISH_TICK_S
 MAX_DEFER_CHUNKS = 64
+# the machine's standstill hints: the value each command sets
+_HINTS = {Command.HINT_AT_REST: True, Command.HINT_MOVING: False, Command.HINT_UNKNOWN: None}
 HOUSEKEEPING_S = 0.25  # terminal view, state save when something changed
 STATE_SAVE_EVERY_S = 60.0
 
@@ -94,7 +96,9 @@ class Gateway:
         # the last published position is where we continue from, flagged NOT_REFERENCED
         # (the axis may have moved while the gateway was down): a prior, not a fact
         self.pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
-                                       start_position_m=saved.last_position_m or 0.0)
+                                       start_position_m=saved.last_position_m or 0.0,
+                                       start_at_rest=cfg.estimator.start_at_rest)
+        self._hint_until = math.inf  # when the machine's standstill hint expires
         self.intake = BoardIntake(self.pipeline)
         self.source: SerialSource | None = None
         self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
@@ -217,6 +221,11 @@ class Gateway:
             log.info("tare from %s: position := 0", source)
             self._publish(self.clock())  # the reply's next read already shows it
             return True
+        if command in _HINTS:
+            # the machine's word on the axis, until it is said again or times out
+            self.pipeline.set_hint(_HINTS[command])
+            self._hint_until = self.clock() + self.cfg.estimator.hint_timeout_ms / 1000
+            return True
         if command == Command.REESTIMATE_BIAS:
             ok = self.pipeline.request_bias_reestimate()
             log.info("bias re-estimation from %s: %s", source, "accepted" if ok else "declined (not at standstill)")
@@ -256,6 +265,10 @@ class Gateway:
         is what every wire shows (saturation and lost samples are held for a while, so
         none is missed).
         """
+        if now > self._hint_until:
+            self.pipeline.set_hint(None)  # expired: the accelerometer alone decides again
+            self._hint_until = math.inf
+            log.info("standstill hint expired (no new hint within estimator.hint_timeout_ms)")
         if take_waiting and self.source is not None:
             waiting = self.source.read_pending()
             if waiting:
@@ -288,6 +301,7 @@ class Gateway:
             stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
             config_reloaded_at_s=self._reloaded_at,
             can_send_errors=self.can.send_errors if self.can else 0,
+            simulated=self.cfg.serial.port == "emulated",
         )
 
     def _drain_now(self) -> None:

@@ -32,7 +32,7 @@ from gateway.core import estimator_kernel as K
 from gateway.core.conversion import Calibration, advance_sample_time, duty_to_mps2
 from gateway.core.estimator import Estimate, RealtimeEstimator
 from gateway.core.estimator_settings import EstimatorSettings
-from gateway.core.jit import jit
+from gateway.core.jit import JIT_ENABLED, jit
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 # A reading within 2 % of the ±2 g range is treated as clipped (the ADXL202 saturates
@@ -49,15 +49,16 @@ S_SENS = 5  # … and sensitivity (duty per g)
 S_SAT_LIMIT = 6  # |acceleration| at or above this is clipped (m/s²)
 S_INVALID_MASK = 7  # flags that make the configured axis' counts invalid
 S_AXIS_Y = 8  # 1: the configured axis is y
-R_SAMPLES = 9  # results of one run: samples estimated …
-R_LOST = 10  # … samples lost before them (seq gaps) …
-R_GAPS = 11  # … in how many gaps
-R_INVALID = 12
-R_SATURATED = 13
-R_NO_TICK = 14  # SAMPLEs before any tick rate: time unknown, not estimated
-R_ENTRY = 15  # 1: some step began a standstill
-R_FAULT = 16  # 1: some step left the estimator's state not finite or diverged
-N_SLOTS = 17
+S_STOP_BY_HINT = 9  # 1: the current standstill was accepted on the machine's hint
+R_SAMPLES = 10  # results of one run: samples estimated …
+R_LOST = 11  # … samples lost before them (seq gaps) …
+R_GAPS = 12  # … in how many gaps
+R_INVALID = 13
+R_SATURATED = 14
+R_NO_TICK = 15  # SAMPLEs before any tick rate: time unknown, not estimated
+R_ENTRY = 16  # 1: some step began a standstill
+R_FAULT = 17  # 1: some step left the estimator's state not finite or diverged
+N_SLOTS = 18
 
 _CLIPPED_FLAGS = FLAG_X_TIMED_OUT | FLAG_Y_TIMED_OUT | FLAG_TIMER_OVERFLOW
 _X_INVALID = FLAG_X_TIMED_OUT | FLAG_TIMER_OVERFLOW | FLAGS_RESERVED
@@ -65,6 +66,8 @@ _Y_INVALID = FLAG_Y_TIMED_OUT | FLAG_TIMER_OVERFLOW | FLAGS_RESERVED
 _FRAME = SAMPLE_FRAME_LENGTH
 _F_ENTRY = K.F_ENTRY
 _F_FAULT = K.F_FAULT
+_F_HINT_REST = K.F_HINT_REST
+_F_STANDSTILL = K.F_STANDSTILL
 _O_FLAGS = K.O_FLAGS
 _compiled_sample_at = jit(sample_at)
 _compiled_seq_step = jit(seq_step)
@@ -88,6 +91,7 @@ def run_samples(buf, pos, last_seq, st, kstate, prm):
     sat_limit = st[S_SAT_LIMIT]
     invalid_mask = int(st[S_INVALID_MASK])
     use_y = st[S_AXIS_Y] > 0.0
+    stop_by_hint = st[S_STOP_BY_HINT] > 0.0
     n = 0
     lost_total = 0
     gaps = 0
@@ -133,9 +137,14 @@ def run_samples(buf, pos, last_seq, st, kstate, prm):
             entry = True
         if step_flags & _F_FAULT:
             fault = True
+        if step_flags & _F_HINT_REST:
+            stop_by_hint = True
+        elif not step_flags & _F_STANDSTILL:
+            stop_by_hint = False
     st[S_TIMED] = 1.0 if timed else 0.0
     st[S_NEXT_T] = next_t
     st[S_LAST_PERIOD] = last_period
+    st[S_STOP_BY_HINT] = 1.0 if stop_by_hint else 0.0
     st[R_SAMPLES] = n - no_tick
     st[R_LOST] = lost_total
     st[R_GAPS] = gaps
@@ -190,14 +199,26 @@ class SamplePipeline:
     The published position is the estimator's minus a reference offset: `tare()` makes
     here zero (referenced); a board reset or a new axis starts the estimator over and
     keeps the position continuous, but no longer referenced.
+
+    Starting over, the axis may be moving (a daemon restarted mid-move, a board that
+    reset mid-cruise): the estimator starts with the velocity unknown, and the position
+    is not trustworthy until a stop is seen on evidence (`RealtimeEstimator.restart`).
+    Only where the axis is known to stand at the very start (`start_at_rest`: a machine
+    homed before the gateway starts, a recording, the emulated board) is the first quiet
+    window taken as a rest.
     """
 
     def __init__(self, calibration: Calibration, settings: EstimatorSettings, axis: str = "x",
-                 range_g: float = 2.0, start_position_m: float = 0.0):
+                 range_g: float = 2.0, start_position_m: float = 0.0, start_at_rest: bool = False):
         self.estimator = RealtimeEstimator(settings)
+        if not start_at_rest:
+            self.estimator.restart()
+        self.hint: bool | None = None  # the machine's word: True at rest, False moving
         self.counters = PipelineCounters()
         self.board = BoardInfo()
         self._decoder = StreamDecoder(sink=self)
+        self._buf: bytes | None = None  # the decoder's buffer and its numpy view (see take_samples)
+        self._array: np.ndarray | None = None
         self._st = np.zeros(N_SLOTS)
         self._range_g = range_g
         self.set_calibration(calibration, axis)
@@ -211,7 +232,9 @@ class SamplePipeline:
         # the first call compiles (numba, seconds; cached on disk after): now, not on the
         # first sample of the board
         probe = RealtimeEstimator(settings)
-        run_samples(np.zeros(0, np.uint8), 0, -1, np.zeros(N_SLOTS), probe.state, probe.params)
+        # (a read-only array: what np.frombuffer gives take_samples; another type compiles anew)
+        run_samples(np.frombuffer(b"", np.uint8) if JIT_ENABLED else b"", 0, -1, np.zeros(N_SLOTS), probe.state,
+                    probe.params)
 
     # ---------------------------------------------------------------- input --
     def feed(self, data: bytes | bytearray | memoryview) -> ChunkResult:
@@ -221,8 +244,12 @@ class SamplePipeline:
         self._decoder.feed(data)
         return result
 
-    def take_samples(self, buf: np.ndarray, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
+    def take_samples(self, buf: bytes, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
         """`SampleSink`: a run of SAMPLE frames through `run_samples` (the decoder calls it)."""
+        if JIT_ENABLED:  # compiled code takes the bytes as a numpy array (no copy), plain Python as they are
+            if buf is not self._buf:
+                self._buf, self._array = buf, np.frombuffer(buf, np.uint8)
+            buf = self._array
         st = self._st
         end, taken, last_seq, lost_total, gaps, repeats, backwards = run_samples(
             buf, pos, last_seq, st, self.estimator.state, self.estimator.params)
@@ -292,6 +319,13 @@ class SamplePipeline:
         but is no longer referenced."""
         self._start_over()
 
+    def set_hint(self, at_rest: bool | None) -> None:
+        """The machine's standstill hint from now on: True at rest, False moving, None
+        unknown. Evidence, not an order: a rest hint while a window of the accelerometer
+        shows motion is flagged (F_HINT_CONFLICT) and not obeyed."""
+        self.hint = at_rest
+        self.estimator.set_hint(None if at_rest is None else (1.0 if at_rest else 0.0))
+
     def set_calibration(self, calibration: Calibration, axis: str) -> None:
         """Calibration and axis for the samples from now on; another axis starts over."""
         if axis not in ("x", "y"):
@@ -315,9 +349,11 @@ class SamplePipeline:
             # keep the published position continuous; it is just no longer trusted
             self.reference_offset_m = -est.pos_m
         self.referenced = False
-        self.estimator.reset()
+        self.estimator.restart()  # the axis may be moving: the velocity is not known
+        self.set_hint(self.hint)  # the machine's word still holds
         self._estimated = False
         self._st[S_TIMED] = 0.0
+        self._st[S_STOP_BY_HINT] = 0.0
 
     # --------------------------------------------------------------- output --
     def latest(self) -> Estimate | None:
@@ -330,6 +366,11 @@ class SamplePipeline:
         return Estimate(est.t_s, est.pos_m - self.reference_offset_m, est.vel_mps, est.acc_mps2, est.bias_mps2,
                         est.pos_std_m, est.vel_std_mps, est.innovation_mps2, est.nis,
                         est.zupt_velocity_error_mps, est.zupt_nis, est.flags)
+
+    @property
+    def stop_by_hint(self) -> bool:
+        """The current standstill was accepted on the machine's hint."""
+        return self._st[S_STOP_BY_HINT] > 0.0
 
     @property
     def decoder_counters(self) -> DecoderCounters:

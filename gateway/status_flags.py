@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.published_values import StatusBits
+from drivers.published_values import NOT_USABLE_BITS, StatusBits
 
 # Events (a board reset, lost samples, a config reload) stay visible this long, so a
 # PLC polling once a second cannot miss them.
@@ -32,6 +32,7 @@ class GatewayCondition:
     samples_lost_at_s: float | None = None
     config_reloaded_at_s: float | None = None
     bias_estimating: bool = False
+    untrusted: bool = False  # the estimator cannot tell a cruise from a stop now
 
 
 def _recent(at_s: float | None, now_s: float) -> bool:
@@ -51,8 +52,8 @@ _BOARD_RESET = int(StatusBits.BOARD_RESET)
 _SAMPLES_LOST = int(StatusBits.SAMPLES_LOST)
 _CONFIG_RELOADED = int(StatusBits.CONFIG_RELOADED)
 _BIAS_ESTIMATING = int(StatusBits.BIAS_ESTIMATING)
-_UNUSABLE = int(StatusBits.STALE | StatusBits.BOARD_LOST | StatusBits.ESTIMATOR_FAULT
-                | StatusBits.HOLDING | StatusBits.AXIS_INVALID)
+_UNTRUSTED = int(StatusBits.POSITION_UNTRUSTED)
+_UNUSABLE = int(NOT_USABLE_BITS)
 
 
 def status_bits(c: GatewayCondition) -> StatusBits:
@@ -85,6 +86,8 @@ def status_bits(c: GatewayCondition) -> StatusBits:
         bits |= _CONFIG_RELOADED
     if c.bias_estimating:
         bits |= _BIAS_ESTIMATING
+    if c.untrusted:
+        bits |= _UNTRUSTED
     if c.have_estimate and not bits & _UNUSABLE:
         bits |= _VALID
     return StatusBits(bits)

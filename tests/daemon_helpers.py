@@ -45,6 +45,8 @@ def gateway_config(tmp_path: Path, port: str, **sections):
         "modbus": {"port": 0, "writes_enabled": True},
         "can": {"interface": "virtual", "channel": f"gw-{uuid.uuid4().hex[:8]}", "commands_enabled": True},
         "state": {"path": str(tmp_path / "state.json")},
+        # the emulated board starts at rest (a daemon that may start mid-move waits for evidence)
+        "estimator": {"start_at_rest": True},
     }
     for name, table in sections.items():
         data.setdefault(name, {}).update(table)

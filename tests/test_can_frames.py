@@ -19,6 +19,7 @@ from drivers.can_frames import (
     COUNTER_MAX,
     FRAMES,
     POSITION_FRAME,
+    QUALITY_FRAME,
     VELOCITY_FRAME,
     AckResult,
     check_command,
@@ -35,10 +36,10 @@ DBC_PATH = ROOT / "config" / "adxl-gateway.dbc"
 ENCODER = CyclicEncoder()
 
 
-def encode_cyclic(values: PublishedValues, pos_counter: int, vel_counter: int) -> dict:
+def encode_cyclic(values: PublishedValues, pos_counter: int, vel_counter: int, qual_counter: int = 0) -> dict:
     """The publisher's encoder, as {frame: payload}."""
-    pos, vel = ENCODER.encode(values, pos_counter, vel_counter)
-    return {POSITION_FRAME: pos, VELOCITY_FRAME: vel}
+    pos, vel, qual = ENCODER.encode(values, pos_counter, vel_counter, qual_counter)
+    return {POSITION_FRAME: pos, VELOCITY_FRAME: vel, QUALITY_FRAME: qual}
 
 
 # --------------------------------------------------------------------------- #
@@ -238,13 +239,14 @@ def test_cantools_command_line_decodes_candump_output() -> None:
         check=True,
     )
     out = result.stdout.splitlines()
-    assert len(out) == 3
+    assert len(out) == 4
     assert "ADXL_Position(" in out[0] and "Pos_Counter: 7" in out[0]
     assert float(re.search(r"Pos_Position: (\S+) m,", out[0]).group(1)) == pytest.approx(1.234567, abs=0.5e-6)
     assert "ADXL_Velocity(" in out[1] and "Vel_Counter: 8" in out[1]
     assert float(re.search(r"Vel_Velocity: (\S+) m/s,", out[1]).group(1)) == pytest.approx(-0.5, abs=0.5e-6)
     assert float(re.search(r"Vel_Acceleration: (\S+) m/s2\)", out[1]).group(1)) == pytest.approx(0.25, abs=0.5e-3)
-    assert "ADXL_Command(" in out[2] and "Cmd_Code: TARE" in out[2]
+    assert "ADXL_Quality(" in out[2] and "Qual_PositionStd: NotAvailable" in out[2]
+    assert "ADXL_Command(" in out[3] and "Cmd_Code: TARE" in out[3]
 
 
 # --------------------------------------------------------------------------- #
@@ -267,3 +269,22 @@ def test_worked_example_in_the_docs_is_right() -> None:
     assert covered[2:] == frame[1:]
     assert autosar_crc8(covered, 0xFF, False) ^ 0xFF == frame[0] == 0x3B
     assert "is 0x3B" in text
+
+
+@settings(derandomize=True, deadline=None, max_examples=100)
+@given(std=st.one_of(st.floats(0, 5000), st.just(math.nan), st.just(math.inf)),
+       ext=st.integers(0, 2**6 - 1), counter=st.integers(0, COUNTER_MAX))
+def test_cantools_decodes_the_quality_frame(std, ext, counter) -> None:
+    """ADXL_Quality: the position's 1σ in µm (saturating, NaN = n/a) and the second status word."""
+    from drivers.published_values import StatusExtBits
+
+    db = cantools.database.load_file(str(DBC_PATH))
+    values = PublishedValues(position_std_m=std, status_ext=StatusExtBits(ext), status=StatusBits.VALID)
+    frame = encode_cyclic(values, 0, 0, counter)[QUALITY_FRAME]
+    decoded = db.decode_message(QUALITY_FRAME.frame_id, frame)
+    assert decoded["Qual_StatusExt"] == ext and decoded["Qual_Counter"] == counter and decoded["Qual_Valid"] == 1
+    assert decoded["Qual_CRC"] == reference_p01_crc(QUALITY_FRAME.frame_id, frame)
+    if math.isnan(std):
+        assert str(decoded["Qual_PositionStd"]) == "NotAvailable"
+    else:
+        assert decoded["Qual_PositionStd"] == pytest.approx(min(std, 4294.967294), abs=0.5e-6 + 1e-12)

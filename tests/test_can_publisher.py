@@ -23,13 +23,14 @@ from drivers.can_frames import (
     COMMAND_FRAME,
     COUNTER_MAX,
     POSITION_FRAME,
+    QUALITY_FRAME,
     VELOCITY_FRAME,
     AckResult,
     e2e_p01_crc,
     encode_command,
 )
 from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError
-from drivers.published_values import Command, PublishedValues, StatusBits
+from drivers.published_values import Command, PublishedValues, StatusBits, StatusExtBits
 
 DBC_PATH = Path(__file__).resolve().parent.parent / "config" / "adxl-gateway.dbc"
 DB = cantools.database.load_file(str(DBC_PATH))
@@ -40,6 +41,8 @@ VALUES = PublishedValues(
     velocity_mps=-0.412345,
     acceleration_mps2=3.5,
     status=StatusBits.VALID | StatusBits.NOT_REFERENCED,
+    position_std_m=0.004321,
+    status_ext=StatusExtBits.HINT_AT_REST | StatusExtBits.STOP_BY_HINT,
 )
 
 
@@ -128,15 +131,16 @@ def virtual_config(channel: str, **overrides) -> CanPublisherConfig:
 def test_cyclic_frames_carry_the_values_with_counter_and_crc(channel: str) -> None:
     async def scenario() -> tuple[list[can.Message], CanPublisher]:
         async with publishing(virtual_config(channel)) as (publisher, peer):
-            return await peer.frames(2 * 20), publisher
+            return await peer.frames(3 * 20), publisher
 
     messages, publisher = run(scenario())
     by_id: dict[int, list[can.Message]] = {}
     for message in messages:
         by_id.setdefault(message.arbitration_id, []).append(message)
-    assert set(by_id) == {POSITION_FRAME.frame_id, VELOCITY_FRAME.frame_id}
+    prefixes = {POSITION_FRAME.frame_id: "Pos", VELOCITY_FRAME.frame_id: "Vel", QUALITY_FRAME.frame_id: "Qual"}
+    assert set(by_id) == set(prefixes)
     for frame_id, frames in by_id.items():
-        prefix = "Pos" if frame_id == POSITION_FRAME.frame_id else "Vel"
+        prefix = prefixes[frame_id]
         counters = []
         for message in frames:
             assert not message.is_extended_id and message.dlc == 8
@@ -147,14 +151,17 @@ def test_cyclic_frames_carry_the_values_with_counter_and_crc(channel: str) -> No
             if prefix == "Pos":
                 assert decoded["Pos_Position"] == pytest.approx(VALUES.position_m, abs=0.5e-6)
                 assert decoded["Pos_Status"] == int(VALUES.status)
-            else:
+            elif prefix == "Vel":
                 assert decoded["Vel_Velocity"] == pytest.approx(VALUES.velocity_mps, abs=0.5e-6)
                 assert decoded["Vel_Acceleration"] == pytest.approx(VALUES.acceleration_mps2, abs=0.5e-3)
+            else:
+                assert decoded["Qual_PositionStd"] == pytest.approx(VALUES.position_std_m, abs=0.5e-6)
+                assert decoded["Qual_StatusExt"] == int(VALUES.status_ext)
         # alive counter: starts at 0, +1 per frame, 0..14 (E2E profile 1)
         assert counters[0] == 0
         assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
         assert max(counters) == COUNTER_MAX
-    assert publisher.counters.frames_sent >= 40 and publisher.counters.send_errors == 0
+    assert publisher.counters.frames_sent >= 60 and publisher.counters.send_errors == 0
 
 
 def test_new_values_appear_in_the_next_cycles(channel: str) -> None:
@@ -195,7 +202,7 @@ def test_the_period_is_kept_and_a_stalled_loop_resynchronises(channel: str) -> N
 def test_candump_of_real_frames_decodes_with_the_cantools_cli(channel: str) -> None:
     async def scenario() -> list[can.Message]:
         async with publishing(virtual_config(channel)) as (_, peer):
-            return await peer.frames(4)
+            return await peer.frames(6)
 
     messages = run(scenario())
     lines = [
@@ -210,7 +217,7 @@ def test_candump_of_real_frames_decodes_with_the_cantools_cli(channel: str) -> N
         check=True,
     )
     out = result.stdout.splitlines()
-    assert len(out) == 4
+    assert len(out) == 6
     positions = [float(v) for line in out for v in re.findall(r"Pos_Position: (\S+) m,", line)]
     velocities = [float(v) for line in out for v in re.findall(r"Vel_Velocity: (\S+) m/s,", line)]
     assert positions == pytest.approx([VALUES.position_m] * 2, abs=0.5e-6)
@@ -320,7 +327,8 @@ def test_updates_once_per_period_lock_the_cycle_whatever_their_phase(channel: st
 
     sends, started = run(scenario())
     locked = [s for s in sends if s[0] >= started + 4 * period_s]  # a few cycles to lock on
-    assert len(locked) >= 30, sends
+    # 36 cycles after the lock-on window; a loaded machine delays some updates into one cycle
+    assert len(locked) >= 25, sends
     assert sum(on_update for _, on_update, _, _ in locked) >= 0.9 * len(locked), locked
     gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
     assert min(gaps) >= period_s / 2 - 0.002, gaps
@@ -391,7 +399,7 @@ def test_values_given_as_a_function_are_built_once_per_transmission(channel: str
 
     burst, built, sent, frames = run(scenario())
     assert burst <= 1
-    assert built == sent // 2  # once per frame pair, none in between
+    assert built == sent // 3  # once per cycle (three frames), none in between
     assert DB.decode_message(POSITION_FRAME.frame_id, frames[-1].data)["Pos_Position"] == 1.25
 
 

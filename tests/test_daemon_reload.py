@@ -127,3 +127,68 @@ def test_a_tare_is_declined_while_the_board_data_is_stale(tmp_path):
         run(scenario())
     finally:
         pty.close(remove_link=True)
+
+
+def test_the_machines_standstill_hint_over_modbus_and_can(tmp_path):
+    """Issue 13: the PLC's "axis at rest" over Modbus settles a restart the accelerometer
+    cannot decide alone; it is shown in STATUS_EXT, expires after hint_timeout_ms, and the
+    same hint arrives as a CAN command."""
+    import can
+
+    from drivers.board_protocol import encode_hello, encode_sample
+    from drivers.can_frames import ACK_FRAME, AckResult, encode_command, unpack
+    from drivers.modbus_map import BY_NAME
+    from drivers.published_values import Command, StatusBits, StatusExtBits
+
+    pty = PtyPort(tmp_path / "board")
+    cfg = gateway_config(tmp_path, str(pty.link), can={"commands_enabled": True},
+                         serial={"stale_after_ms": 1500, "lost_after_ms": 10000},
+                         estimator={"start_at_rest": False, "hint_timeout_ms": 1500},
+                         modbus={"write_allow": ["127.0.0.1"]})
+
+    def play(seq0: int, n: int) -> int:
+        os.write(pty.master_fd, b"".join(encode_sample((seq0 + k) & 0xFFFF, 921, 921, 1843) for k in range(n)))
+        return seq0 + n
+
+    async def scenario():
+        async with running_gateway(cfg) as gw:
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
+            await client.connect()
+            os.write(pty.master_fd, encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1,
+                                                 fw_minor=0))
+            seq = play(0, 300)  # 0.6 s at rest: may be a cruise for a gateway that may start mid-move
+            await wait_for(lambda: gw.pipeline.counters.samples >= 300, 5, what="the samples")
+            regs = await read_inputs(client)
+            assert StatusBits.POSITION_UNTRUSTED in StatusBits(regs["STATUS"])
+            assert StatusBits.VALID not in StatusBits(regs["STATUS"])
+            # the PLC: "in position"
+            assert not (await client.write_register(BY_NAME["CMD_HINT_AT_REST"].address, 1)).isError()
+            seq = play(seq, 200)
+            await wait_for(lambda: gw.pipeline.counters.samples >= 500, 5, what="the samples")
+            regs = await read_inputs(client)
+            ext = StatusExtBits(regs["STATUS_EXT"])
+            assert StatusExtBits.HINT_AT_REST in ext and StatusExtBits.STOP_BY_HINT in ext
+            assert StatusBits.POSITION_UNTRUSTED not in StatusBits(regs["STATUS"])
+            assert StatusBits.STANDSTILL in StatusBits(regs["STATUS"])
+            # not written again: the hint expires
+            await wait_for(lambda: StatusExtBits.HINT_AT_REST not in gw.fresh_values().status_ext, 5,
+                           what="the hint to expire")
+            # over CAN: "moving", acknowledged, shown
+            with can.Bus(interface="virtual", channel=cfg.can.channel) as bus:
+                bus.send(can.Message(arbitration_id=0x130, data=encode_command(Command.HINT_MOVING, 3),
+                                     is_extended_id=False))
+                deadline = asyncio.get_running_loop().time() + 5
+                while True:
+                    msg = await asyncio.to_thread(bus.recv, 0.5)
+                    if msg is not None and msg.arbitration_id == ACK_FRAME.frame_id:
+                        break
+                    assert asyncio.get_running_loop().time() < deadline, "no acknowledge"
+                assert unpack(ACK_FRAME, msg.data)["Ack_Result"] == AckResult.DONE
+            play(seq, 10)
+            await wait_for(lambda: StatusExtBits.HINT_MOVING in gw.fresh_values().status_ext, 5, what="HINT_MOVING")
+            client.close()
+
+    try:
+        run(scenario())
+    finally:
+        pty.close(remove_link=True)

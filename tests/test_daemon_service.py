@@ -31,6 +31,7 @@ def write_config(path: Path, board: str, port: int, **extra: str) -> None:
         "[modbus]", f"port = {port}", f'word_order = "{extra.get("word_order", "ABCD")}"',
         "[can]", 'interface = "virtual"', 'channel = "svc-test"',
         "[state]", f'path = "{path.parent / "state.json"}"',
+        "[estimator]", "start_at_rest = true",  # the emulated board starts at rest
     ]
     path.write_text("\n".join(lines) + "\n")
 

@@ -19,7 +19,7 @@ import pytest
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from drivers.modbus_map import BY_NAME, INPUT_REGISTERS, INPUT_SIZE, MAP_VERSION, RegType, WordOrder
+from drivers.modbus_map import BY_NAME, HOLDING_SIZE, INPUT_REGISTERS, INPUT_SIZE, MAP_VERSION, RegType, WordOrder
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import Command, PublishedValues, StatusBits
 
@@ -348,10 +348,10 @@ def test_illegal_values_addresses_and_functions() -> None:
                 cases = [
                     (client.write_register(0, 2, device_id=1), 3),
                     (client.write_registers(0, [1, 7], device_id=1), 3),
-                    (client.write_register(2, 1, device_id=1), 2),
+                    (client.write_register(HOLDING_SIZE, 1, device_id=1), 2),
                     (client.read_input_registers(INPUT_SIZE, count=1, device_id=1), 2),
                     (client.read_input_registers(INPUT_SIZE - 1, count=2, device_id=1), 2),
-                    (client.read_holding_registers(0, count=3, device_id=1), 2),
+                    (client.read_holding_registers(0, count=HOLDING_SIZE + 1, device_id=1), 2),
                     (client.read_coils(0, count=1, device_id=1), 1),
                     (client.write_coil(0, True, device_id=1), 1),
                     (client.read_discrete_inputs(0, count=1, device_id=1), 1),

@@ -43,11 +43,15 @@ REPORT = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 G = STANDARD_GRAVITY_MPS2
 
 
-def pipeline(axis: str = "x", calibration: Calibration = Calibration()) -> SamplePipeline:
-    return SamplePipeline(calibration, from_sensor_model(), axis)
+def pipeline(axis: str = "x", calibration: Calibration = Calibration(), start_at_rest: bool = True) -> SamplePipeline:
+    # the streams here start at rest (a board reset mid-stream still counts as possibly mid-move)
+    return SamplePipeline(calibration, from_sensor_model(), axis, start_at_rest=start_at_rest)
 
 
 def test_sample_at_finds_exactly_the_frames_the_decoder_finds():
+    from gateway.core.jit import jit
+
+    compiled_sample_at = jit(sample_at)
     rng = random.Random(5)
     for _ in range(3000):
         fields = [rng.randrange(65536) for _ in range(4)]
@@ -58,8 +62,9 @@ def test_sample_at_finds_exactly_the_frames_the_decoder_finds():
         if rng.random() < 0.1:
             frame = frame[: rng.randrange(len(frame))]
         lead = bytes(rng.randrange(256) for _ in range(rng.randrange(3)))
-        buf = np.frombuffer(lead + bytes(frame), np.uint8)
-        found = tuple(int(v) for v in sample_at(buf, len(lead)))
+        data = lead + bytes(frame)
+        found = sample_at(data, len(lead))  # plain Python, on bytes
+        assert compiled_sample_at(np.frombuffer(data, np.uint8), len(lead)) == found  # numba, on an array
         decoded = decode_frames(bytes(frame))
         if len(frame) == SAMPLE_FRAME_LENGTH and decoded and isinstance(decoded[0], Sample) and len(decoded) == 1:
             s = decoded[0]
@@ -134,9 +139,10 @@ def trace(seed: int, chunk_seed: int | None = None, commands: bool = True) -> di
     for k, chunk in enumerate(chunks):
         r = p.feed(chunk)
         est = p.latest()
-        if commands and est is not None and est.standstill and not tared and k > len(chunks) // 8:
+        if commands and est is not None and est.standstill and not tared and k > 100:
             tared = p.tare()
-        if commands and est is not None and est.standstill and not asked and k > len(chunks) // 2:
+            tared_at = k
+        if commands and est is not None and est.standstill and tared and not asked and k > tared_at + 300:
             asked = p.request_bias_reestimate()
         if chunk_seed is None or r.samples:
             rows.append(None if est is None else
@@ -258,8 +264,10 @@ def test_tare_references_and_a_reset_keeps_the_position_but_not_the_reference():
     assert p.feed(encode_hello(uptime_s=0, **REPORT)).board_reset
     assert p.latest() is None and not p.referenced
     at_rest(p, 0, 200)
-    assert p.latest().pos_m == pytest.approx(moved, abs=1e-12)  # continuous, not referenced
-    assert not p.referenced
+    # continuous (to the drift of a filter that restarted with its velocity unknown), not
+    # referenced, and not trusted: the board may have reset mid-move
+    assert p.latest().pos_m == pytest.approx(moved, abs=1e-5)
+    assert not p.referenced and p.latest().untrusted
 
 
 def test_bias_reestimation_only_at_standstill_and_flagged_until_the_next_stop():

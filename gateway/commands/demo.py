@@ -10,8 +10,8 @@ from gateway.commands.run import add_run_options, load_with_overrides, overrides
 # the demo chooses the emulated board and an in-process CAN bus on purpose; nothing of a
 # demo run survives it (its state lives in a temporary directory), so each run starts
 # where a fresh gateway would
-DEMO_SETTINGS = {"serial.port": "emulated", "can.interface": "virtual", "can.channel": "adxlgw-demo",
-                 "service.view": True}
+DEMO_SETTINGS = {"serial.port": "emulated", "estimator.start_at_rest": True, "can.interface": "virtual",
+                 "can.channel": "adxlgw-demo", "service.view": True}
 
 
 def add_parser(sub) -> None:

@@ -31,6 +31,7 @@ def start(tmp_path):
         '[modbus]\nport = 15020\n'
         '[can]\ninterface = "socketcan"\nchannel = "vcan0"\ncommands_enabled = true\n'
         f'[state]\npath = "{tmp_path / "state.json"}"\n'
+        '[estimator]\nstart_at_rest = true\n'  # the emulated board starts at rest
     )
     # Under software emulation numba's first compile takes minutes; the plain-Python
     # step (the same code) is plenty for 500 samples/s and this test is about SocketCAN.
