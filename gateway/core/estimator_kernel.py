@@ -244,6 +244,41 @@ def scalar_update(x, P, i, y, R, gain):
     return S
 
 
+@jit
+def pack_cov(P, row, col):
+    """The upper triangle of the symmetric P (00 01 02 11 12 22) into row[col:col + 6]:
+    the layout of the rollback snapshots and of the smoother's records."""
+    row[col] = P[0, 0]
+    row[col + 1] = P[0, 1]
+    row[col + 2] = P[0, 2]
+    row[col + 3] = P[1, 1]
+    row[col + 4] = P[1, 2]
+    row[col + 5] = P[2, 2]
+
+
+@jit
+def pack_state(x, P, row, col):
+    """x, then P's upper triangle (pack_cov), into row[col:col + 9]."""
+    row[col] = x[0]
+    row[col + 1] = x[1]
+    row[col + 2] = x[2]
+    pack_cov(P, row, col + 3)
+
+
+@jit
+def unpack_cov(row, col, P):
+    """The symmetric P from its upper triangle at row[col:col + 6] (the inverse of pack_cov)."""
+    P[0, 0] = row[col]
+    P[0, 1] = row[col + 1]
+    P[1, 0] = row[col + 1]
+    P[0, 2] = row[col + 2]
+    P[2, 0] = row[col + 2]
+    P[1, 1] = row[col + 3]
+    P[1, 2] = row[col + 4]
+    P[2, 1] = row[col + 4]
+    P[2, 2] = row[col + 5]
+
+
 class KernelState(NamedTuple):
     """The filter's whole memory, as a value every caller may hold and pass on.
 
@@ -540,15 +575,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             x[0] = snap[j, 0]
             x[1] = snap[j, 1]
             x[2] = snap[j, 2]
-            P[0, 0] = snap[j, 3]
-            P[0, 1] = snap[j, 4]
-            P[1, 0] = snap[j, 4]
-            P[0, 2] = snap[j, 5]
-            P[2, 0] = snap[j, 5]
-            P[1, 1] = snap[j, 6]
-            P[1, 2] = snap[j, 7]
-            P[2, 1] = snap[j, 7]
-            P[2, 2] = snap[j, 8]
+            unpack_cov(snap[j], 3, P)
             t_before = snap[j, 9]
             u = snap[j, 10]
             u_stale = snap[j, 11] == 0.0
@@ -572,15 +599,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
                                      prm[P_QB], prm[P_MISSING_VAR], missing_dt)
                     t_before = t_i
                 if i < count:
-                    snap[ji, 0] = x[0]
-                    snap[ji, 1] = x[1]
-                    snap[ji, 2] = x[2]
-                    snap[ji, 3] = P[0, 0]
-                    snap[ji, 4] = P[0, 1]
-                    snap[ji, 5] = P[0, 2]
-                    snap[ji, 6] = P[1, 1]
-                    snap[ji, 7] = P[1, 2]
-                    snap[ji, 8] = P[2, 2]
+                    pack_state(x, P, snap[ji], 0)
                     if snap[ji, 11] > 0.0:
                         u = snap[ji, 10]
                         u_stale = False
@@ -641,15 +660,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
 
     # the state after this sample, for a later rollback
     j = count % w
-    snap[j, 0] = x[0]
-    snap[j, 1] = x[1]
-    snap[j, 2] = x[2]
-    snap[j, 3] = P[0, 0]
-    snap[j, 4] = P[0, 1]
-    snap[j, 5] = P[0, 2]
-    snap[j, 6] = P[1, 1]
-    snap[j, 7] = P[1, 2]
-    snap[j, 8] = P[2, 2]
+    pack_state(x, P, snap[j], 0)
     snap[j, 9] = m[M_T_PREV]
     snap[j, 10] = z if ok else 0.0
     snap[j, 11] = 1.0 if ok else 0.0
@@ -784,12 +795,7 @@ def run_forward(prm, t_s, z, z_ok, lost, hint, state,
             st_x[k, 0] = x[0]
             st_x[k, 1] = x[1]
             st_x[k, 2] = x[2]
-            st_p[k, 0] = P[0, 0]
-            st_p[k, 1] = P[0, 1]
-            st_p[k, 2] = P[0, 2]
-            st_p[k, 3] = P[1, 1]
-            st_p[k, 4] = P[1, 2]
-            st_p[k, 5] = P[2, 2]
+            pack_cov(P, st_p[k], 0)
             st_trans[k] = int(out[O_TRANSITION])
             st_zaru[k, 0] = out[O_ZARU_Y]
             st_zaru[k, 1] = out[O_ZARU_S]

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from gateway.core.estimator_kernel import T_MOTION, T_RESET, T_STANDSTILL
+from gateway.core.estimator_kernel import T_MOTION, T_RESET, T_STANDSTILL, unpack_cov
 from gateway.core.jit import jit
 
 
@@ -86,15 +86,7 @@ def run_backward(t_s, st_trans, st_x, st_p, st_zaru, r_zaru, zupt_index, zupt_da
     P = np.zeros((3, 3))
     j = n_zupt - 1
     for k in range(t_s.size - 1, -1, -1):
-        P[0, 0] = st_p[k, 0]
-        P[0, 1] = st_p[k, 1]
-        P[1, 0] = st_p[k, 1]
-        P[0, 2] = st_p[k, 2]
-        P[2, 0] = st_p[k, 2]
-        P[1, 1] = st_p[k, 3]
-        P[1, 2] = st_p[k, 4]
-        P[2, 1] = st_p[k, 4]
-        P[2, 2] = st_p[k, 5]
+        unpack_cov(st_p[k], 0, P)
         # smoothed state and variances
         for a in range(3):
             corr = P[a, 0] * lam[0] + P[a, 1] * lam[1] + P[a, 2] * lam[2]
