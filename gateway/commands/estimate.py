@@ -10,6 +10,7 @@ import numpy as np
 
 from gateway.core.drift_fit import FittedDrift
 from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
+from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
 from gateway.core.evaluation import summarise_errors
 from gateway.core.reference_point import NoRestError, find_initial_rest
@@ -17,7 +18,25 @@ from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
 from gateway.figures import save_figure
 from gateway.errors import InputError, RecordingError
-from gateway.recording import AccelerationSeries, read_recording, to_acceleration
+from gateway.progress import progress_bar, reading_bar
+from gateway.recording import (
+    AccelerationSeries,
+    ColumnWriter,
+    RecordingSource,
+    acceleration_chunks,
+    check_fits_in_memory,
+    open_recording,
+    read_all,
+    to_acceleration,
+)
+
+# Memory of the smoothed estimate per sample, bytes: the recording's columns and the
+# series (~150), the forward pass's stored states for the backward pass (~90), the
+# output columns (~100) and what writing them takes. Measured: docs/estimation.md, "Speed
+# and memory" (peak RSS / samples of a 2-million-sample run, rounded up).
+SMOOTHED_BYTES_PER_SAMPLE = 600
+# the estimate's columns written as integers
+TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 
 
 def add_parser(sub) -> None:
@@ -31,9 +50,10 @@ def add_parser(sub) -> None:
                     "smoothed: the same with a backward pass. Where the recording has reference columns "
                     "the errors are printed (final, at each stop, RMS).",
     )
-    p.add_argument("recording", metavar="FILE.csv")
+    p.add_argument("recording", metavar="FILE.csv", help="the recording: CSV, or Parquet (.parquet)")
     p.add_argument("--method", choices=METHODS, default="realtime", help="estimation method (default: realtime)")
-    p.add_argument("--out", required=True, help="output CSV: t_s, pos_m, vel_mps, acc_mps2 and health columns")
+    p.add_argument("--out", required=True, help="output: t_s, pos_m, vel_mps, acc_mps2 and health columns; "
+                                                "CSV, or Parquet when it ends in .parquet")
     p.add_argument("--plot", metavar="FILE.png", help="draw the estimate against the reference")
     p.add_argument("--noise-from", choices=("auto", "sensor", "rest"), default="auto",
                    help="where the filter's noise settings come from: the ADXL202 sensor model, or the "
@@ -58,16 +78,18 @@ def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: 
     return from_rest(series.acc_mps2[rest.start:rest.stop], period)
 
 
+def track_writer(path: str, track: EstimateTrack) -> ColumnWriter:
+    """The output file for tracks like this one (CSV or Parquet by extension), written atomically."""
+    return ColumnWriter(path, list(track.columns()), None, integer_columns=TRACK_INTEGER_COLUMNS)
+
+
 def write_track(path: str, track: EstimateTrack) -> None:
+    chunk = 1 << 20
     cols = track.columns()
-    names = list(cols)
-    ints = {"standstill", "flags"}
-    fmt = ["%d" if n in ints else "%.10g" for n in names]
-    data = np.column_stack([cols[n] for n in names])
-    try:
-        np.savetxt(path, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
-    except OSError as err:
-        raise RecordingError(f"{path}: cannot write: {err.strerror or err}") from err
+    with track_writer(path, track) as w, progress_bar(len(track), f"writing {path}", " rows") as bar:
+        for start in range(0, max(len(track), 1), chunk):
+            w.write({n: c[start:start + chunk] for n, c in cols.items()})
+            bar.update(min(chunk, len(track) - start))
 
 
 def plot_track(path: str, track: EstimateTrack, reference: dict, title: str) -> None:
@@ -112,8 +134,16 @@ def _mm(x: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    rec = read_recording(args.recording)
+    source = open_recording(args.recording)
+    if args.method == "realtime" and not args.plot:
+        return run_streamed(args, source)
+    if args.method == "smoothed":
+        check_fits_in_memory(args.recording, SMOOTHED_BYTES_PER_SAMPLE * source.estimated_rows(),
+                             f"the smoothed estimate ({SMOOTHED_BYTES_PER_SAMPLE} bytes per sample)")
+    with reading_bar(source) as bar:
+        rec = read_all(source, progress=bar)
     series = to_acceleration(rec)
+    _warn_input(series)
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
     drift = load_drift_model(args.drift_model) if args.drift_model else None
@@ -134,9 +164,21 @@ def run(args: argparse.Namespace) -> int:
             print(f"settings: {line}")
     write_track(args.out, track)
     print(f"wrote {args.out}: {len(track)} samples, method {track.method}")
-    ref = series.reference
+    print_errors(args, series.t_s, track.pos_m, series.reference)
+    if args.plot:
+        plot_track(args.plot, track, series.reference, f"{Path(args.recording).name}: {track.method}")
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _warn_input(series: AccelerationSeries) -> None:
+    for w in series.report.warnings():
+        print(f"adxlgw estimate: warning: {w}", file=sys.stderr)
+
+
+def print_errors(args, t_s, pos_m, ref) -> None:
     if "ref_pos_m" in ref and "ref_vel_mps" in ref:
-        summary = summarise_errors(series.t_s, track.pos_m, ref["ref_pos_m"], ref["ref_vel_mps"],
+        summary = summarise_errors(t_s, pos_m, ref["ref_pos_m"], ref["ref_vel_mps"],
                                    ref.get("ref_acc_mps2"))
         print(f"errors against the reference ({summary.travelled_m:.3f} m travelled):")
         for i, stop in enumerate(summary.stops, start=1):
@@ -145,11 +187,67 @@ def run(args: argparse.Namespace) -> int:
               + (f"   last stop: {summary.last_stop_percent_of_travel:.3g} % of distance travelled"
                  if summary.stops else ""))
     elif "ref_pos_m" in ref:
-        err = track.pos_m - ref["ref_pos_m"]
+        err = pos_m - ref["ref_pos_m"]
         print(f"errors against the reference: final {_mm(err[-1])}   RMS {math.sqrt(np.mean(err ** 2)) * 1e3:.3f} mm")
     if args.returns_to_start:
+        print(f"final position (the motion returns to its start, so this is the error): {_mm(pos_m[-1])}")
+
+
+def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
+    """The realtime estimate chunk by chunk: memory follows the chunk, not the recording.
+
+    The filter's settings come from the first chunk (for noise from the rest: its initial
+    rest and its median period), and time gaps of the acceleration form are judged per
+    chunk; a recording of one chunk (under ~16 MB of CSV, 2^19 Parquet rows) gives
+    exactly the whole-file numbers. With reference columns, the time, the estimated
+    position and the reference are kept for the error summary (40 bytes per sample)."""
+    drift = load_drift_model(args.drift_model) if args.drift_model else None
+    raw = source.form == "raw"
+    wanted = [n for n in source.names if not n.startswith("ref_")]
+    has_ref = "ref_pos_m" in source.names
+    if has_ref:
+        wanted += [n for n in ("ref_pos_m", "ref_vel_mps", "ref_acc_mps2") if n in source.names]
+    kept: dict[str, list[np.ndarray]] = {}
+    runner = writer = settings = None
+    last_series = None
+    try:
+        with reading_bar(source, "estimating") as bar:
+            for series in acceleration_chunks(source, columns=wanted, progress=bar):
+                if runner is None:
+                    settings = settings_for(series, source.form, args.noise_from, drift)
+                    runner = RealtimeChunks(settings)
+                track = runner.feed(series.t_s, series.acc_mps2, series.valid,
+                                    series.lost_before if raw else None)
+                if writer is None:
+                    writer = track_writer(args.out, track)
+                writer.write(track.columns())
+                if has_ref:
+                    for name, col in (("t_s", track.t_s), ("pos_m", track.pos_m), *series.reference.items()):
+                        kept.setdefault(name, []).append(col)
+                last_series = series
+        if runner is None:
+            raise RecordingError(f"{args.recording}: no data rows")
+        notes = runner.finish()
+    except NoRestError as err:
+        if writer is not None:
+            writer.abort()
+        raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    _warn_input(last_series)
+    for note in notes:
+        print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
+    for line in settings.describe():
+        print(f"settings: {line}")
+    writer.commit()
+    print(f"wrote {args.out}: {runner.samples} samples, method realtime")
+    if has_ref:
+        cols = {n: np.concatenate(parts) for n, parts in kept.items()}
+        kept.clear()
+        ref = {n: c for n, c in cols.items() if n.startswith("ref_") and not np.all(np.isnan(c))}
+        print_errors(args, cols["t_s"], cols["pos_m"], ref)
+    elif args.returns_to_start:
         print(f"final position (the motion returns to its start, so this is the error): {_mm(track.pos_m[-1])}")
-    if args.plot:
-        plot_track(args.plot, track, ref, f"{Path(args.recording).name}: {track.method}")
-        print(f"wrote {args.plot}")
     return 0
