@@ -129,3 +129,27 @@ def test_every_command_reads_parquet_like_csv(tmp_path):
     r = adxlgw("fit-drift", tmp_path / "still.parquet", "--plot", tmp_path / "d.png")
     assert r.returncode == 0, r.stderr
     assert "C1 =" in r.stdout
+
+
+def test_streamed_error_summary_is_summarise_errors_in_chunks():
+    from gateway.core.evaluation import summarise_errors
+    from gateway.core.evaluation_stream import StreamedErrors
+
+    run = simulate(reciprocating_strokes(StrokeSettings(strokes=7, dwell_s=0.25)), seed=2)
+    t, ref_pos, ref_vel, ref_acc = run.t_s, run.ref_pos_m, run.ref_vel_mps, run.ref_acc_mps2
+    pos = ref_pos + np.random.default_rng(6).normal(0, 1e-3, t.size)
+    whole = summarise_errors(t, pos, ref_pos, ref_vel, ref_acc)
+    assert len(whole.stops) == 7  # the initial rest is not a stop
+    rng = np.random.default_rng(7)
+    # chunk edges everywhere, also at the first and last sample of every rest run
+    still = (np.abs(ref_vel) <= 1e-6) & (np.abs(ref_acc) <= 1e-9)
+    run_edges = np.flatnonzero(np.diff(still.astype(int))) + 1
+    cuts = np.unique(np.concatenate([rng.integers(1, t.size, 40), run_edges, run_edges + 1, [1, t.size - 1]]))
+    judge = StreamedErrors()
+    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [t.size]])):
+        judge.feed(t[a:b], pos[a:b], ref_pos[a:b], ref_vel[a:b], ref_acc[a:b])
+    got = judge.result()
+    assert got.stops == whole.stops
+    assert got.final_m == whole.final_m and got.moving_max_m == whole.moving_max_m
+    assert got.rms_m == pytest.approx(whole.rms_m, rel=1e-12)
+    assert got.travelled_m == pytest.approx(whole.travelled_m, rel=1e-12)

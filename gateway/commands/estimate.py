@@ -12,7 +12,8 @@ from gateway.core.drift_fit import FittedDrift
 from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
 from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
-from gateway.core.evaluation import summarise_errors
+from gateway.core.evaluation import ErrorSummary, summarise_errors
+from gateway.core.evaluation_stream import StreamedErrors
 from gateway.core.reference_point import NoRestError, find_initial_rest
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
@@ -164,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"settings: {line}")
     write_track(args.out, track)
     print(f"wrote {args.out}: {len(track)} samples, method {track.method}")
-    print_errors(args, series.t_s, track.pos_m, series.reference)
+    print_errors(args, *errors_of(series.t_s, track.pos_m, series.reference), float(track.pos_m[-1]))
     if args.plot:
         plot_track(args.plot, track, series.reference, f"{Path(args.recording).name}: {track.method}")
         print(f"wrote {args.plot}")
@@ -176,21 +177,28 @@ def _warn_input(series: AccelerationSeries) -> None:
         print(f"adxlgw estimate: warning: {w}", file=sys.stderr)
 
 
-def print_errors(args, t_s, pos_m, ref) -> None:
+def errors_of(t_s, pos_m, ref) -> tuple[ErrorSummary | None, bool]:
+    """(summary, with stops) against whatever reference the recording has (None: none)."""
     if "ref_pos_m" in ref and "ref_vel_mps" in ref:
-        summary = summarise_errors(t_s, pos_m, ref["ref_pos_m"], ref["ref_vel_mps"],
-                                   ref.get("ref_acc_mps2"))
+        return summarise_errors(t_s, pos_m, ref["ref_pos_m"], ref["ref_vel_mps"], ref.get("ref_acc_mps2")), True
+    if "ref_pos_m" in ref:
+        err = pos_m - ref["ref_pos_m"]
+        return ErrorSummary(stops=(), final_m=float(err[-1]), rms_m=math.sqrt(np.mean(err ** 2)), travelled_m=0.0), False
+    return None, False
+
+
+def print_errors(args, summary: ErrorSummary | None, with_stops: bool, final_pos_m: float) -> None:
+    if summary is not None and with_stops:
         print(f"errors against the reference ({summary.travelled_m:.3f} m travelled):")
         for i, stop in enumerate(summary.stops, start=1):
             print(f"  stop {i:3d} at {stop.t_s:9.3f} s: {_mm(stop.error_m)}")
         print(f"  final: {_mm(summary.final_m)}   RMS: {summary.rms_m * 1e3:.3f} mm"
               + (f"   last stop: {summary.last_stop_percent_of_travel:.3g} % of distance travelled"
                  if summary.stops else ""))
-    elif "ref_pos_m" in ref:
-        err = pos_m - ref["ref_pos_m"]
-        print(f"errors against the reference: final {_mm(err[-1])}   RMS {math.sqrt(np.mean(err ** 2)) * 1e3:.3f} mm")
+    elif summary is not None:
+        print(f"errors against the reference: final {_mm(summary.final_m)}   RMS {summary.rms_m * 1e3:.3f} mm")
     if args.returns_to_start:
-        print(f"final position (the motion returns to its start, so this is the error): {_mm(pos_m[-1])}")
+        print(f"final position (the motion returns to its start, so this is the error): {_mm(final_pos_m)}")
 
 
 def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
@@ -199,31 +207,34 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
     The filter's settings come from the first chunk (for noise from the rest: its initial
     rest and its median period), and time gaps of the acceleration form are judged per
     chunk; a recording of one chunk (under ~16 MB of CSV, 2^19 Parquet rows) gives
-    exactly the whole-file numbers. With reference columns, the time, the estimated
-    position and the reference are kept for the error summary (40 bytes per sample)."""
+    exactly the whole-file numbers. The errors against a reference are summed up as the
+    chunks pass (StreamedErrors); a reference column empty in the first chunk is taken
+    as absent (the whole-file path looks at the whole column)."""
     drift = load_drift_model(args.drift_model) if args.drift_model else None
     raw = source.form == "raw"
-    wanted = [n for n in source.names if not n.startswith("ref_")]
-    has_ref = "ref_pos_m" in source.names
-    if has_ref:
-        wanted += [n for n in ("ref_pos_m", "ref_vel_mps", "ref_acc_mps2") if n in source.names]
-    kept: dict[str, list[np.ndarray]] = {}
     runner = writer = settings = None
+    judge: StreamedErrors | None = None
+    ref_names: list[str] = []
     last_series = None
     try:
         with reading_bar(source, "estimating") as bar:
-            for series in acceleration_chunks(source, columns=wanted, progress=bar):
+            for series in acceleration_chunks(source, progress=bar):
                 if runner is None:
                     settings = settings_for(series, source.form, args.noise_from, drift)
                     runner = RealtimeChunks(settings)
+                    ref_names = [k for k, v in series.reference.items() if not np.all(np.isnan(v))]
+                    if "ref_pos_m" in ref_names:
+                        judge = StreamedErrors()
                 track = runner.feed(series.t_s, series.acc_mps2, series.valid,
                                     series.lost_before if raw else None)
                 if writer is None:
                     writer = track_writer(args.out, track)
                 writer.write(track.columns())
-                if has_ref:
-                    for name, col in (("t_s", track.t_s), ("pos_m", track.pos_m), *series.reference.items()):
-                        kept.setdefault(name, []).append(col)
+                if judge is not None:
+                    ref = series.reference
+                    judge.feed(track.t_s, track.pos_m, ref["ref_pos_m"],
+                               ref["ref_vel_mps"] if "ref_vel_mps" in ref_names else np.full(len(track), np.nan),
+                               ref["ref_acc_mps2"] if "ref_acc_mps2" in ref_names else None)
                 last_series = series
         if runner is None:
             raise RecordingError(f"{args.recording}: no data rows")
@@ -243,11 +254,6 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
         print(f"settings: {line}")
     writer.commit()
     print(f"wrote {args.out}: {runner.samples} samples, method realtime")
-    if has_ref:
-        cols = {n: np.concatenate(parts) for n, parts in kept.items()}
-        kept.clear()
-        ref = {n: c for n, c in cols.items() if n.startswith("ref_") and not np.all(np.isnan(c))}
-        print_errors(args, cols["t_s"], cols["pos_m"], ref)
-    elif args.returns_to_start:
-        print(f"final position (the motion returns to its start, so this is the error): {_mm(track.pos_m[-1])}")
+    print_errors(args, judge.result() if judge is not None else None, "ref_vel_mps" in ref_names,
+                 float(track.pos_m[-1]))
     return 0
