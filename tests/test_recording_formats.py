@@ -53,7 +53,7 @@ def test_missing_values_round_trip_as_empty_cells(tmp_path):
             "temp_c": np.array([np.nan, np.nan, 21.0])}
     write_recording(tmp_path / "a.csv", {"axis": "x"}, cols)
     lines = (tmp_path / "a.csv").read_text().splitlines()
-    assert lines[2:] == ["t_s,acc_x_mps2,temp_c", "0,1.5,", "0.1,,", "0.2,-2.25,21"]
+    assert lines[2:] == ["t_s,acc_x_mps2,temp_c", "0.0,1.5,", "0.1,,", "0.2,-2.25,21.0"]
     write_recording(tmp_path / "a.parquet", {"axis": "x"}, cols)
     for name in ("a.csv", "a.parquet"):
         rec = read_recording(tmp_path / name)
