@@ -1,5 +1,6 @@
 """Recordings as CSV and Parquet: the same content both ways, read in chunks like whole,
 and the realtime estimate streamed chunk by chunk gives the whole-file numbers."""
+import os
 import subprocess
 import sys
 
@@ -153,3 +154,46 @@ def test_streamed_error_summary_is_summarise_errors_in_chunks():
     assert got.final_m == whole.final_m and got.moving_max_m == whole.moving_max_m
     assert got.rms_m == pytest.approx(whole.rms_m, rel=1e-12)
     assert got.travelled_m == pytest.approx(whole.travelled_m, rel=1e-12)
+
+
+def test_record_writer_streams_parquet_like_csv(tmp_path):
+    from gateway.recording import RecordingWriter
+
+    names = ["seq", "t1x", "t1y", "t2", "flags", "t_host_s", "temp_c"]
+    rows = [{"seq": k % 65536, "t1x": 900 + k % 7, "t1y": 920, "t2": 1843, "flags": 0,
+             "t_host_s": 0.002 * k, "temp_c": None if k < 3 else 24.5} for k in range(70_000)]
+    for name in ("r.csv", "r.parquet"):
+        w = RecordingWriter(tmp_path / name, {"tick_hz": "921600", "source": "board"}, names)
+        for row in rows:
+            w.write_row(row)
+        w.close()
+    a, b = read_recording(tmp_path / "r.csv"), read_recording(tmp_path / "r.parquet")
+    assert a.metadata == b.metadata and b.metadata["source"] == "board" and len(b) == 70_000
+    for n in names:
+        np.testing.assert_array_equal(a.columns[n], b.columns[n])
+    assert np.isnan(b.columns["temp_c"][:3]).all() and b.columns["temp_c"][3] == 24.5
+
+
+def test_progress_bar_on_a_terminal_and_quiet_otherwise(tmp_path):
+    import pty
+
+    simulated(tmp_path / "a.csv")
+    cmd = [sys.executable, "-m", "gateway.cli", "estimate", str(tmp_path / "a.csv"), "--out", str(tmp_path / "e.csv")]
+    quiet = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0 and "%|" not in quiet.stderr and "it/s" not in quiet.stderr
+    # stderr on a pseudo-terminal: the bar is drawn there (and cleared when done)
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=follower)
+    os.close(follower)
+    seen = b""
+    while True:
+        try:
+            data = os.read(leader, 4096)
+        except OSError:  # EIO: the command closed its end
+            break
+        if not data:
+            break
+        seen += data
+    assert proc.wait(timeout=300) == 0
+    os.close(leader)
+    assert b"estimating" in seen and b"%|" in seen
