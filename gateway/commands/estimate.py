@@ -32,10 +32,10 @@ from gateway.recording import (
 )
 
 # Memory of the smoothed estimate per sample, bytes: the recording's columns and the
-# series (~150), the forward pass's stored states for the backward pass (~90), the
-# output columns (~100) and what writing them takes. Measured: docs/estimation.md, "Speed
-# and memory" (peak RSS / samples of a 2-million-sample run, rounded up).
-SMOOTHED_BYTES_PER_SAMPLE = 600
+# series, the forward pass's states kept for the backward pass (~90), the output columns
+# and what writing them takes. Measured: 266 (peak RSS 5.75 GB for 21.6 M samples,
+# benchmarks/offline_scale.py, docs/estimation.md), rounded up.
+SMOOTHED_BYTES_PER_SAMPLE = 300
 # the estimate's columns written as integers
 TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 
