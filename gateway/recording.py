@@ -352,7 +352,10 @@ class CsvSource(RecordingSource):
         check_cols = set(wanted) | set(RAW_REQUIRED if self.form == "raw" else ("t_s",))
         check_cols &= set(self.names)
         read_cols = [c for c in self.names if c in check_cols]
-        read_opts = pacsv.ReadOptions(column_names=self.names, block_size=1 << 20)
+        # one thread: with pyarrow's thread pool, a command that ended on a bad file aborted
+        # at interpreter exit in 1 to 4 runs of 10 ("terminate called without an active
+        # exception", exit 134 instead of 2; apache/arrow#34314). One core parses ~1 µs a row.
+        read_opts = pacsv.ReadOptions(column_names=self.names, block_size=1 << 20, use_threads=False)
         convert = pacsv.ConvertOptions(
             column_types={n: pa.float64() for n in read_cols}, include_columns=read_cols,
             null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True)
@@ -401,8 +404,10 @@ class CsvSource(RecordingSource):
 
     def _locate(self, block: bytes, first_line: int, read_cols: list[str], err) -> RecordingError:
         """The parser said no somewhere in this block: find the line and column, exactly."""
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
         width = len(self.names)
-        index = {n: self.names.index(n) for n in read_cols}
         csv.field_size_limit(MAX_LINE_BYTES + 1)
         lines = list(self._line_rows(block, first_line))
         for line, text in lines:
@@ -411,22 +416,41 @@ class CsvSource(RecordingSource):
                 truncated = line == lines[-1][0] and not block.endswith(b"\n")
                 return _error(self.path, line, None, f"has {len(cells)} cells, the header has {width}"
                               + (" (the last line is cut short: a truncated file?)" if truncated else ""))
-        for line, text in lines:
-            cells = next(csv.reader([text]))
-            for name in read_cols:
-                cell = cells[index[name]].strip()
-                if cell and not _arrow_float_ok(cell):
-                    return _error(self.path, line, name, f"{_cell_text(cell)} is not a number")
+        # every row has its cells: some cell is not a number. The block again as text, each
+        # column cast as the reader does; the first failing row by bisection (a few casts,
+        # not one per cell: a 4 MiB block has ~65 000 rows)
+        text = pacsv.read_csv(pa.py_buffer(block), read_options=pacsv.ReadOptions(column_names=self.names, use_threads=False),
+                              convert_options=pacsv.ConvertOptions(
+                                  column_types={n: pa.string() for n in read_cols}, include_columns=read_cols,
+                                  null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True))
+        first: tuple[int, int, str, str] | None = None  # (row, column's place, name, cell)
+        import pyarrow.compute as pc
+
+        for place, name in enumerate(read_cols):
+            # the reader trims spaces around a number; a cast does not
+            col = pc.utf8_trim_whitespace(text.column(name).combine_chunks())
+            if _casts(col):
+                continue
+            lo, hi = 0, len(col)  # col[:lo] casts, col[:hi] does not
+            while hi - lo > 1:
+                mid = (lo + hi) // 2
+                lo, hi = (mid, hi) if _casts(col.slice(0, mid)) else (lo, mid)
+            if first is None or (lo, place) < first[:2]:
+                first = (lo, place, name, col[lo].as_py())
+        if first is not None:
+            row, _, name, cell = first
+            return _error(self.path, self._line_of_row(block, first_line, row), name,
+                          f"{_cell_text(cell)} is not a number")
         return _error(self.path, f"{first_line}-{lines[-1][0] if lines else first_line}", None,
                       f"cannot be read: {str(err).splitlines()[0]}")
 
 
-def _arrow_float_ok(cell: str) -> bool:
-    """Whether pyarrow reads this cell as a float (its rules, not Python's float())."""
+def _casts(col) -> bool:
+    """Whether pyarrow reads these texts as floats (its rules, not Python's float())."""
     import pyarrow as pa
 
     try:
-        pa.array([cell]).cast(pa.float64())
+        col.cast(pa.float64())
         return True
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
         return False
@@ -478,7 +502,8 @@ class ParquetSource(RecordingSource):
         read_cols = [c for c in self.names if c in set(wanted) | must]
         start = 0
         try:
-            for batch in self._file.iter_batches(batch_size=PARQUET_BATCH_ROWS, columns=read_cols):
+            for batch in self._file.iter_batches(batch_size=PARQUET_BATCH_ROWS, columns=read_cols,
+                                                 use_threads=False):  # see CsvSource.chunks
                 cols = {}
                 for n in read_cols:
                     arr = batch.column(n).cast(pa.float64())
@@ -651,8 +676,14 @@ def acceleration_chunks(source: RecordingSource, columns: list[str] | None = Non
     """The recording as AccelerationSeries chunks (the streamed commands); each chunk's
     report is the running one, complete after the last chunk."""
     conv = AccelerationConverter(source.path, source.form, source.metadata, calibration)
-    for chunk in source.chunks(columns, progress=progress):
-        yield conv.convert(chunk)
+    chunks = source.chunks(columns, progress=progress)
+    try:
+        for chunk in chunks:
+            yield conv.convert(chunk)
+    finally:
+        # now, not whenever the garbage collector gets to it: a reader left suspended
+        # until interpreter exit can abort the process in pyarrow's teardown (exit 134)
+        chunks.close()
 
 
 # ---- writing -------------------------------------------------------------------------------
