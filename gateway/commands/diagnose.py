@@ -18,7 +18,8 @@ from gateway.core.sensor_model import SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.diagnosis_report import jsonable, text_summary, write_report
 from gateway.errors import InputError
-from gateway.recording import REFERENCE_COLUMNS, read_recording, to_acceleration
+from gateway.progress import reading_bar
+from gateway.recording import REFERENCE_COLUMNS, open_recording, read_all, to_acceleration
 
 # below this the noise model, the whiteness test and the block means have too little to go on
 MIN_VALID_SAMPLES = 200
@@ -35,7 +36,8 @@ def add_parser(sub) -> None:
                     "ref_acc_mps2) every effect can be looked for; without it the smoothed estimate stands in "
                     "and only some can. Says what cannot be analysed and why.",
     )
-    p.add_argument("recording", metavar="FILE.csv", nargs="?", help="the recording (either form)")
+    p.add_argument("recording", metavar="FILE.csv", nargs="?",
+                   help="the recording (either form; CSV, or Parquet: .parquet)")
     p.add_argument("--json", metavar="OUT.json", help="write the full result as JSON")
     p.add_argument("--report", metavar="DIR", help="write DIR/report.md with plots (residual, spectrum, Allan "
                                                    "deviation, position error; before and after)")
@@ -133,8 +135,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.recording:
         args._parser.error("the following arguments are required: FILE.csv (or --list-effects)")
     path = args.recording
-    rec = read_recording(path)
+    source = open_recording(path)
+    with reading_bar(source) as bar:
+        rec = read_all(source, progress=bar)
     series = to_acceleration(rec)
+    for w in series.report.warnings():
+        _warn(w)
     n_valid = int(np.count_nonzero(series.valid))
     if n_valid < MIN_VALID_SAMPLES:
         raise _nothing(path, f"{n_valid} valid samples, the diagnosis needs at least {MIN_VALID_SAMPLES}")

@@ -10,14 +10,34 @@ import numpy as np
 
 from gateway.core.drift_fit import FittedDrift
 from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
+from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
-from gateway.core.evaluation import summarise_errors
+from gateway.core.evaluation import ErrorSummary, summarise_errors
+from gateway.core.evaluation_stream import StreamedErrors
 from gateway.core.reference_point import NoRestError, find_initial_rest
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
 from gateway.figures import save_figure
 from gateway.errors import InputError, RecordingError
-from gateway.recording import AccelerationSeries, read_recording, to_acceleration
+from gateway.progress import progress_bar, reading_bar
+from gateway.recording import (
+    AccelerationSeries,
+    ColumnWriter,
+    RecordingSource,
+    acceleration_chunks,
+    check_fits_in_memory,
+    open_recording,
+    read_all,
+    to_acceleration,
+)
+
+# Memory of the smoothed estimate per sample, bytes: the recording's columns and the
+# series, the forward pass's states kept for the backward pass (~90), the output columns
+# and what writing them takes. Measured: 266 (peak RSS 5.75 GB for 21.6 M samples,
+# benchmarks/offline_scale.py, docs/estimation.md), rounded up.
+SMOOTHED_BYTES_PER_SAMPLE = 300
+# the estimate's columns written as integers
+TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 
 
 def add_parser(sub) -> None:
@@ -31,9 +51,10 @@ def add_parser(sub) -> None:
                     "smoothed: the same with a backward pass. Where the recording has reference columns "
                     "the errors are printed (final, at each stop, RMS).",
     )
-    p.add_argument("recording", metavar="FILE.csv")
+    p.add_argument("recording", metavar="FILE.csv", help="the recording: CSV, or Parquet (.parquet)")
     p.add_argument("--method", choices=METHODS, default="realtime", help="estimation method (default: realtime)")
-    p.add_argument("--out", required=True, help="output CSV: t_s, pos_m, vel_mps, acc_mps2 and health columns")
+    p.add_argument("--out", required=True, help="output: t_s, pos_m, vel_mps, acc_mps2 and health columns; "
+                                                "CSV, or Parquet when it ends in .parquet")
     p.add_argument("--plot", metavar="FILE.png", help="draw the estimate against the reference")
     p.add_argument("--noise-from", choices=("auto", "sensor", "rest"), default="auto",
                    help="where the filter's noise settings come from: the ADXL202 sensor model, or the "
@@ -58,22 +79,21 @@ def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: 
         raise InputError("--drift-model describes the ADXL202; it cannot be combined with noise from the rest")
     period = float(np.median(np.diff(series.t_s)))
     rest = find_initial_rest(series.acc_mps2, series.valid, period)
-    try:
-        return from_rest(series.acc_mps2[rest.start:rest.stop], period)
-    except ValueError as err:  # the rest cannot give the noise: say so as a missing rest does
-        raise NoRestError(f"the initial rest ({rest.samples} samples) cannot give the noise settings: {err}") from err
+    return from_rest(series.acc_mps2[rest.start:rest.stop], period)
+
+
+def track_writer(path: str, track: EstimateTrack) -> ColumnWriter:
+    """The output file for tracks like this one (CSV or Parquet by extension), written atomically."""
+    return ColumnWriter(path, list(track.columns()), None, integer_columns=TRACK_INTEGER_COLUMNS)
 
 
 def write_track(path: str, track: EstimateTrack) -> None:
+    chunk = 1 << 20
     cols = track.columns()
-    names = list(cols)
-    ints = {"standstill", "flags"}
-    fmt = ["%d" if n in ints else "%.10g" for n in names]
-    data = np.column_stack([cols[n] for n in names])
-    try:
-        np.savetxt(path, data, fmt=fmt, delimiter=",", header=",".join(names), comments="")
-    except OSError as err:
-        raise RecordingError(f"{path}: cannot write: {err.strerror or err}") from err
+    with track_writer(path, track) as w, progress_bar(len(track), f"writing {path}", " rows") as bar:
+        for start in range(0, max(len(track), 1), chunk):
+            w.write({n: c[start:start + chunk] for n, c in cols.items()})
+            bar.update(min(chunk, len(track) - start))
 
 
 def plot_track(path: str, track: EstimateTrack, reference: dict, title: str) -> None:
@@ -117,31 +137,68 @@ def _mm(x: float) -> str:
     return f"{x * 1e3:+.3f} mm"
 
 
+class HintUse:
+    """Whether the recording's standstill_hint column is used, and what it said (for the
+    one line that tells the user)."""
+
+    def __init__(self, args: argparse.Namespace):
+        self.wanted = args.method in ("realtime", "smoothed")
+        self.ignore = args.ignore_hint
+        self.present = False
+        self.rest = self.moving = self.unknown = 0
+
+    def of(self, series: AccelerationSeries):
+        """The hint array to give the estimator for this series (chunk), or None."""
+        hint = series.standstill_hint
+        if hint is None or not self.wanted:
+            return None
+        self.present = True
+        if self.ignore:
+            return None
+        self.rest += int(np.count_nonzero(hint == 1))
+        self.moving += int(np.count_nonzero(hint == 0))
+        self.unknown += int(np.count_nonzero(~np.isfinite(hint)))
+        return hint
+
+    def say(self) -> None:
+        if not self.present:
+            return
+        if self.ignore:
+            print("adxlgw estimate: the recording's standstill_hint column is ignored (--ignore-hint)",
+                  file=sys.stderr)
+        else:
+            print(f"adxlgw estimate: using the recording's standstill_hint ({self.rest} samples 'at rest', "
+                  f"{self.moving} 'moving', {self.unknown} unknown)", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
-    rec = read_recording(args.recording)
+    source = open_recording(args.recording)
+    if args.method == "realtime" and not args.plot:
+        return run_streamed(args, source)
+    if args.method == "smoothed":
+        check_fits_in_memory(args.recording, SMOOTHED_BYTES_PER_SAMPLE * source.estimated_rows(),
+                             f"the smoothed estimate ({SMOOTHED_BYTES_PER_SAMPLE} bytes per sample)")
+    # the host's arrival time and the temperature are not used here: not read
+    wanted = [n for n in source.names if n not in ("t_host_s", "temp_c")]
+    with reading_bar(source) as bar:
+        rec = read_all(source, columns=wanted, progress=bar)
+    form = rec.form
     series = to_acceleration(rec)
+    del rec  # the raw counts are not needed once converted (smoothed: ~40 bytes per sample)
+    _warn_input(series)
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
     drift = load_drift_model(args.drift_model) if args.drift_model else None
     settings = None
     try:
         if args.method in ("realtime", "smoothed"):
-            settings = settings_for(series, rec.form, args.noise_from, drift)
-        hint = None
-        if series.standstill_hint is not None and args.method in ("realtime", "smoothed"):
-            if args.ignore_hint:
-                print("adxlgw estimate: the recording's standstill_hint column is ignored (--ignore-hint)",
-                      file=sys.stderr)
-            else:
-                hint = series.standstill_hint
-                known = np.isfinite(hint)
-                print(f"adxlgw estimate: using the recording's standstill_hint ({int(np.count_nonzero(hint == 1))} "
-                      f"samples 'at rest', {int(np.count_nonzero(hint == 0))} 'moving', "
-                      f"{int(np.count_nonzero(~known))} unknown)", file=sys.stderr)
+            settings = settings_for(series, form, args.noise_from, drift)
+        hints = HintUse(args)
         track = estimate_series(
             series.t_s, series.acc_mps2, series.valid, method=args.method, settings=settings,
-            lost_before=series.lost_before if rec.form == "raw" else None, standstill_hint=hint,
+            lost_before=series.lost_before if form == "raw" else None, standstill_hint=hints.of(series),
         )
+        hints.say()
     except NoRestError as err:
         raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err
     for note in track.notes:
@@ -151,22 +208,97 @@ def run(args: argparse.Namespace) -> int:
             print(f"settings: {line}")
     write_track(args.out, track)
     print(f"wrote {args.out}: {len(track)} samples, method {track.method}")
-    ref = series.reference
+    print_errors(args, *errors_of(series.t_s, track.pos_m, series.reference), float(track.pos_m[-1]))
+    if args.plot:
+        plot_track(args.plot, track, series.reference, f"{Path(args.recording).name}: {track.method}")
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _warn_input(series: AccelerationSeries) -> None:
+    for w in series.report.warnings():
+        print(f"adxlgw estimate: warning: {w}", file=sys.stderr)
+
+
+def errors_of(t_s, pos_m, ref) -> tuple[ErrorSummary | None, bool]:
+    """(summary, with stops) against whatever reference the recording has (None: none)."""
     if "ref_pos_m" in ref and "ref_vel_mps" in ref:
-        summary = summarise_errors(series.t_s, track.pos_m, ref["ref_pos_m"], ref["ref_vel_mps"],
-                                   ref.get("ref_acc_mps2"))
+        return summarise_errors(t_s, pos_m, ref["ref_pos_m"], ref["ref_vel_mps"], ref.get("ref_acc_mps2")), True
+    if "ref_pos_m" in ref:
+        err = pos_m - ref["ref_pos_m"]
+        return ErrorSummary(stops=(), final_m=float(err[-1]), rms_m=math.sqrt(np.mean(err ** 2)), travelled_m=0.0), False
+    return None, False
+
+
+def print_errors(args, summary: ErrorSummary | None, with_stops: bool, final_pos_m: float) -> None:
+    if summary is not None and with_stops:
         print(f"errors against the reference ({summary.travelled_m:.3f} m travelled):")
         for i, stop in enumerate(summary.stops, start=1):
             print(f"  stop {i:3d} at {stop.t_s:9.3f} s: {_mm(stop.error_m)}")
         print(f"  final: {_mm(summary.final_m)}   RMS: {summary.rms_m * 1e3:.3f} mm"
               + (f"   last stop: {summary.last_stop_percent_of_travel:.3g} % of distance travelled"
                  if summary.stops else ""))
-    elif "ref_pos_m" in ref:
-        err = track.pos_m - ref["ref_pos_m"]
-        print(f"errors against the reference: final {_mm(err[-1])}   RMS {math.sqrt(np.mean(err ** 2)) * 1e3:.3f} mm")
+    elif summary is not None:
+        print(f"errors against the reference: final {_mm(summary.final_m)}   RMS {summary.rms_m * 1e3:.3f} mm")
     if args.returns_to_start:
-        print(f"final position (the motion returns to its start, so this is the error): {_mm(track.pos_m[-1])}")
-    if args.plot:
-        plot_track(args.plot, track, ref, f"{Path(args.recording).name}: {track.method}")
-        print(f"wrote {args.plot}")
+        print(f"final position (the motion returns to its start, so this is the error): {_mm(final_pos_m)}")
+
+
+def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
+    """The realtime estimate chunk by chunk: memory follows the chunk, not the recording.
+
+    The filter's settings come from the first chunk (for noise from the rest: its initial
+    rest and its median period), and time gaps of the acceleration form are judged per
+    chunk; a recording of one chunk (under 4 MiB of CSV, 2^17 Parquet rows) gives
+    exactly the whole-file numbers. The errors against a reference are summed up as the
+    chunks pass (StreamedErrors); a reference column empty in the first chunk is taken
+    as absent (the whole-file path looks at the whole column)."""
+    drift = load_drift_model(args.drift_model) if args.drift_model else None
+    raw = source.form == "raw"
+    runner = writer = settings = None
+    judge: StreamedErrors | None = None
+    ref_names: list[str] = []
+    last_series = None
+    hints = HintUse(args)
+    try:
+        with reading_bar(source, "estimating") as bar:
+            for series in acceleration_chunks(source, progress=bar):
+                if runner is None:
+                    settings = settings_for(series, source.form, args.noise_from, drift)
+                    runner = RealtimeChunks(settings)
+                    ref_names = [k for k, v in series.reference.items() if not np.all(np.isnan(v))]
+                    if "ref_pos_m" in ref_names:
+                        judge = StreamedErrors()
+                track = runner.feed(series.t_s, series.acc_mps2, series.valid,
+                                    series.lost_before if raw else None, hints.of(series))
+                if writer is None:
+                    writer = track_writer(args.out, track)
+                writer.write(track.columns())
+                if judge is not None:
+                    ref = series.reference
+                    judge.feed(track.t_s, track.pos_m, ref["ref_pos_m"],
+                               ref["ref_vel_mps"] if "ref_vel_mps" in ref_names else np.full(len(track), np.nan),
+                               ref["ref_acc_mps2"] if "ref_acc_mps2" in ref_names else None)
+                last_series = series
+        if runner is None:
+            raise RecordingError(f"{args.recording}: no data rows")
+        notes = runner.finish()
+        hints.say()
+    except NoRestError as err:
+        if writer is not None:
+            writer.abort()
+        raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    _warn_input(last_series)
+    for note in notes:
+        print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
+    for line in settings.describe():
+        print(f"settings: {line}")
+    writer.commit()
+    print(f"wrote {args.out}: {runner.counts.samples} samples, method realtime")
+    print_errors(args, judge.result() if judge is not None else None, "ref_vel_mps" in ref_names,
+                 float(track.pos_m[-1]))
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,8 @@ from gateway.core.drift_fit import DriftFit, fit_drift
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.figures import save_figure
 from gateway.errors import InputError, RecordingError
-from gateway.recording import read_recording, to_acceleration
+from gateway.progress import reading_bar
+from gateway.recording import open_recording, read_all, to_acceleration
 
 
 def add_parser(sub) -> None:
@@ -25,7 +27,7 @@ def add_parser(sub) -> None:
                     "standard deviations, test whether the residual is white (Ljung–Box on block means), "
                     "read the noise terms from the residual's Allan deviation, and draw a plot.",
     )
-    p.add_argument("recording", metavar="FILE.csv")
+    p.add_argument("recording", metavar="FILE.csv", help="the recording: CSV, or Parquet (.parquet)")
     p.add_argument("--block-s", type=positive_float, default=1.0,
                    help="block length for the fit and the whiteness test, s (default: 1)")
     p.add_argument("--plot", metavar="FILE.png", help="plot file (default: <recording name>_drift.png here)")
@@ -113,7 +115,14 @@ def plot_fit(path: str, fit: DriftFit, t0_s: float, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    series = to_acceleration(read_recording(args.recording))
+    source = open_recording(args.recording)
+    # the fit needs the time and the measured axis only: the reference, the host's arrival
+    # time and the temperature are not read (~40 bytes per sample less)
+    wanted = [n for n in source.names if not n.startswith("ref_") and n not in ("t_host_s", "temp_c")]
+    with reading_bar(source) as bar:
+        series = to_acceleration(read_all(source, columns=wanted, progress=bar))
+    for w in series.report.warnings():
+        print(f"adxlgw fit-drift: warning: {w}", file=sys.stderr)
     acc_g = np.where(series.valid, series.acc_mps2, np.nan) / STANDARD_GRAVITY_MPS2
     try:
         fit = fit_drift(series.t_s, acc_g, block_s=args.block_s)

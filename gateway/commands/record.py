@@ -29,7 +29,8 @@ def add_parser(sub) -> None:
                     "since seq and time restart with it. On exit it prints the counters.",
     )
     p.add_argument("--port", required=True, help="serial device or pyserial URL")
-    p.add_argument("--out", required=True, help="recording to write")
+    p.add_argument("--out", required=True, help="recording to write: CSV (each row on disk as it comes), or "
+                                                "Parquet when it ends in .parquet (the file appears at the end)")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--once", action="store_true",
                    help="exit (code 3) when the port cannot be opened or is lost, instead of retrying")

@@ -8,6 +8,7 @@ from gateway.commands.common import add_scenario_options, scenario_from_args
 from gateway.core.scenarios import build_profile
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
+from gateway.progress import progress_bar
 from gateway.recording import write_recording
 
 
@@ -16,7 +17,7 @@ def add_parser(sub) -> None:
                        description="Simulate the board for a motion scenario and write a raw recording "
                                    "with the reference motion in ref_pos_m, ref_vel_mps, ref_acc_mps2.")
     add_scenario_options(p)
-    p.add_argument("--out", required=True, help="output CSV file")
+    p.add_argument("--out", required=True, help="output recording: CSV, or Parquet when it ends in .parquet")
     p.set_defaults(run=run)
 
 
@@ -33,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     }
     if scenario.name == "paper":
         metadata["strokes"] = str(scenario.strokes.strokes)
-    write_recording(args.out, metadata, sim.recording_columns())
+    with progress_bar(len(sim), f"writing {args.out}", " rows") as bar:
+        write_recording(args.out, metadata, sim.recording_columns(), progress=bar)
     print(f"wrote {args.out}: {len(sim)} samples, {sim.t_s[-1]:.2f} s, scenario {scenario.name}, seed {args.seed}",
           file=sys.stderr)
     return 0

@@ -94,22 +94,39 @@ def advance_sample_time(timed, next_t_s, last_period_s, t2_ticks, tick_hz, lost_
 
 
 @jit
-def _sample_times(t2, tick_hz, lost, out):
-    timed = False
-    next_t = 0.0
-    last_period = 0.0
+def _sample_times(t2, tick_hz, lost, clock, out):
+    # clock: [timed (0/1), next sample's time, last period], carried from chunk to chunk
+    timed = clock[0] > 0.0
+    next_t = clock[1]
+    last_period = clock[2]
     for k in range(t2.size):
         out[k], next_t, last_period = advance_sample_time(timed, next_t, last_period, t2[k], tick_hz, lost[k])
         timed = True
+    clock[0] = 1.0 if timed else 0.0
+    clock[1] = next_t
+    clock[2] = last_period
+
+
+class SampleClock:
+    """`advance_sample_time` over a recording chunk by chunk: the chunks' times are those
+    of the whole file (the timeline carries over), as the daemon times them."""
+
+    def __init__(self, tick_hz: float):
+        self.tick_hz = float(tick_hz)
+        self._clock = np.zeros(3)
+
+    def times(self, t2_ticks, lost_before=None) -> np.ndarray:
+        t2 = np.ascontiguousarray(t2_ticks, dtype=np.float64)
+        lost = (np.zeros(t2.size) if lost_before is None
+                else np.ascontiguousarray(lost_before, dtype=np.float64))
+        out = np.empty(t2.size)
+        _sample_times(t2, self.tick_hz, lost, self._clock, out)
+        return out
 
 
 def sample_times_s(t2_ticks, tick_hz: float, lost_before=None) -> np.ndarray:
     """Time of every sample of a recording, as the daemon times them (`advance_sample_time`)."""
-    t2 = np.ascontiguousarray(t2_ticks, dtype=np.float64)
+    t2 = np.asarray(t2_ticks, dtype=np.float64)
     if not (t2 > 0).any():
         raise ValueError("no sample has a usable period count (t2 > 0)")
-    lost = (np.zeros(t2.size) if lost_before is None
-            else np.ascontiguousarray(lost_before, dtype=np.float64))
-    out = np.empty(t2.size)
-    _sample_times(t2, float(tick_hz), lost, out)
-    return out
+    return SampleClock(tick_hz).times(t2, lost_before)

@@ -294,6 +294,68 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
                   cols["innov"], cols["nis"], cols["zupt"], flags, notes)
 
 
+@dataclass
+class RunCounts:
+    """What a run of the filter over a recording met, summed over one or many chunks, and
+    the notes `adxlgw estimate` prints about it (the same whether the run was whole or
+    streamed)."""
+
+    invalid: int = 0
+    gaps: int = 0
+    lost: int = 0
+    samples: int = 0
+    hint_conflicts: int = 0
+    untrusted: int = 0
+    t0: float | None = None
+    t_first_untrusted: float | None = None
+    first_init: int = -1
+    t_first_init: float | None = None
+
+    def add_input(self, ok, lost) -> None:
+        self.invalid += int(np.count_nonzero(~ok))
+        self.gaps += int(np.count_nonzero(lost))
+        self.lost += int(np.sum(lost))
+
+    def add_output(self, t, flags) -> None:
+        if t.size and self.t0 is None:
+            self.t0 = float(t[0])
+        self.hint_conflicts += int(np.count_nonzero(flags & K.F_HINT_CONFLICT))
+        untrusted = (flags & K.F_UNTRUSTED) != 0
+        if self.t_first_untrusted is None and untrusted.any():
+            self.t_first_untrusted = float(t[int(np.argmax(untrusted))])
+        self.untrusted += int(np.count_nonzero(untrusted))
+        init = (flags & K.F_INITIALISED) != 0
+        if self.first_init < 0 and init.any():
+            k = int(np.argmax(init))
+            self.first_init = self.samples + k
+            self.t_first_init = float(t[k])
+        self.samples += t.size
+
+    def input_notes(self) -> list[str]:
+        notes = []
+        if self.invalid:
+            notes.append(f"{self.invalid} samples invalid (NaN/inf/flagged): the estimate holds over them")
+        if self.lost:
+            notes.append(f"{self.gaps} gaps, {self.lost} samples lost: "
+                         "bridged between the valid samples either side, with their difference as uncertainty")
+        return notes
+
+    def outcome_notes(self) -> list[str]:
+        notes = []
+        if self.hint_conflicts:
+            notes.append(f"{self.hint_conflicts} samples hinted 'at rest' while the accelerometer shows motion: "
+                         "hint not obeyed there")
+        if self.untrusted:
+            notes.append(f"position not trustworthy for {self.untrusted} samples "
+                         f"({100.0 * self.untrusted / max(self.samples, 1):.0f} %; from "
+                         f"{self.t_first_untrusted - self.t0:.3f} s): a quiet stretch there may be a cruise or "
+                         "a stop (flag 256)")
+        if self.first_init > 0:
+            notes.append(f"the first {self.first_init} samples ({self.t_first_init - self.t0:.3f} s) came before "
+                         "the first standstill: held at position 0")
+        return notes
+
+
 def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
                     settings: EstimatorSettings | None = None, lost_before=None,
                     known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY,
@@ -318,13 +380,9 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         raise NoRestError("fewer than two samples")
     ok = np.isfinite(acc) if valid is None else (np.asarray(valid, dtype=bool) & np.isfinite(acc))
     lost = lost_from_times(t) if lost_before is None else np.asarray(lost_before, dtype=np.int64)
-    notes: list[str] = []
-    bad = int(np.count_nonzero(~ok))
-    if bad:
-        notes.append(f"{bad} samples invalid (NaN/inf/flagged): the estimate holds over them")
-    if np.any(lost > 0):
-        notes.append(f"{int(np.count_nonzero(lost))} gaps, {int(lost.sum())} samples lost: "
-                     "bridged between the valid samples either side, with their difference as uncertainty")
+    counts = RunCounts()
+    counts.add_input(ok, lost)
+    notes: list[str] = counts.input_notes()
     period = float(np.median(np.diff(t)))
     bursts = int(np.count_nonzero(np.diff(t) < 0.5 * period))
     if bursts:
@@ -355,16 +413,6 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
             "no standstill found: the estimator needs a quiet stretch of "
             f"{settings.window_samples} valid samples ({settings.standstill_window_s:g} s) to measure the bias"
         )
-    conflicts = int(np.count_nonzero(track.flags & K.F_HINT_CONFLICT))
-    if conflicts:
-        notes.append(f"{conflicts} samples hinted 'at rest' while the accelerometer shows motion: hint not obeyed there")
-    untrusted = track.untrusted
-    if untrusted.any():
-        notes.append(f"position not trustworthy for {int(np.count_nonzero(untrusted))} samples "
-                     f"({100.0 * untrusted.mean():.0f} %; from {t[int(np.argmax(untrusted))] - t[0]:.3f} s): "
-                     "a quiet stretch there may be a cruise or a stop (flag 256)")
-    first = int(np.argmax(init))
-    if first > 0:
-        notes.append(f"the first {first} samples ({t[first] - t[0]:.3f} s) came before the first standstill: "
-                     "held at position 0")
+    counts.add_output(t, track.flags)
+    notes += counts.outcome_notes()
     return track
