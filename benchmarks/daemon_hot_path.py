@@ -33,12 +33,12 @@ from benchmarks.machine_info import machine  # noqa: E402
 from drivers.board_protocol import encode_hello  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
 from drivers.can_frames import CyclicEncoder  # noqa: E402
-from gateway.board_intake import BoardIntake, LinkHealth  # noqa: E402
+from gateway.daemon.board_intake import BoardIntake, LinkHealth  # noqa: E402
 from gateway.config import validate  # noqa: E402
 from gateway.core.conversion import Calibration  # noqa: E402
 from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
 from gateway.daemon import Gateway  # noqa: E402
-from gateway.sample_pipeline import SamplePipeline  # noqa: E402
+from gateway.daemon.sample_pipeline import SamplePipeline  # noqa: E402
 
 HELLO = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 

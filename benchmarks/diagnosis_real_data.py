@@ -27,7 +27,7 @@ sys.path.insert(0, str(REPO))
 
 from gateway.cli import main as adxlgw  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.recording import write_recording  # noqa: E402
+from gateway.offline.recording import write_recording  # noqa: E402
 
 
 def convert(src: Path, dst: Path) -> None:

@@ -48,7 +48,7 @@ from gateway.core.evaluation import move_errors, summarise_errors  # noqa: E402
 from gateway.core.reference_point import find_initial_rest  # noqa: E402
 from gateway.core.sensor_model import SensorParams  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.recording import read_recording, to_acceleration  # noqa: E402
+from gateway.offline.recording import read_recording, to_acceleration  # noqa: E402
 
 METHODS = ("raw", "paper", "realtime", "smoothed", "floor")
 DATASETS = REPO / "datasets" / "airbrakes-imu"

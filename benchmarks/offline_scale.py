@@ -42,7 +42,7 @@ WRITE_ROWS = 1 << 20
 
 
 def write_both(run, meta: dict[str, str], paths: list[Path], rows: int | None = None) -> None:
-    from gateway.recording import FORMAT_ID, ColumnWriter
+    from gateway.offline.recording import FORMAT_ID, ColumnWriter
 
     cols = run.recording_columns()
     n = len(run) if rows is None else min(rows, len(run))

@@ -28,7 +28,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.cli import main as adxlgw  # noqa: E402
-from gateway.recording import HINT_COLUMN, read_recording  # noqa: E402
+from gateway.offline.recording import HINT_COLUMN, read_recording  # noqa: E402
 
 LEIRIA = REPO / "datasets" / "leiria-robot"
 # file, role, the sensor's configured rate (the dataset README's period: 11.5 ms, 10.0 ms)

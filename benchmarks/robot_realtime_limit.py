@@ -31,7 +31,7 @@ from gateway.core import estimator_kernel as K  # noqa: E402
 from gateway.core.drift_fit import autocorrelation  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.recording import AccelerationSeries  # noqa: E402
+from gateway.offline.recording import AccelerationSeries  # noqa: E402
 
 SETTLE_S = 0.3
 

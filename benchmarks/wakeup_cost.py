@@ -71,7 +71,7 @@ import asyncio, os, signal, sys, tempfile, time, tty
 sys.path.insert(0, {root!r})
 from gateway.core.conversion import Calibration
 from gateway.core.estimator_settings import from_sensor_model
-from gateway.sample_pipeline import SamplePipeline
+from gateway.daemon.sample_pipeline import SamplePipeline
 
 first, second = (SamplePipeline(Calibration(), from_sensor_model()) for _ in range(2))
 spent = [0.0, 0.0, 0]

@@ -4,7 +4,7 @@ The schema below is the single source for defaults, validation and the commented
 default file that `adxlgw config --default` prints. An unknown key or a bad value is
 one ``ConfigError`` that names the file and the key (exit code 2). A key whose default
 is None has none on purpose (the board's port: a gateway must not guess its wire);
-`adxlgw run` refuses to start until it is set (gateway/preflight.py).
+`adxlgw run` refuses to start until it is set (gateway/daemon/preflight.py).
 """
 from __future__ import annotations
 

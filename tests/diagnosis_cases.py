@@ -13,7 +13,7 @@ standstill phenomenon and 7.6 s cannot tell it from offset and drift) — simula
 gateway.core.sensor_effects, parameters drawn by ``draw_effect`` at the documented sizes
 (``EFFECT_SIZES``) from ``numpy.random.default_rng([seed, 7])``, in the order given;
 the simulator's own noise is seeded with ``seed``. The board's raw recording is then
-read back exactly as ``adxlgw diagnose`` reads a file (gateway.recording.to_acceleration),
+read back exactly as ``adxlgw diagnose`` reads a file (gateway.offline.recording.to_acceleration),
 with the recorded reference. Only the DiagnosisInput goes to diagnose: the terms stay here.
 
 Parameter checks (``CHECKS``): each effect is checked on one or two of the parameters
@@ -79,7 +79,7 @@ from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_effects import EFFECT_SIZES, SCENARIO_FOR, draw_effect
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import ErrorTerm, simulate
-from gateway.recording import Recording, to_acceleration
+from gateway.offline.recording import Recording, to_acceleration
 
 SENSOR = SensorParams()
 STROKES = 4

@@ -49,3 +49,17 @@ def test_core_has_no_io_and_no_outward_imports(path):
 def test_drivers_never_import_the_gateway(path):
     for name in imports_of(path):
         assert name.split(".")[0] != "gateway", f"{path.name} imports {name}"
+
+
+@pytest.mark.parametrize("path", python_files("gateway/daemon"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_daemon_needs_nothing_of_the_offline_side(path):
+    for name in imports_of(path):
+        assert not name.startswith("gateway.offline") and not name.startswith("gateway.commands"), \
+            f"{path.name} imports {name}"
+
+
+@pytest.mark.parametrize("path", python_files("gateway/offline"), ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_offline_side_needs_nothing_of_the_daemon(path):
+    for name in imports_of(path):
+        assert not name.startswith("gateway.daemon") and not name.startswith("gateway.commands"), \
+            f"{path.name} imports {name}"

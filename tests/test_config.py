@@ -148,7 +148,7 @@ def test_modbus_robustness_and_identity_keys_are_checked(key, value, complaint):
 
 
 def test_modbus_keys_reach_the_server_config():
-    from gateway.daemon_settings import modbus_config_from
+    from gateway.daemon.settings import modbus_config_from
 
     cfg = validate({"modbus": {"max_connections": 8, "priority_clients": ["10.1.0.0/16"], "idle_timeout_s": 30,
                                "peer_log_interval_s": 2.5, "device_name": "press 4"}}, "gw.toml")

@@ -10,7 +10,7 @@ from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_effects import ScaleFactorTerm
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
-from gateway.recording import write_recording
+from gateway.offline.recording import write_recording
 
 EFFECTS = ("scale_factor tilt cross_axis temperature_offset timing sample_loss vibration bandwidth "
            "nonlinearity clipping bias_random_walk reference_delay").split()

@@ -15,7 +15,7 @@ from gateway.core.motion_profiles import standstill
 from gateway.core.sensor_model import AxisSensor, SensorParams
 from gateway.core.simulator import simulate
 from gateway.core.units import STANDARD_GRAVITY_MPS2
-from gateway.recording import write_recording
+from gateway.offline.recording import write_recording
 
 
 def test_ljung_box_by_hand():

@@ -10,7 +10,7 @@ import pytest
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.simulator import simulate
-from gateway.recording import read_recording, to_acceleration
+from gateway.offline.recording import read_recording, to_acceleration
 
 CLI = [sys.executable, "-m", "gateway.cli"]
 

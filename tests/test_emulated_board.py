@@ -11,7 +11,7 @@ from tests.test_demo import alive
 
 PARENT = """
 import asyncio, sys, time
-from gateway.emulated_board import EmulatedBoard
+from gateway.daemon.emulated_board import EmulatedBoard
 
 async def main():
     board = EmulatedBoard()
@@ -45,7 +45,7 @@ def test_a_board_that_cannot_start_is_a_device_error_not_a_wait():
 
     import pytest
 
-    from gateway.emulated_board import EmulatedBoard
+    from gateway.daemon.emulated_board import EmulatedBoard
     from gateway.errors import DeviceError
 
     async def start():

@@ -16,7 +16,7 @@ from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
-from gateway.recording import write_recording
+from gateway.offline.recording import write_recording
 
 SETTINGS = from_sensor_model(SensorParams())
 OUTPUTS = ("pos_m", "vel_mps", "acc_mps2", "bias_mps2", "pos_std_m", "vel_std_mps", "innovation_mps2", "nis",

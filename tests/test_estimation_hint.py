@@ -12,7 +12,7 @@ from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 from gateway.core.units import STANDARD_GRAVITY_MPS2
-from gateway.recording import write_recording
+from gateway.offline.recording import write_recording
 
 SETTINGS = from_sensor_model(SensorParams())
 

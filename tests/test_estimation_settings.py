@@ -14,7 +14,7 @@ from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes, 
 from gateway.core.sensor_model import AxisSensor, SensorParams
 from gateway.core.simulator import simulate
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
-from gateway.recording import write_recording
+from gateway.offline.recording import write_recording
 
 QUIET_AXIS = AxisSensor(zero_g_offset_g=0.0, drift=DriftModel(0.0, 0.0, 1.0))
 

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from gateway.cli import main as cli_main
 
-from gateway.recording import read_recording, to_acceleration
+from gateway.offline.recording import read_recording, to_acceleration
 from tests.test_retiming import bursty_arrivals
 
 REPO = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ import pytest
 
 from gateway.config import validate
 from gateway.errors import ConfigError
-from gateway.preflight import findings, refuse_unrunnable
+from gateway.daemon.preflight import findings, refuse_unrunnable
 
 CLI = [sys.executable, "-m", "gateway.cli"]
 

@@ -8,7 +8,7 @@ import pytest
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.simulator import simulate
 from gateway.errors import RecordingError
-from gateway.recording import parse_recording, read_recording, to_acceleration, write_recording
+from gateway.offline.recording import parse_recording, read_recording, to_acceleration, write_recording
 
 REPO = Path(__file__).resolve().parents[1]
 AIRBRAKES = REPO / "datasets" / "airbrakes-imu"

@@ -8,14 +8,14 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-import gateway.recording as recording
+import gateway.offline.recording as recording
 from gateway.core.estimator import estimate_series
 from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
-from gateway.recording import (
+from gateway.offline.recording import (
     acceleration_chunks,
     open_recording,
     read_recording,
@@ -157,7 +157,7 @@ def test_streamed_error_summary_is_summarise_errors_in_chunks():
 
 
 def test_record_writer_streams_parquet_like_csv(tmp_path):
-    from gateway.recording import RecordingWriter
+    from gateway.offline.recording import RecordingWriter
 
     names = ["seq", "t1x", "t1y", "t2", "flags", "t_host_s", "temp_c"]
     rows = [{"seq": k % 65536, "t1x": 900 + k % 7, "t1y": 920, "t2": 1843, "flags": 0,

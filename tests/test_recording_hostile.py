@@ -8,11 +8,11 @@ import sys
 import numpy as np
 import pytest
 
-import gateway.recording as recording
+import gateway.offline.recording as recording
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.simulator import simulate
 from gateway.errors import RecordingError
-from gateway.recording import open_recording, read_recording, to_acceleration, write_recording
+from gateway.offline.recording import open_recording, read_recording, to_acceleration, write_recording
 
 
 def adxlgw(*args, cwd=None):

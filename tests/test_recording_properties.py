@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from gateway.cli import main
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.simulator import simulate
-from gateway.recording import write_recording
+from gateway.offline.recording import write_recording
 
 # a file of a few kB must not make a command allocate more than this (numpy's allocations
 # are traced; the 247 kB file with seq counting down once asked for 15 GB)

@@ -1,4 +1,4 @@
-"""The one path from board bytes to an estimate (gateway/sample_pipeline.py).
+"""The one path from board bytes to an estimate (gateway/daemon/sample_pipeline.py).
 
 - compiled and plain Python are the same code under two runners: a fresh interpreter
   with ADXLGW_NO_JIT=1 must give the very same numbers, bit for bit;
@@ -36,7 +36,7 @@ from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.simulator import simulate
 from gateway.core.units import STANDARD_GRAVITY_MPS2
-from gateway.sample_pipeline import SamplePipeline
+from gateway.daemon.sample_pipeline import SamplePipeline
 
 REPO = Path(__file__).resolve().parents[1]
 REPORT = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)

@@ -2,8 +2,8 @@ import json
 import os
 import socket
 
-from gateway.sd_notify import SystemdNotifier
-from gateway.state_store import PersistentState, StateStore
+from gateway.daemon.sd_notify import SystemdNotifier
+from gateway.daemon.state_store import PersistentState, StateStore
 
 
 def test_notifier_sends_datagrams_to_the_notify_socket(tmp_path):
@@ -66,7 +66,7 @@ def test_the_board_port_batches_unless_can_sends_per_sample(tmp_path):
     mixed mode (min_interval_ms ≥ 0, a frame pair per sample) needs a wakeup per sample."""
     from drivers.board_protocol import SAMPLE_FRAME_LENGTH
     from gateway.config import validate
-    from gateway.daemon_settings import serial_settings_from
+    from gateway.daemon.settings import serial_settings_from
 
     def wake(**sections):
         cfg = validate({"state": {"path": str(tmp_path / "s.json")}, **sections}, "<test>")

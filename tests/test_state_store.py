@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gateway.state_store import MAX_STATE_BYTES, PersistentState, StateStore
+from gateway.daemon.state_store import MAX_STATE_BYTES, PersistentState, StateStore
 
 
 def state_text(**fields) -> str:
@@ -55,7 +55,7 @@ def test_a_hostile_state_file_is_moved_aside_with_one_warning(tmp_path: Path, na
     path = tmp_path / "state.json"
     path.write_text(HOSTILE[name])
     store = StateStore(path)
-    with caplog.at_level(logging.WARNING, logger="gateway.state_store"):
+    with caplog.at_level(logging.WARNING, logger="gateway.daemon.state_store"):
         assert store.load() == PersistentState()
     assert len(caplog.records) == 1 and "\n" not in caplog.records[0].getMessage()
     assert "unreadable state" in store.last_error and str(path) in store.last_error
@@ -116,7 +116,7 @@ def test_a_temporary_file_left_by_a_kill_is_removed_at_load(tmp_path: Path) -> N
 
 SAVER = """
 import sys
-from gateway.state_store import PersistentState, StateStore
+from gateway.daemon.state_store import PersistentState, StateStore
 store = StateStore(sys.argv[1])
 i = 0
 print("saving", flush=True)

@@ -1,7 +1,7 @@
 
 
 from drivers.published_values import StatusBits
-from gateway.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
+from gateway.daemon.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
 
 
 def cond(**kw):

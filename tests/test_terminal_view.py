@@ -8,7 +8,7 @@ import pyte
 from rich.console import Console
 
 from drivers.published_values import PublishedValues, StatusBits
-from gateway.terminal_view import TerminalView, render
+from gateway.daemon.terminal_view import TerminalView, render
 
 WIDTH, HEIGHT = 120, 24
 

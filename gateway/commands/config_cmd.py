@@ -6,7 +6,7 @@ import sys
 
 from gateway.config import default_config_text, load_config
 from gateway.log_setup import error_prefix
-from gateway.preflight import findings
+from gateway.daemon.preflight import findings
 
 
 def add_parser(sub) -> None:

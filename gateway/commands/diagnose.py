@@ -16,10 +16,10 @@ from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
-from gateway.diagnosis_report import jsonable, text_summary, write_report
+from gateway.offline.diagnosis_report import jsonable, text_summary, write_report
 from gateway.errors import InputError
-from gateway.progress import reading_bar
-from gateway.recording import REFERENCE_COLUMNS, open_recording, read_all, to_acceleration
+from gateway.offline.progress import reading_bar
+from gateway.offline.recording import REFERENCE_COLUMNS, open_recording, read_all, to_acceleration
 
 # below this the noise model, the whiteness test and the block means have too little to go on
 MIN_VALID_SAMPLES = 200

@@ -17,10 +17,10 @@ from gateway.core.evaluation_stream import StreamedErrors
 from gateway.core.reference_point import NoRestError, find_initial_rest
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
-from gateway.figures import save_figure
+from gateway.offline.figures import save_figure
 from gateway.errors import InputError, RecordingError
-from gateway.progress import progress_bar, reading_bar
-from gateway.recording import (
+from gateway.offline.progress import progress_bar, reading_bar
+from gateway.offline.recording import (
     AccelerationSeries,
     ColumnWriter,
     RecordingSource,

@@ -20,7 +20,7 @@ from gateway.core.retiming import (Retiming, RetimingError, RetimingSettings, on
                                    timing_error)
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
-from gateway.recording import HINT_COLUMN, write_recording
+from gateway.offline.recording import HINT_COLUMN, write_recording
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}
 TIME_SCALES = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}

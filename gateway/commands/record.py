@@ -12,7 +12,7 @@ from drivers.errors import SerialPortError
 from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
 from gateway.commands.common import StopOnSignal, positive_float
 from gateway.errors import DeviceError
-from gateway.recording import RecordingWriter
+from gateway.offline.recording import RecordingWriter
 
 log = logging.getLogger("adxlgw.record")
 

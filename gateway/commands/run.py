@@ -6,8 +6,8 @@ import asyncio
 import logging
 
 from gateway.config import Config, load_config
-from gateway.preflight import refuse_unrunnable
-from gateway.terminal_view import TerminalView
+from gateway.daemon.preflight import refuse_unrunnable
+from gateway.daemon.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
 

@@ -8,8 +8,8 @@ from gateway.commands.common import add_scenario_options, scenario_from_args
 from gateway.core.scenarios import build_profile
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
-from gateway.progress import progress_bar
-from gateway.recording import write_recording
+from gateway.offline.progress import progress_bar
+from gateway.offline.recording import write_recording
 
 
 def add_parser(sub) -> None:

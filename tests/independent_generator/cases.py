@@ -13,7 +13,7 @@ board facts before any diagnosis ran on this generator (EFFECT_SIZES below); "hu
 outside the diagnosis's vocabulary (50 Hz mains pickup at the element): the right
 answer for it is "unexplained structure", no name.
 
-The raw recording goes through gateway.recording.to_acceleration exactly as a file
+The raw recording goes through gateway.offline.recording.to_acceleration exactly as a file
 would. This package never imports gateway.core.simulator, sensor_effects or
 motion_profiles (tests/test_diagnosis.py checks).
 """
@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from gateway.commands.diagnose import build_input
-from gateway.recording import Recording, to_acceleration
+from gateway.offline.recording import Recording, to_acceleration
 from tests.independent_generator import board
 from tests.independent_generator.motion import MotionPlan, MoveLimits, strokes
 

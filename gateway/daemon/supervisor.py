@@ -14,7 +14,7 @@ so no wire shows older numbers than with a wakeup per frame. Where the port cann
 batch (a pyserial URL, batch_frames = 1) the bytes are kept with their arrival time
 until something needs the numbers or MAX_DEFER_S has passed. Either way a batch goes
 through the sample pipeline (runs of SAMPLE frames in one compiled call,
-gateway/sample_pipeline.py; events and snapshots in gateway/board_intake.py) and published once (the values are built only when a
+gateway/daemon/sample_pipeline.py; events and snapshots in gateway/daemon/board_intake.py) and published once (the values are built only when a
 Modbus read or a CAN frame needs them); the CAN frames of a due cycle go out from
 inside that publish, locked onto the wakeups (drivers/can_publisher.py). Nothing else
 wakes the process while samples flow: the publishing tick is a timer that the batches
@@ -38,16 +38,16 @@ from drivers.errors import SerialPortError
 from drivers.modbus_server import ModbusServer
 from drivers.published_values import Command, PublishedValues, StatusBits
 from drivers.serial_source import SerialSource, reconnect_delays_s
-from gateway.board_intake import BoardIntake, LinkHealth
+from gateway.daemon.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
-from gateway.daemon_settings import calibration_from, estimator_settings_from, serial_settings_from
-from gateway.emulated_board import EmulatedBoard
+from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
+from gateway.daemon.emulated_board import EmulatedBoard
 from gateway.errors import ConfigError, DeviceError
-from gateway.sample_pipeline import SamplePipeline
-from gateway.sd_notify import SystemdNotifier
-from gateway.state_store import PersistentState, StateStore
-from gateway.terminal_view import TerminalView
-from gateway.wires import Wires
+from gateway.daemon.sample_pipeline import SamplePipeline
+from gateway.daemon.sd_notify import SystemdNotifier
+from gateway.daemon.state_store import PersistentState, StateStore
+from gateway.daemon.terminal_view import TerminalView
+from gateway.daemon.wires import Wires
 
 log = logging.getLogger("adxlgw")
 

@@ -21,7 +21,7 @@ from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherError
 from drivers.modbus_server import ModbusServer, ModbusServerError
 from drivers.published_values import CommandCallback, ValuesSource
 from gateway.config import Config
-from gateway.daemon_settings import can_config_from, modbus_config_from
+from gateway.daemon.settings import can_config_from, modbus_config_from
 from gateway.errors import DeviceError
 
 log = logging.getLogger("adxlgw")

@@ -1,7 +1,7 @@
 """The daemon's board side without the wires: received chunks → the sample pipeline →
 the events the status bits are made of, and the snapshot every wire shows.
 
-No I/O and no event loop: the supervisor (gateway/daemon.py) hands it chunks with their
+No I/O and no event loop: the supervisor (gateway/daemon/supervisor.py) hands it chunks with their
 arrival time (`receive`), and asks for the numbers when a wire needs them (`drain`,
 `snapshot`). Kept apart from the supervisor so that its rules are tested on their own.
 """
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 from drivers.published_values import PublishedValues, StatusExtBits
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import Estimate
-from gateway.sample_pipeline import ChunkResult, SamplePipeline
-from gateway.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
+from gateway.daemon.sample_pipeline import ChunkResult, SamplePipeline
+from gateway.daemon.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
 
 log = logging.getLogger("adxlgw")
 

@@ -14,7 +14,7 @@ import numpy as np
 from gateway.core.diagnosis import DiagnosisResult
 from gateway.core.diagnosis.context import DRIFT_TIME_CONSTANT_S
 from gateway.errors import InputError
-from gateway.figures import save_figure
+from gateway.offline.figures import save_figure
 
 # side effects' residual RMS is not in m/s² (timing: seconds of host delay)
 # the gain's residual_rms_<unit> key → (shown unit, factor)
