@@ -23,6 +23,7 @@ import csv
 import io
 import math
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
@@ -706,6 +707,23 @@ def _csv_header(names: list[str]) -> str:
     return out.getvalue()
 
 
+def _polars():
+    """polars, imported when first needed. Its import checks the CPU's features by running
+    a few bytes it writes into memory; where memory that was writable may not become
+    executable (systemd's MemoryDenyWriteExecute, as numba meets it: gateway/core/jit.py)
+    that check cannot run, and is skipped then: on a CPU without the features the wheel
+    was built for, writing a CSV would then stop with an illegal instruction instead of
+    polars' clear message (checked on this machine kind only: it has them)."""
+    try:
+        import polars
+    except RuntimeError:
+        for name in [m for m in sys.modules if m == "polars" or m.startswith("polars.")]:
+            del sys.modules[name]
+        os.environ["POLARS_SKIP_CPU_CHECK"] = "1"
+        import polars
+    return polars
+
+
 class ColumnWriter:
     """Columns written chunk by chunk to CSV or Parquet (by the path's extension), atomically:
     into a temporary file beside the target, renamed over it by commit(); abort() (or an
@@ -769,9 +787,7 @@ class ColumnWriter:
             else:
                 # polars formats floats (shortest round-trip, ryu) ~2.5x as fast as pyarrow's
                 # CSV writer on one core: most of a 12-hour CSV output's time
-                import polars as pl
-
-                pl.from_arrow(batch).write_csv(self._fh, include_header=False, null_value="")
+                _polars().from_arrow(batch).write_csv(self._fh, include_header=False, null_value="")
         except OSError as err:
             self.abort()
             raise RecordingError(f"{self.path}: cannot write: {err.strerror or err}") from err
