@@ -95,7 +95,7 @@ def test_keeps_serving_through_faults_and_says_what_happened(tmp_path):
             port = gw.modbus.tcp_port
             client = AsyncModbusTcpClient("127.0.0.1", port=port)
             await client.connect()
-            await wait_for(lambda: gw.source.state.reconnects >= 1 and gw.pipeline.counters.samples > 2000, 30,
+            await wait_for(lambda: gw.board.source.state.reconnects >= 1 and gw.pipeline.counters.samples > 2000, 30,
                            what="a reconnect after the pty vanished")
             # clients that connect and drop, and malformed requests, between good reads
             for junk in (b"\x00\x01\x00\x00\x00\x06\x01\x04\x00", b"\xff" * 40,
@@ -229,7 +229,7 @@ def board_bytes_below_one_batch() -> bytes:
 
 def bytes_waiting(gw) -> int:
     """Bytes in the gateway's tty that nobody has read yet."""
-    return gw.source.bytes_waiting()
+    return gw.board.source.bytes_waiting()
 
 
 def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
@@ -244,7 +244,7 @@ def test_a_modbus_read_takes_the_samples_still_waiting_in_the_port(tmp_path):
     waiting = bytes_waiting
 
     async def body(gw, client, pty):
-        assert gw.source.wake_min_bytes == 5 * SAMPLE_FRAME_LENGTH
+        assert gw.board.source.wake_min_bytes == 5 * SAMPLE_FRAME_LENGTH
         before = (await read_inputs(client))["SAMPLE_COUNTER"]
         os.write(pty.master_fd, data)
         await wait_for(lambda: waiting(gw) == len(data), what="the bytes in the gateway's tty")

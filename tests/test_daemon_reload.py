@@ -93,8 +93,8 @@ def test_fixing_the_board_port_by_reload_while_it_is_missing_opens_the_new_one(t
             source.cfg = cfg.replace({"serial.port": str(pty.link)})
             await gw.reload()
             await gw.wait_ready(10)
-            await wait_for(lambda: gw.source.is_open, 5, what="the new port open")
-            assert gw.source.settings.port == str(pty.link)
+            await wait_for(lambda: gw.board.source.is_open, 5, what="the new port open")
+            assert gw.board.source.settings.port == str(pty.link)
 
     try:
         run(scenario())

@@ -34,14 +34,12 @@ from typing import Callable
 import can
 
 from drivers.can_publisher import BusFactory, CanPublisher
-from drivers.errors import SerialPortError
 from drivers.modbus_server import ModbusServer
 from drivers.published_values import Command, PublishedValues, StatusBits
-from drivers.serial_source import SerialSource, reconnect_delays_s
 from gateway.daemon.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
 from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
-from gateway.daemon.emulated_board import EmulatedBoard
+from gateway.daemon.board_port import BoardPort
 from gateway.errors import ConfigError, DeviceError
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
@@ -100,9 +98,8 @@ class Gateway:
                                        start_at_rest=cfg.estimator.start_at_rest)
         self._hint_until = math.inf  # when the machine's standstill hint expires
         self.intake = BoardIntake(self.pipeline)
-        self.source: SerialSource | None = None
+        self.board = BoardPort(lambda: self.cfg)
         self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
-        self.emulated: EmulatedBoard | None = None
         self.view = view if view is not None else (TerminalView() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
@@ -111,8 +108,6 @@ class Gateway:
         self._ready = asyncio.Event()
         self._started = False
         self._stopped = False
-        self._serial_path: str | None = None
-        self._emulated_path: str | None = None
         self._tasks: list[asyncio.Task] = []
         self._board_task: asyncio.Task | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -190,11 +185,8 @@ class Gateway:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
-        if self.source is not None:
-            self.source.close()
         await self.wires.stop()
-        if self.emulated is not None:
-            await self.emulated.stop()
+        await self.board.close()
         self.state_store.save(self._state_to_save())
         log.info("stopped")
 
@@ -269,8 +261,8 @@ class Gateway:
             self.pipeline.set_hint(None)  # expired: the accelerometer alone decides again
             self._hint_until = math.inf
             log.info("standstill hint expired (no new hint within estimator.hint_timeout_ms)")
-        if take_waiting and self.source is not None:
-            waiting = self.source.read_pending()
+        if take_waiting:
+            waiting = self.board.read_pending()
             if waiting:
                 self.intake.receive(self.clock(), waiting)
         if self.intake.waiting_chunks and self.intake.drain():
@@ -293,11 +285,11 @@ class Gateway:
         return self.intake.snapshot(self._health())
 
     def _health(self) -> LinkHealth:
-        source = self.source
+        board = self.board
         serial = self.cfg.serial
         return LinkHealth(
-            port_open=source is not None and source.is_open,
-            last_byte_s=None if source is None else source.last_data_monotonic_s,
+            port_open=board.is_open,
+            last_byte_s=board.last_data_monotonic_s,
             stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
             config_reloaded_at_s=self._reloaded_at,
             can_send_errors=self.can.send_errors if self.can else 0,
@@ -356,68 +348,20 @@ class Gateway:
         await asyncio.to_thread(self.state_store.save, state)
 
     # ---------------------------------------------------------------- tasks --
-    async def _board_path(self) -> str:
-        """The configured board port; the emulated board (started once) when it says so."""
-        port = self.cfg.serial.port
-        if port != "emulated":
-            return port
-        if self.emulated is None:
-            self.emulated = EmulatedBoard()
-            self._emulated_path = await self.emulated.start()
-        return self._emulated_path
-
-    async def _open_board(self) -> None:
-        """Open the board's port, retrying with back-off; each retry takes the config as
-        it is then (a reload that fixes serial.port while the port is missing is heard)."""
-        delays = None
-        while True:
-            path = await self._board_path()
-            settings = serial_settings_from(self.cfg, path)
-            if self.source is None or self.source.settings != settings:
-                if self.source is not None:
-                    self.source.close()
-                self.source = SerialSource(settings)
-                self._serial_path = path
-                delays = reconnect_delays_s(settings)
-            try:
-                await asyncio.to_thread(self.source.open)
-                log.info("board port %s open", self._serial_path)
-                return
-            except SerialPortError as err:
-                delay = next(delays)
-                log.warning("%s; retrying in %.1f s", err, delay)
-                await asyncio.sleep(delay)
-
     def _receive_from_port(self, data: bytes) -> None:
         # known per open port (a reopened one may not batch), read per wakeup: cheap
-        self._kernel_batches = self.source.wake_min_bytes > 1
+        self._kernel_batches = self.board.batches
         self.receive(data)
 
     async def _board_supervisor(self) -> None:
         """Open the port (READY then), read it, reopen it when a reload asks."""
-        await self._open_board()
+        await self.board.open()
         self._tasks.append(asyncio.create_task(self._watchdog_task(), name="watchdog"))
-        self.notifier.ready(f"board {self._serial_path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
+        self.notifier.ready(f"board {self.board.path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         self._ready.set()
-        log.info("ready: board %s, Modbus TCP %s:%s, CAN %s", self._serial_path, self.cfg.modbus.host,
+        log.info("ready: board %s, Modbus TCP %s:%s, CAN %s", self.board.path, self.cfg.modbus.host,
                  self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off")
-        while True:
-            self._reopen_board = asyncio.Event()
-            reader = asyncio.create_task(self.source.deliver(self._receive_from_port), name="board-reader")
-            reopen = asyncio.create_task(self._reopen_board.wait())
-            try:
-                await asyncio.wait({reader, reopen}, return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                reader.cancel()
-                reopen.cancel()
-                await asyncio.gather(reader, reopen, return_exceptions=True)
-            if reader.done() and not reader.cancelled() and reader.exception() is not None:
-                log.error("board reader failed: %s", reader.exception())
-            if self._reopen_board.is_set():
-                self.source.close()
-                await self._open_board()
-            else:
-                await asyncio.sleep(1.0)  # reader ended unexpectedly: start it again
+        await self.board.serve(self._receive_from_port)
 
     async def _housekeeping_task(self) -> None:
         while True:
@@ -429,7 +373,7 @@ class Gateway:
                 await self._save_state()
 
     def _view_extra(self) -> str:
-        parts = [f"board {self._serial_path}"]
+        parts = [f"board {self.board.path}"]
         if self.modbus and self.modbus.tcp_port:
             parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         if self.can:
@@ -487,6 +431,6 @@ class Gateway:
             # while the port is still being opened, the opener takes the new settings itself
             if self.ready:
                 log.info("reload: reopening the board port")
-                self._reopen_board.set()
+                self.board.reopen()
         log.info("config reloaded from %s", new.source)
         self.notifier.ready()
