@@ -70,3 +70,11 @@ def test_off_a_terminal_each_draw_is_one_plain_line():
     lines = out.getvalue().splitlines()
     assert len(lines) == 2 and "\x1b" not in out.getvalue()
     assert lines[1] == " | ".join(line for line in render(values(2.0), "x") if line)
+
+
+def test_the_view_says_when_the_numbers_are_a_simulation():
+    from drivers.published_values import PublishedValues, StatusBits, StatusExtBits
+    from gateway.daemon.terminal_view import render
+
+    lines = render(PublishedValues(status=StatusBits.VALID, status_ext=StatusExtBits.SIMULATED))
+    assert "VALID" in lines[1] and "SIMULATED" in lines[1]

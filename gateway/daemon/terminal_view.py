@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.text import Text
 
-from drivers.published_values import PublishedValues, StatusBits
+from drivers.published_values import PublishedValues, StatusBits, StatusExtBits
 
 
 def _num(value: float, scale: float, fmt: str) -> str:
@@ -24,7 +24,8 @@ def _num(value: float, scale: float, fmt: str) -> str:
 
 
 def render(values: PublishedValues, extra: str = "") -> list[str]:
-    flags = " ".join(b.name for b in StatusBits if b in values.status) or "—"
+    flags = " ".join([b.name for b in StatusBits if b in values.status]
+                     + [b.name for b in StatusExtBits if b in values.status_ext]) or "—"
     age = "—" if values.last_sample_age_ms is None else f"{values.last_sample_age_ms:.0f} ms"
     temp = "—" if values.board_temp_c is None else f"{values.board_temp_c:.1f} °C"
     return [
