@@ -6,6 +6,8 @@ import asyncio
 import os
 import socket
 
+import pytest
+
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.pty_port import PtyPort
@@ -14,6 +16,14 @@ from tests.daemon_helpers import gateway_config, read_inputs, running_gateway, w
 
 def run(coro):
     return asyncio.run(coro)
+
+
+@pytest.fixture
+def pty(tmp_path):
+    """A board's pty that nobody plays unless the test writes to it."""
+    port = PtyPort(tmp_path / "board")
+    yield port
+    port.close(remove_link=True)
 
 
 class Reloadable:
@@ -26,8 +36,7 @@ class Reloadable:
         return self.cfg
 
 
-def test_a_reload_that_cannot_bind_is_refused_and_the_old_modbus_keeps_serving(tmp_path):
-    pty = PtyPort(tmp_path / "board")
+def test_a_reload_that_cannot_bind_is_refused_and_the_old_modbus_keeps_serving(tmp_path, pty):
     cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
     taken = socket.socket()
     taken.bind(("127.0.0.1", 0))
@@ -51,11 +60,9 @@ def test_a_reload_that_cannot_bind_is_refused_and_the_old_modbus_keeps_serving(t
         run(scenario())
     finally:
         taken.close()
-        pty.close(remove_link=True)
 
 
-def test_a_reload_of_can_alone_keeps_modbus_clients_connected(tmp_path):
-    pty = PtyPort(tmp_path / "board")
+def test_a_reload_of_can_alone_keeps_modbus_clients_connected(tmp_path, pty):
     cfg = gateway_config(tmp_path, str(pty.link))
     source = Reloadable(cfg)
 
@@ -73,14 +80,10 @@ def test_a_reload_of_can_alone_keeps_modbus_clients_connected(tmp_path):
             assert client.connected
             client.close()
 
-    try:
-        run(scenario())
-    finally:
-        pty.close(remove_link=True)
+    run(scenario())
 
 
-def test_fixing_the_board_port_by_reload_while_it_is_missing_opens_the_new_one(tmp_path):
-    pty = PtyPort(tmp_path / "board")
+def test_fixing_the_board_port_by_reload_while_it_is_missing_opens_the_new_one(tmp_path, pty):
     cfg = gateway_config(tmp_path, str(tmp_path / "no-such-board"), can={"enabled": False})
     source = Reloadable(cfg)
 
@@ -96,18 +99,14 @@ def test_fixing_the_board_port_by_reload_while_it_is_missing_opens_the_new_one(t
             await wait_for(lambda: gw.board.source.is_open, 5, what="the new port open")
             assert gw.board.source.settings.port == str(pty.link)
 
-    try:
-        run(scenario())
-    finally:
-        pty.close(remove_link=True)
+    run(scenario())
 
 
-def test_a_tare_is_declined_while_the_board_data_is_stale(tmp_path):
+def test_a_tare_is_declined_while_the_board_data_is_stale(tmp_path, pty):
     """Issue 13: a tare while STALE would reference a position of a moment ago."""
     from drivers.board_protocol import encode_hello, encode_sample
     from drivers.published_values import Command, StatusBits
 
-    pty = PtyPort(tmp_path / "board")
     # stale after 1.5 s: room for a loaded machine between the samples and the first tare
     cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False},
                          serial={"stale_after_ms": 1500, "lost_after_ms": 10000})
@@ -123,13 +122,10 @@ def test_a_tare_is_declined_while_the_board_data_is_stale(tmp_path):
             await wait_for(lambda: StatusBits.STALE in gw.fresh_values().status, 5, what="STALE")
             assert not gw.on_command(Command.TARE, "test")
 
-    try:
-        run(scenario())
-    finally:
-        pty.close(remove_link=True)
+    run(scenario())
 
 
-def test_the_machines_standstill_hint_over_modbus_and_can(tmp_path):
+def test_the_machines_standstill_hint_over_modbus_and_can(tmp_path, pty):
     """Issue 13: the PLC's "axis at rest" over Modbus settles a restart the accelerometer
     cannot decide alone; it is shown in STATUS_EXT, expires after hint_timeout_ms, and the
     same hint arrives as a CAN command."""
@@ -140,7 +136,6 @@ def test_the_machines_standstill_hint_over_modbus_and_can(tmp_path):
     from drivers.modbus_map import BY_NAME
     from drivers.published_values import Command, StatusBits, StatusExtBits
 
-    pty = PtyPort(tmp_path / "board")
     cfg = gateway_config(tmp_path, str(pty.link), can={"commands_enabled": True},
                          serial={"stale_after_ms": 1500, "lost_after_ms": 10000},
                          estimator={"start_at_rest": False, "hint_timeout_ms": 1500},
@@ -188,7 +183,4 @@ def test_the_machines_standstill_hint_over_modbus_and_can(tmp_path):
             await wait_for(lambda: StatusExtBits.HINT_MOVING in gw.fresh_values().status_ext, 5, what="HINT_MOVING")
             client.close()
 
-    try:
-        run(scenario())
-    finally:
-        pty.close(remove_link=True)
+    run(scenario())
