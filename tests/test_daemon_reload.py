@@ -1,5 +1,7 @@
-"""Reloads are all or nothing, touch only what changed, and are heard while the board
-port is still being opened (issue 16). In-process gateways on real ptys and sockets."""
+"""The daemon's reloads and commands on real ptys and sockets: reloads are all or
+nothing, touch only what changed and are heard while the board port is still being
+opened (issue 16); a tare is declined while STALE and the machine's standstill hint
+comes in over Modbus and CAN (issue 13)."""
 from __future__ import annotations
 
 import asyncio
@@ -7,7 +9,6 @@ import os
 import socket
 
 import pytest
-
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.pty_port import PtyPort
