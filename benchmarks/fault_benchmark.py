@@ -1,6 +1,7 @@
 """Faults played into the real daemon on a pty, scored against the truth (issue 13, part 4).
 
     PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py [--cases NAME,...] [--seed 0]
+    PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py --trace "outage 2 s"   # every read of one case
 
 Each case is one board script: the paper's strokes (30 cm, 1 m/s, 1 s dwells, 2 s rest
 first) simulated with the project's simulator (the truth), encoded as the board's
@@ -375,11 +376,37 @@ def row(case: Case, s: Score) -> str:
     return (f"| {case.name} | {stops} | {flag} | {kept} | {s.valid_wrong_reads} | {cover} | {goal} |")
 
 
+def print_trace(case: Case, script: BoardScript, written, reads, start_ns: int, kill_ns: int | None) -> None:
+    """Every read of one case: time from the fault, truth, position, error, std, status bits."""
+    slots, offsets = align(written, script.frames, reads, kill_ns)
+    fault_ns = start_ns + int(script.fault_slot * SLOT_S * 1e9)
+    print(f"trace of {case.name!r}: counter offsets {offsets}, fault at slot {script.fault_slot}")
+    print(f"{'t-fault s':>9} {'slot':>6} {'truth m':>9} {'pos m':>9} {'error mm':>10} {'std mm':>9}  status")
+    for r, k in zip(reads, slots):
+        if k < 0:
+            continue
+        status = StatusBits(r[4])
+        names = "|".join(b.name for b in StatusBits if b in status)
+        print(f"{(r[0] - fault_ns) / 1e9:9.3f} {k:6d} {script.ref_pos_m[k]:9.4f} {r[2]:9.4f} "
+              f"{(r[2] - script.ref_pos_m[k]) * 1e3:10.2f} {r[3] * 1e3:9.2f}  {names}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", default="", help="comma-separated substrings of case names (default: all)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--trace", default="", metavar="NAME",
+                    help="play the one case of this exact name and print every read instead of the table")
     args = ap.parse_args()
+    if args.trace:
+        case = next((c for c in all_cases() if c.name == args.trace), None)
+        if case is None:
+            raise SystemExit(f"--trace: no case named {args.trace!r}; names: "
+                             + "; ".join(c.name for c in all_cases()))
+        script = board_script(case, args.seed)
+        with tempfile.TemporaryDirectory(prefix="adxlgw-fault-") as tmp:
+            print_trace(case, script, *play(case, script, Path(tmp)))
+        return
     cases = all_cases()
     if args.cases:
         wanted = [w.strip() for w in args.cases.split(",") if w.strip()]
