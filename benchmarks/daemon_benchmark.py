@@ -81,8 +81,14 @@ def board_frames(seconds: float) -> list[bytes]:
     return [records[k].tobytes() for k in range(min(len(run), int(seconds * RATE_HZ)))]
 
 
-def writer(master_fd: int, frames: list[bytes], start_at_ns: int, conn) -> None:
-    """Plays the board: HELLO, then one SAMPLE every 2 ms, STATUS each second."""
+def writer(master_fd: int, frames: list[bytes], start_at_ns: int, conn, port: PtyPort | None = None) -> None:
+    """Plays the board: HELLO, then one SAMPLE every 2 ms, STATUS each second.
+
+    A slot may hold no bytes (the line is silent then: no STATUS either) or more than
+    a SAMPLE (a HELLO before it). With `port`, a slot is dropped while nobody has the
+    port open, as on a real line (a pty would buffer it for the next reader); its
+    written time is then 0.
+    """
     report = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
     os.write(master_fd, encode_hello(uptime_s=0, **report))
     while time.monotonic_ns() < start_at_ns:
@@ -100,9 +106,11 @@ def writer(master_fd: int, frames: list[bytes], start_at_ns: int, conn) -> None:
         # taken just before the write: the last byte is on the pty no earlier than this,
         # so latencies are never under-stated (a timestamp after os.write returns can
         # come after the gateway already answered, if the writer is preempted)
+        if port is not None and not port.has_reader():
+            continue
         written[k] = time.monotonic_ns()
         os.write(master_fd, frame)
-        if k % 500 == 499:
+        if k % 500 == 499 and frame:
             os.write(master_fd, encode_status(seq=k, uptime_s=k // 500, **report))
     conn.send(written)
 
