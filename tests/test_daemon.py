@@ -136,7 +136,12 @@ def test_board_lost_is_flagged_and_recovered(tmp_path, board):
                 assert StatusBits.VALID not in gw.fresh_values().status
             finally:
                 board.proc.send_signal(18)  # SIGCONT
-            await wait_for(lambda: StatusBits.VALID in gw.fresh_values().status, 10, what="VALID again")
+            # the board talks again; the axis may have moved while it was silent, so the
+            # position is not trusted (nor VALID) until a stop is seen on evidence
+            await wait_for(lambda: not gw.fresh_values().status & (StatusBits.STALE | StatusBits.BOARD_LOST), 10,
+                           what="the board's data again")
+            status = gw.fresh_values().status
+            assert StatusBits.POSITION_UNTRUSTED in status and StatusBits.VALID not in status
 
     run(scenario())
 

@@ -22,6 +22,11 @@ log = logging.getLogger("adxlgw")
 # a clipped or an invalid sample shows on the wires at least this long
 SATURATION_HOLD_S = 1.0
 AXIS_INVALID_HOLD_S = 1.0
+# Samples after a silence longer than this (a port lost, a board that stopped talking)
+# start the estimator over with the velocity unknown: bridging a velocity across seconds
+# is a guess (benchmarks/fault_benchmark.py: a 2 s outage bridged came back 2 m off with
+# a 75 mm σ). Gaps of a few samples stay bridged (they cost < 1 mm there).
+OUTAGE_S = 0.25
 
 
 @dataclass(slots=True)
@@ -34,6 +39,7 @@ class BoardEvents:
     estimator_fault_at_s: float | None = None
     saturated_until_s: float = -1.0
     axis_invalid_until_s: float = -1.0
+    outage_at_s: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,6 +87,12 @@ class BoardIntake:
         batch, self._inbox = self._inbox, []
         sampled = False
         for arrived_s, data in batch:
+            last = self.events.last_sample_s
+            if last is not None and arrived_s - last > OUTAGE_S and self.pipeline.latest() is not None:
+                log.warning("no samples for %.2f s: the axis may have moved meanwhile; position not trusted "
+                            "until a stop is seen", arrived_s - last)
+                self.pipeline.reset()
+                self.events.outage_at_s = arrived_s
             sampled = self._take(arrived_s, self.pipeline.feed(data)) or sampled
         return sampled
 
@@ -142,7 +154,9 @@ class BoardIntake:
             samples_lost_at_s=ev.samples_lost_at_s,
             config_reloaded_at_s=health.config_reloaded_at_s,
             bias_estimating=bool(est and est.bias_estimating),
-            untrusted=bool(est and est.untrusted),
+            # silent longer than an outage: whatever comes next, the axis may have moved
+            untrusted=bool(est and est.untrusted) or (ev.last_sample_s is not None
+                                                     and now_s - ev.last_sample_s > OUTAGE_S),
         )
 
     def status_ext(self, health: LinkHealth) -> StatusExtBits:
