@@ -211,6 +211,7 @@ class SamplePipeline:
     def __init__(self, calibration: Calibration, settings: EstimatorSettings, axis: str = "x",
                  range_g: float = 2.0, start_position_m: float = 0.0, start_at_rest: bool = False):
         self.estimator = RealtimeEstimator(settings)
+        self._latest: Estimate | None = None  # latest()'s cache, None: build anew
         if not start_at_rest:
             self.estimator.restart()
         self.hint: bool | None = None  # the machine's word: True at rest, False moving
@@ -241,7 +242,9 @@ class SamplePipeline:
         """Bytes from the board's line, in any chunking: every frame they complete goes
         through; what it did comes back."""
         self._result = result = ChunkResult()
+        self._latest = None
         self._decoder.feed(data)
+        self._latest = None
         return result
 
     def take_samples(self, buf: bytes, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
@@ -253,6 +256,7 @@ class SamplePipeline:
         st = self._st
         end, taken, last_seq, lost_total, gaps, repeats, backwards = run_samples(
             buf, pos, last_seq, st, self.estimator.state, self.estimator.params)
+        self._latest = None
         (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:N_SLOTS].tolist()
         c = self.counters
         r = self._result
@@ -304,6 +308,7 @@ class SamplePipeline:
             return False
         self.reference_offset_m += est.pos_m
         self.referenced = True
+        self._latest = None
         return True
 
     def request_bias_reestimate(self) -> bool:
@@ -312,6 +317,7 @@ class SamplePipeline:
         if est is None or not est.standstill:
             return False
         self.estimator.request_bias_reestimate()
+        self._latest = None
         return True
 
     def reset(self) -> None:
@@ -352,13 +358,20 @@ class SamplePipeline:
         self.estimator.restart()  # the axis may be moving: the velocity is not known
         self.set_hint(self.hint)  # the machine's word still holds
         self._estimated = False
+        self._latest = None
         self._st[S_TIMED] = 0.0
         self._st[S_STOP_BY_HINT] = 0.0
 
     # --------------------------------------------------------------- output --
     def latest(self) -> Estimate | None:
         """The newest estimate, position from the reference; None before any sample
-        since the start or the last start-over."""
+        since the start or the last start-over. Built once per change (every wire's
+        snapshot and status bits read it)."""
+        if self._latest is None:
+            self._latest = self._build_latest()
+        return self._latest
+
+    def _build_latest(self) -> Estimate | None:
         if not self._estimated:
             return None
         state = self.estimator.state
