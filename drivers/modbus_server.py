@@ -119,6 +119,17 @@ SWEEP_INTERVAL_S = 1.0
 RTU_RETRY_MIN_S, RTU_RETRY_MAX_S = 0.2, 5.0
 _STATUS_ADDRESS = BY_NAME["STATUS"].address
 _ACCEPT_ERROR = "socket.accept() out of system resource"
+# asyncio pauses accepting for 1 s after EMFILE (asyncio.constants.ACCEPT_RETRY_DELAY)
+_ACCEPT_RETRY_MARGIN_S = 1.5
+
+
+def _is_late_accept_retry(context: dict) -> bool:
+    """asyncio's accept retry (BaseSelectorEventLoop._start_serving) failing on a listener
+    that was closed meanwhile (its socket's fd is −1)."""
+    err = context.get("exception")
+    handle = context.get("handle")
+    return (isinstance(err, ValueError) and "Invalid file descriptor: -1" in str(err)
+            and handle is not None and "_start_serving" in repr(handle))
 
 
 class _PymodbusDuplicates(logging.Filter):
@@ -378,7 +389,8 @@ class ModbusServer:
         self._handlers.clear()
         self._connections.clear()
         if self._restore_exception_handler is not None:
-            self._restore_exception_handler()
+            # not at once: an accept retry asyncio scheduled after EMFILE may still fire
+            asyncio.get_running_loop().call_later(_ACCEPT_RETRY_MARGIN_S, self._restore_exception_handler)
             self._restore_exception_handler = None
         self.peer_log.flush()
 
@@ -466,6 +478,11 @@ class ModbusServer:
                 self._bump(accept_errors=1)
                 self.peer_log.note("Modbus TCP listener", "accept error",
                                    f"cannot accept connections: {context.get('exception')}")
+                return
+            if _is_late_accept_retry(context):
+                # asyncio retries accept() a second after EMFILE; a listener closed in
+                # between makes that retry fail on its closed socket: nothing to report
+                log.debug("accept retry after the listener closed: %s", context.get("exception"))
                 return
             if previous is not None:
                 previous(loop, context)
