@@ -308,6 +308,7 @@ class ModbusServer:
         self.peer_log = PeerLogLimiter(log, config.peer_log_interval_s)
         self._sweeper: asyncio.TimerHandle | None = None
         self._restore_exception_handler: Callable[[], None] | None = None
+        self._last_accept_error_s = -math.inf  # loop time of the last EMFILE on accept
         self._started = False
 
     # ---------------------------------------------------------------- API --
@@ -389,8 +390,12 @@ class ModbusServer:
         self._handlers.clear()
         self._connections.clear()
         if self._restore_exception_handler is not None:
-            # not at once: an accept retry asyncio scheduled after EMFILE may still fire
-            asyncio.get_running_loop().call_later(_ACCEPT_RETRY_MARGIN_S, self._restore_exception_handler)
+            loop = asyncio.get_running_loop()
+            if loop.time() - self._last_accept_error_s < _ACCEPT_RETRY_MARGIN_S:
+                # not at once: the accept retry asyncio scheduled after EMFILE may still fire
+                loop.call_later(_ACCEPT_RETRY_MARGIN_S, self._restore_exception_handler)
+            else:
+                self._restore_exception_handler()
             self._restore_exception_handler = None
         self.peer_log.flush()
 
@@ -475,6 +480,7 @@ class ModbusServer:
         def handler(loop: asyncio.AbstractEventLoop, context: dict) -> None:
             sock = context.get("socket")
             if context.get("message") == _ACCEPT_ERROR and sock is not None and sock.fileno() in listening:
+                self._last_accept_error_s = loop.time()
                 self._bump(accept_errors=1)
                 self.peer_log.note("Modbus TCP listener", "accept error",
                                    f"cannot accept connections: {context.get('exception')}")
