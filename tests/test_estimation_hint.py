@@ -157,6 +157,9 @@ def test_a_restart_mid_cruise_does_not_take_the_cruise_for_a_rest():
     assert initialised.any()
     first = int(np.argmax(initialised))
     assert t[k0 + first] - t[k0] <= 2 * SETTINGS.standstill_window_s
+    # from the first sample after the restart, not only once the first window is full: the
+    # daemon published a restarted position unflagged while that window filled
+    assert np.all(flags[:first] & K.F_UNTRUSTED)
     assert np.all(flags[first:] & K.F_UNTRUSTED)  # kept: no stop is ever decided on evidence here
     ref = run.ref_pos_m[k0:] - run.ref_pos_m[k0 + first]  # the restart's origin
     still = (flags & K.F_STANDSTILL) != 0

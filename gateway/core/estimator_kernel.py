@@ -326,8 +326,11 @@ def open_offset_step(P, delta, since_s):
 
 def mark_velocity_unknown(state: KernelState) -> None:
     """After a restart or a board reset mid-operation (fresh state): the axis may be moving,
-    so the first quiet window is not taken as a rest (see step 2)."""
+    so the first quiet window is not taken as a rest (see step 2). The position is not
+    trustworthy from the first sample on, not only once that window is full: while the
+    window fills, the axis may be moving (cleared where a stop is accepted on evidence)."""
     state.misc[M_VEL_UNKNOWN] = 1.0
+    state.misc[M_UNTRUSTED] = 1.0
 
 
 @jit
