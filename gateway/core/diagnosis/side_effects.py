@@ -125,8 +125,9 @@ def delay_cdf(x, hold_s: float, mean_s: float):
     below = np.minimum(x, hold_s)
     # ∫0^x (1 − e^(−u/μ))/L du for x ≤ L; beyond L the exponential tail of the sum
     inside = (below + mean_s * np.expm1(-below / mean_s)) / hold_s
-    beyond = np.where(x > hold_s,
-                      mean_s * -np.expm1(-hold_s / mean_s) * -np.expm1(-(x - hold_s) / mean_s) / hold_s, 0.0)
+    # (x − L clipped at 0: np.where evaluates both branches, and e^(−(x−L)/μ) for x ≪ L overflowed)
+    past = np.maximum(x - hold_s, 0.0)
+    beyond = np.where(x > hold_s, mean_s * -np.expm1(-hold_s / mean_s) * -np.expm1(-past / mean_s) / hold_s, 0.0)
     return inside + beyond
 
 
