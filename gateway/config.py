@@ -150,9 +150,9 @@ SCHEMA: tuple[Key, ...] = (
         "true: the axis is known to stand when the gateway starts (homed before it), so the first quiet "
         "window is taken as a rest. false (safe): the gateway may start mid-move, so the position is "
         "POSITION_UNTRUSTED until a stop is seen on evidence (the machine's rest hint, or quiet_stop_s of "
-        "quiet). A board reset always counts as possibly mid-move. Do not set it where the gateway may be "
-        "restarted while the axis moves (systemd Restart= after a crash): it would take the cruise for a rest "
-        "(docs/daemon.md, Faults, scored)."),
+        "quiet). A board reset always counts as possibly mid-move, and the setting is believed only on a "
+        "first start (no state file) or after an orderly stop at rest: after a crash, kill -9 or watchdog "
+        "abort the axis may be mid-move (docs/daemon.md, Faults, scored)."),
     Key("estimator", "hint_timeout_ms", 1000, int,
         "How long the machine's standstill hint (Modbus CMD_HINT_*, CAN command codes 3-5) stays in "
         "force after it was written; a PLC writes it every cycle while it holds.", _range(10, 600_000)),

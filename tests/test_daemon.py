@@ -321,3 +321,46 @@ def test_two_gateways_on_one_can_bus_each_on_its_identifiers(tmp_path):
     finally:
         for pty in ptys:
             pty.close(remove_link=True)
+
+
+def test_start_at_rest_is_believed_only_after_an_orderly_stop_at_rest(tmp_path, caplog):
+    """`estimator.start_at_rest` promises the axis stands at start. A first start (no state
+    file) and a start after an orderly stop at a trusted standstill keep that promise; a
+    start after a crash, kill -9 or watchdog abort may come mid-move (the fault benchmark's
+    restart took a cruise for a rest, 0.8 m off with VALID set), so there it is not believed."""
+    import json
+
+    from gateway.daemon.supervisor import Gateway
+
+    emu = Emulator(tmp_path, "--scenario", "standstill")
+    cfg = gateway_config(tmp_path, str(emu.link))
+    state = tmp_path / "state.json"
+    try:
+        assert Gateway(cfg).starts_at_rest  # a first start: nothing says otherwise
+
+        async def scenario():
+            async with running_gateway(cfg) as gw:
+                def trusted_rest():
+                    status = gw.fresh_values().status
+                    return StatusBits.STANDSTILL in status and StatusBits.VALID in status \
+                        and StatusBits.POSITION_UNTRUSTED not in status
+                await wait_for(trusted_rest, 30, what="a trusted standstill")
+        run(scenario())
+    finally:
+        emu.stop()
+    saved = json.loads(state.read_text())
+    assert saved["stopped_at_rest_unix_s"] is not None
+    assert Gateway(cfg).starts_at_rest
+
+    # what a save while running leaves behind when the process is killed
+    saved["stopped_at_rest_unix_s"] = None
+    state.write_text(json.dumps(saved))
+    caplog.clear()
+    assert not Gateway(cfg).starts_at_rest
+    assert "start_at_rest not believed" in caplog.text
+    # a state file from before the field existed says nothing of an orderly stop either
+    del saved["stopped_at_rest_unix_s"]
+    state.write_text(json.dumps(saved))
+    assert not Gateway(cfg).starts_at_rest
+    # the setting off: never believed, whatever the file says
+    assert not Gateway(gateway_config(tmp_path, str(emu.link), estimator={"start_at_rest": False})).starts_at_rest

@@ -41,6 +41,11 @@ class PersistentState:
     # NOT_REFERENCED (the axis may have moved while the gateway was down)
     last_position_m: float | None = None
     saved_at_unix_s: float | None = None
+    # set only by an orderly stop while the axis stood (a trusted standstill): then, and on
+    # a first start with no state at all, `estimator.start_at_rest` may be believed. A save
+    # while running leaves it out, so after a crash, kill -9 or watchdog abort the next
+    # start does not take a cruise for a rest (docs/daemon.md, Faults, scored)
+    stopped_at_rest_unix_s: float | None = None
 
 
 #: field -> (may be None, largest magnitude allowed)
@@ -49,6 +54,7 @@ _LIMITS: dict[str, tuple[bool, float]] = {
     "bias_estimate_mps2": (True, MAX_ABS_BIAS_MPS2),
     "last_position_m": (True, MAX_ABS_POSITION_M),
     "saved_at_unix_s": (True, 1.0e11),  # year ~5000; negative times are refused below
+    "stopped_at_rest_unix_s": (True, 1.0e11),
 }
 
 
@@ -98,7 +104,7 @@ def _checked_number(name: str, value: object) -> float | None:
     number = float(value)
     if not math.isfinite(number):
         raise StateFileError(f"{name} = {value!r:.40} is not finite")
-    if abs(number) > limit or (name == "saved_at_unix_s" and number < 0):
+    if abs(number) > limit or (name.endswith("_unix_s") and number < 0):
         raise StateFileError(f"{name} = {number:g} outside ±{limit:g}")
     return number
 
@@ -109,6 +115,9 @@ class StateStore:
         self.last_error: str | None = None
         #: Where the last bad file was moved (None if none was, or it could not be moved).
         self.moved_aside: Path | None = None
+        #: The last load found no state file at all (a first start), as opposed to a
+        #: file, good or bad: what the gateway may assume of the axis depends on it.
+        self.found_none = False
 
     @property
     def temp_path(self) -> Path:
@@ -121,10 +130,12 @@ class StateStore:
         a temporary file left by an interrupted save is deleted first.
         """
         self._remove_stale_temp()
+        self.found_none = False
         try:
             with open(self.path, "rb") as fh:
                 raw = fh.read(MAX_STATE_BYTES + 1)
         except FileNotFoundError:
+            self.found_none = True
             return PersistentState()
         except OSError as err:  # a directory, no permission, I/O error: not a bad file, leave it
             self.last_error = f"{self.path}: unreadable state, starting unreferenced: {err.strerror or err}"

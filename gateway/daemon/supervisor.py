@@ -91,11 +91,19 @@ class Gateway:
         self.counters = Counters()
         self.state_store = StateStore(cfg.state.path)
         saved = self.state_store.load()
+        #: start_at_rest believed: configured, and this is a first start (no state file) or
+        #: the last run stopped in order while the axis stood. After a crash, kill -9 or
+        #: watchdog abort the axis may be mid-move: the velocity is not known then.
+        self.starts_at_rest = cfg.estimator.start_at_rest and (
+            self.state_store.found_none or saved.stopped_at_rest_unix_s is not None)
+        if cfg.estimator.start_at_rest and not self.starts_at_rest:
+            log.warning("estimator.start_at_rest not believed: the last run did not stop in order at rest "
+                        "(a crash, a kill, a stop mid-move); position not trusted until a stop is seen")
         # the last published position is where we continue from, flagged NOT_REFERENCED
         # (the axis may have moved while the gateway was down): a prior, not a fact
         self.pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
                                        start_position_m=saved.last_position_m or 0.0,
-                                       start_at_rest=cfg.estimator.start_at_rest)
+                                       start_at_rest=self.starts_at_rest)
         self._hint_until = math.inf  # when the machine's standstill hint expires
         self.intake = BoardIntake(self.pipeline)
         self.board = BoardPort(lambda: self.cfg)
@@ -185,9 +193,10 @@ class Gateway:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
+        final = self._state_to_save(stopping=True)  # while the port is open: its status is the axis'
         await self.wires.stop()
         await self.board.close()
-        self.state_store.save(self._state_to_save())
+        self.state_store.save(final)
         log.info("stopped")
 
     @property
@@ -330,14 +339,19 @@ class Gateway:
                 self._arm_tick(now, self.publish_tick_s)
 
     # ---------------------------------------------------------------- state --
-    def _state_to_save(self) -> PersistentState:
+    def _state_to_save(self, stopping: bool = False) -> PersistentState:
         values = self.fresh_values()
         est = self.pipeline.latest()
+        now = time.time()
+        # at rest on evidence: a standstill the estimator trusts, the board's data fresh
+        at_rest = bool(est is not None and est.standstill and not est.untrusted
+                       and not values.status & (StatusBits.STALE | StatusBits.BOARD_LOST))
         return PersistentState(
             tare_offset_m=self.pipeline.reference_offset_m,
             bias_estimate_mps2=None if est is None or not math.isfinite(est.bias_mps2) else est.bias_mps2,
             last_position_m=values.position_m if math.isfinite(values.position_m) else None,
-            saved_at_unix_s=time.time(),
+            saved_at_unix_s=now,
+            stopped_at_rest_unix_s=now if stopping and at_rest else None,
         )
 
     async def _save_state(self) -> None:
