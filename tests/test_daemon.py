@@ -340,6 +340,9 @@ def test_start_at_rest_is_believed_only_after_an_orderly_stop_at_rest(tmp_path, 
 
         async def scenario():
             async with running_gateway(cfg) as gw:
+                # on disk while it runs: no orderly-stop mark (a kill -9 now leaves it so)
+                assert json.loads(state.read_text())["stopped_at_rest_unix_s"] is None
+
                 def trusted_rest():
                     status = gw.fresh_values().status
                     return StatusBits.STANDSTILL in status and StatusBits.VALID in status \

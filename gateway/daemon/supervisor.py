@@ -28,7 +28,7 @@ import logging
 import math
 import signal
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import can
@@ -96,6 +96,9 @@ class Gateway:
         #: watchdog abort the axis may be mid-move: the velocity is not known then.
         self.starts_at_rest = cfg.estimator.start_at_rest and (
             self.state_store.found_none or saved.stopped_at_rest_unix_s is not None)
+        # what is on disk while this run lives: the same, minus the orderly-stop mark, so that
+        # a crash or kill -9 from now on leaves a file that says so (written by start())
+        self._state_while_running = replace(saved, stopped_at_rest_unix_s=None)
         if cfg.estimator.start_at_rest and not self.starts_at_rest:
             log.warning("estimator.start_at_rest not believed: the last run did not stop in order at rest "
                         "(a crash, a kill, a stop mid-move); position not trusted until a stop is seen")
@@ -139,6 +142,7 @@ class Gateway:
             return
         self._started = True
         self._loop = asyncio.get_running_loop()
+        await asyncio.to_thread(self.state_store.save, self._state_while_running)
         await self.wires.start(self.cfg)
         self._arm_tick(self.clock(), self.publish_tick_s)
         self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
