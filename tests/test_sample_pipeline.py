@@ -325,3 +325,25 @@ def test_a_seq_that_steps_back_costs_no_time():
     r = p.feed(encode_sample(3, 921, 921, 1843))
     assert r.samples_lost == 0 and p.decoder_counters.seq_backwards == 1
     assert p.latest().t_s == pytest.approx(before + 1843 / 921_600)
+
+
+def test_before_the_first_estimate_the_position_is_untrusted_unless_known_to_start_at_rest():
+    """A daemon restarted (or a board reset) mid-move shows its last saved position before
+    any sample is estimated: the wires must not wait for the first window to say that
+    position is not trustworthy (the fault benchmark's restart showed it 0.5 s late)."""
+    from drivers.published_values import StatusBits
+    from gateway.daemon.board_intake import BoardIntake, LinkHealth
+
+    health = LinkHealth(port_open=True, last_byte_s=0.0, stale_after_s=0.2, lost_after_s=1.0)
+    for at_rest, untrusted in ((False, True), (True, False)):
+        intake = BoardIntake(pipeline(start_at_rest=at_rest))
+        assert intake.pipeline.latest() is None
+        intake.publish(0.0)
+        status = intake.snapshot(health).status
+        assert (StatusBits.POSITION_UNTRUSTED in status) is untrusted
+        assert StatusBits.VALID not in status
+    # a board reset starts over with the velocity unknown: untrusted at once
+    intake = BoardIntake(pipeline(start_at_rest=True))
+    intake.pipeline.reset()
+    intake.publish(0.0)
+    assert StatusBits.POSITION_UNTRUSTED in intake.snapshot(health).status

@@ -138,6 +138,12 @@ class RealtimeEstimator:
         K.request_bias_reestimate(self.state, self.params)
 
     @property
+    def position_untrusted(self) -> bool:
+        """The position is not trustworthy now — known before the next step too (right after
+        restart(), before any sample: the axis may be moving)."""
+        return bool(self.state.misc[K.M_UNTRUSTED] > 0.0)
+
+    @property
     def covariance(self) -> np.ndarray:
         """Copy of the state covariance of [position, velocity, bias]."""
         return self.state.P.copy()

@@ -154,9 +154,11 @@ class BoardIntake:
             samples_lost_at_s=ev.samples_lost_at_s,
             config_reloaded_at_s=health.config_reloaded_at_s,
             bias_estimating=bool(est and est.bias_estimating),
-            # silent longer than an outage: whatever comes next, the axis may have moved
-            untrusted=bool(est and est.untrusted) or (ev.last_sample_s is not None
-                                                     and now_s - ev.last_sample_s > OUTAGE_S),
+            # silent longer than an outage: whatever comes next, the axis may have moved; and
+            # before the first estimate of a (re)start with the velocity unknown, the position
+            # shown (the last saved one) is not trustworthy either
+            untrusted=(est.untrusted if est is not None else self.pipeline.estimator.position_untrusted)
+            or (ev.last_sample_s is not None and now_s - ev.last_sample_s > OUTAGE_S),
         )
 
     def status_ext(self, health: LinkHealth) -> StatusExtBits:
