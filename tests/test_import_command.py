@@ -1,6 +1,7 @@
 """adxlgw import: a logger's file with arrival times, a reference and a hint → a scored recording."""
 import contextlib
 import io
+import os
 import subprocess
 import sys
 import tempfile
@@ -13,7 +14,8 @@ from hypothesis import strategies as st
 
 from gateway.cli import main as cli_main
 
-from gateway.offline.recording import read_recording, to_acceleration
+from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
+from tests.pty_helpers import stderr_on_a_pty
 from tests.test_retiming import bursty_arrivals
 
 REPO = Path(__file__).resolve().parents[1]
@@ -210,3 +212,69 @@ def test_leiria_reference_as_logged_on_the_arrival_clock(tmp_path):
     err = ref[known] - foreign["ref_z_m"][known]
     # measured 2026-11-24: RMS 1.4 mm, max 7.9 mm over moves of 327–961 mm
     assert np.sqrt(np.mean(err ** 2)) < 0.003 and np.abs(err).max() < 0.012
+
+
+def test_a_line_over_the_recordings_line_limit_is_refused_in_one_line(tmp_path, capsys):
+    # a logger's free-text column (never asked for) with a 140 000-character cell: the file
+    # was read whole before; now the recordings' line limit stops it, nothing written
+    width = MAX_LINE_BYTES + 10_000
+    src = _write(tmp_path, "t,acc,note\n" + rows(30, extra=",ok") + "0.3,1," + "x" * width + "\n" + "0.31,1,ok\n")
+    out = tmp_path / "o.csv"
+    code = cli_main(["import", str(src), "--time-col", "t", "--acc-col", "acc", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and len(err) < 300
+    assert f"f.csv:32: line of {width + 6} bytes: longer than {MAX_LINE_BYTES} bytes" in err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["f.csv"]
+
+
+def _peak_rss_bytes(cmd) -> int:
+    """Peak resident memory of one child process (wait4: that child's own, not the maximum
+    over every child this test process ever had)."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    stderr = proc.stderr.read()
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    assert proc.returncode == 0, stderr.decode()
+    return usage.ru_maxrss * 1024  # kB on Linux
+
+
+def test_memory_follows_the_wanted_columns_not_the_file(tmp_path):
+    # a wide logger file: 2 wanted columns among 52, 150 MB. Before, the import held the file
+    # as bytes, as text and as a list of lines (measured 2026-11-26: 240 MB above the same
+    # command on a 1 000-row file, for a 153 MB file); now blocks of whole lines and 8 bytes
+    # a wanted cell (measured: 30 MB above). Compared with the small file's peak, so the
+    # interpreter, numpy, pyarrow and numba do not count; RSS does not depend on the load.
+    rng = np.random.default_rng(5)
+    unused = ",".join(f"{k * 1.5:.6f}" for k in range(50))
+    big, small = tmp_path / "big.csv", tmp_path / "small.csv"
+    n = 150_000
+    acc = rng.normal(0, 0.01, n)
+    with open(big, "w") as fh:
+        fh.write("t,acc," + ",".join(f"u{k}" for k in range(50)) + "\n")
+        for start in range(0, n, 10_000):
+            fh.write("".join(f"{i * 0.002:.3f},{acc[i]:.5f},{unused},{unused}\n"
+                             for i in range(start, min(n, start + 10_000))))
+    with open(big) as fh, open(small, "w") as out:
+        out.writelines(fh.readline() for _ in range(1001))
+    size = big.stat().st_size
+    assert size > 100e6
+    peaks = {}
+    for src in (small, big):
+        peaks[src.name] = _peak_rss_bytes([sys.executable, "-m", "gateway.cli", "import", str(src),
+                                           "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / "o.csv")])
+    assert len(read_recording(tmp_path / "o.csv")) == n
+    grown = peaks["big.csv"] - peaks["small.csv"]
+    assert grown < size / 3, f"{grown / 1e6:.0f} MB more for a {size / 1e6:.0f} MB file"
+
+
+def test_progress_bar_on_a_terminal_and_quiet_otherwise(tmp_path):
+    src = _write(tmp_path, "t,acc\n" + rows(3000))
+    cmd = [sys.executable, "-m", "gateway.cli", "import", str(src), "--time-col", "t", "--acc-col", "acc",
+           "--out", str(tmp_path / "o.csv")]
+    quiet = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0, quiet.stderr
+    assert "%|" not in quiet.stderr and "reading" not in quiet.stderr
+    code, seen = stderr_on_a_pty(cmd)
+    assert code == 0
+    assert b"reading f.csv" in seen and b"%|" in seen
