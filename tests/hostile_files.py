@@ -8,6 +8,8 @@ its reference, or in the acceleration form where the attack is on the values.
 """
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -108,3 +110,25 @@ def without_metadata(path: Path, out: Path) -> Path:
     with open(path, "rb") as src, open(out, "wb") as dst:
         dst.writelines(line for line in src if not line.startswith(b"#"))
     return out
+
+
+# Started from this launcher, not from the caller: Linux counts in a child's peak RSS the
+# memory of the process it was forked from (the parent's pages it held until exec), so a
+# command forked from pytest or the benchmark (~300 MB with numpy and numba) would show at
+# least that. The launcher is a bare interpreter (-I -S: a few MB).
+_LAUNCHER = """
+import resource, subprocess, sys, time
+started = time.monotonic()
+code = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL).returncode
+wall = time.monotonic() - started
+print(code, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, wall)
+"""
+
+
+def run_measured(cmd: list, cwd=None, timeout: float = 600) -> tuple[int, str, int, float]:
+    """Run cmd in its own process: (exit code, stderr, its peak resident memory in bytes,
+    wall time in s). Its stdout is discarded."""
+    r = subprocess.run([sys.executable, "-I", "-S", "-c", _LAUNCHER, *map(str, cmd)], cwd=cwd,
+                       capture_output=True, text=True, timeout=timeout)
+    code, maxrss_kb, wall = r.stdout.split()
+    return int(code), r.stderr, int(maxrss_kb) * 1024, float(wall)

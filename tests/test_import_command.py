@@ -1,7 +1,6 @@
 """adxlgw import: a logger's file with arrival times, a reference and a hint → a scored recording."""
 import contextlib
 import io
-import os
 import subprocess
 import sys
 import tempfile
@@ -15,6 +14,8 @@ from hypothesis import strategies as st
 from gateway.cli import main as cli_main
 
 from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
+from tests import hostile_files
+from tests.hostile_files import run_measured
 from tests.pty_helpers import stderr_on_a_pty
 from tests.test_retiming import bursty_arrivals
 
@@ -228,23 +229,12 @@ def test_a_line_over_the_recordings_line_limit_is_refused_in_one_line(tmp_path, 
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["f.csv"]
 
 
-def _peak_rss_bytes(cmd) -> int:
-    """Peak resident memory of one child process (wait4: that child's own, not the maximum
-    over every child this test process ever had)."""
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    stderr = proc.stderr.read()
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    assert proc.returncode == 0, stderr.decode()
-    return usage.ru_maxrss * 1024  # kB on Linux
-
-
 def test_memory_follows_the_wanted_columns_not_the_file(tmp_path):
     # a wide logger file: 2 wanted columns among 52, 150 MB. Before, the import held the file
-    # as bytes, as text and as a list of lines (measured 2026-11-26: 240 MB above the same
-    # command on a 1 000-row file, for a 153 MB file); now blocks of whole lines and 8 bytes
-    # a wanted cell (measured: 30 MB above). Compared with the small file's peak, so the
-    # interpreter, numpy, pyarrow and numba do not count; RSS does not depend on the load.
+    # as bytes, as text and as a list of lines (measured 2026-11-26: 238 MB above the same
+    # command on its first 1 000 rows); now blocks of whole lines and 8 bytes a wanted cell
+    # (measured: 12 MB above). Compared with the small file's peak, so the interpreter,
+    # numpy, pyarrow and numba (~320 MB) do not count; RSS does not depend on the load.
     rng = np.random.default_rng(5)
     unused = ",".join(f"{k * 1.5:.6f}" for k in range(50))
     big, small = tmp_path / "big.csv", tmp_path / "small.csv"
@@ -261,8 +251,9 @@ def test_memory_follows_the_wanted_columns_not_the_file(tmp_path):
     assert size > 100e6
     peaks = {}
     for src in (small, big):
-        peaks[src.name] = _peak_rss_bytes([sys.executable, "-m", "gateway.cli", "import", str(src),
-                                           "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / "o.csv")])
+        code, err, peaks[src.name], _ = run_measured([sys.executable, "-m", "gateway.cli", "import", src, "--time-col",
+                                                      "t", "--acc-col", "acc", "--out", tmp_path / "o.csv"])
+        assert code == 0, err
     assert len(read_recording(tmp_path / "o.csv")) == n
     grown = peaks["big.csv"] - peaks["small.csv"]
     assert grown < size / 3, f"{grown / 1e6:.0f} MB more for a {size / 1e6:.0f} MB file"
@@ -278,3 +269,21 @@ def test_progress_bar_on_a_terminal_and_quiet_otherwise(tmp_path):
     code, seen = stderr_on_a_pty(cmd)
     assert code == 0
     assert b"reading f.csv" in seen and b"%|" in seen
+
+
+def test_a_last_line_cut_short_is_refused_as_a_truncated_file(tmp_path, capsys):
+    # a logger killed mid-row: the last line has no line end and fewer cells than the header
+    sim = hostile_files.simulated_run()
+    recording = hostile_files.truncated(tmp_path / "r.csv", sim)
+    src = hostile_files.without_metadata(recording, tmp_path / "f.csv")
+    n_lines = src.read_bytes().count(b"\n") + 1
+    out = tmp_path / "o.csv"
+    code = cli_main(["import", str(src), "--arrival-col", "t_host_s", "--acc-col", "t1x", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"f.csv:{n_lines}: has 8 cells, the header has 10 (the last line is cut short: a truncated file?)" in err
+    assert not out.exists()
+    # complete rows without a final line end: imported
+    whole = hostile_files.without_metadata(hostile_files.write_raw(tmp_path / "w.csv", sim), tmp_path / "g.csv")
+    whole.write_bytes(whole.read_bytes().rstrip(b"\n"))
+    assert cli_main(["import", str(whole), "--arrival-col", "t_host_s", "--acc-col", "t1x", "--out", str(out)]) == 0

@@ -109,10 +109,12 @@ def _float(value, path: str, line: int, column: str) -> float:
         raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(str(value))} is not finite") from None
 
 
-def _text_lines(path: str, bar):
+def _text_lines(path: str, bar, end: dict):
     """The file's lines as text (without their line ends), read a block at a time: the line
-    length limit of recordings (MAX_LINE_BYTES), UTF-8 checked, named by its byte offset."""
+    length limit of recordings (MAX_LINE_BYTES), UTF-8 checked, named by its byte offset.
+    end["cut"]: whether the last line has no line end (a file cut short?)."""
     for block, first_line, offset in line_blocks(path, path):
+        end["cut"] = not block.endswith(b"\n")
         try:
             text = block.decode("utf-8")
         except UnicodeDecodeError as err:
@@ -190,11 +192,12 @@ def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
         size = os.path.getsize(path)
     except OSError as err:
         raise RecordingError(f"{path}: cannot read: {err.strerror or err}") from err
+    end = {"cut": False}
     with progress_bar(size, f"reading {Path(path).name}") as bar:
-        return _read_rows(args, csv.reader(_text_lines(path, bar)))
+        return _read_rows(args, csv.reader(_text_lines(path, bar, end)), end)
 
 
-def _read_rows(args, reader) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     path = args.foreign
     csv.field_size_limit(MAX_LINE_BYTES)  # a quoted field running over many lines stops here
     try:
@@ -212,6 +215,7 @@ def _read_rows(args, reader) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     columns = {role: _Column(relative=role in ("time", "check")) for role in wanted}
     lines = array("q")
     skipped = 0
+    last_cells = len(header)
     rows = iter(reader)
     while True:
         try:
@@ -223,6 +227,7 @@ def _read_rows(args, reader) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
         if not row:
             continue
         line = reader.line_num
+        last_cells = len(row)
         cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
         if not cells["time"] or not cells["acc"]:
             skipped += 1
@@ -241,6 +246,10 @@ def _read_rows(args, reader) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
             else:
                 column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
         lines.append(line)
+    if end["cut"] and last_cells < len(header):
+        # a logger killed mid-row (rows of fewer cells are fine elsewhere: other kinds of row)
+        raise RecordingError(f"{path}:{reader.line_num}: has {last_cells} cells, the header has {len(header)} "
+                             "(the last line is cut short: a truncated file?)")
     return ({role: column.numbers() for role, column in columns.items()},
             np.frombuffer(lines, dtype=np.int64) if lines else np.zeros(0, dtype=np.int64), skipped)
 
