@@ -110,6 +110,8 @@ def rows(n, t=lambda i: 0.01 * i, extra=""):
          "f.csv:5: column 't': time does not increase"),
         ("t,acc\n" + rows(3) + "soon,1\n", ["--arrival-col", "t", "--acc-col", "acc"],
          "f.csv:5: column 't': 'soon' is not a number"),
+        ("t,acc\n" + rows(3) + "9" * 400 + ",1\n", ["--time-col", "t", "--acc-col", "acc"],
+         "f.csv:5: column 't': '" + "9" * 40 + "…' is not finite"),
         ("t,acc,h\n" + rows(25, extra=",1") + "0.3,1,maybe\n",
          ["--arrival-col", "t", "--acc-col", "acc", "--hint-col", "h"],
          "f.csv:27: column 'h': 'maybe' is neither the rest value '1' nor the moving value '0'"),

@@ -102,9 +102,10 @@ def _number(cell: str, path: str, line: int, column: str):
     return value
 
 
-def _float(value, path: str, line: int, column: str) -> float:
+def _float(value, path: str, line: int, column: str, minus=0) -> float:
+    """value − minus as a float: exact first when both are integers."""
     try:
-        return float(value)
+        return float(value - minus)
     except OverflowError:  # an integer of hundreds of digits
         raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(str(value))} is not finite") from None
 
@@ -242,7 +243,7 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
                 number = _number(cell, path, line, wanted[role])
                 if column.first is None:
                     column.first = number
-                column.values.append(_float(number - column.first, path, line, wanted[role]))
+                column.values.append(_float(number, path, line, wanted[role], minus=column.first))
             else:
                 column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
         lines.append(line)
