@@ -229,6 +229,13 @@ def test_a_line_over_the_recordings_line_limit_is_refused_in_one_line(tmp_path, 
     assert err.count("\n") == 1 and len(err) < 300
     assert f"f.csv:32: line of {width + 6} bytes: longer than {MAX_LINE_BYTES} bytes" in err
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["f.csv"]
+    # a quoted field over many lines, each under the limit: stopped at the same size
+    src = _write(tmp_path, "t,acc,note\n0,1,ok\n0.1,1,\"" + ("x" * 60_000 + "\n") * 3 + "\"\n", name="g.csv")
+    code = cli_main(["import", str(src), "--time-col", "t", "--acc-col", "acc", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"g.csv:4: cannot be read as CSV: field larger than field limit ({MAX_LINE_BYTES})" in err
+    assert not out.exists()
 
 
 def test_memory_follows_the_wanted_columns_not_the_file(tmp_path):

@@ -194,13 +194,17 @@ def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     except OSError as err:
         raise RecordingError(f"{path}: cannot read: {err.strerror or err}") from err
     end = {"cut": False}
-    with progress_bar(size, f"reading {Path(path).name}") as bar:
-        return _read_rows(args, csv.reader(_text_lines(path, bar, end)), end)
+    # a quoted field running over many lines stops at the line limit too
+    limit = csv.field_size_limit(MAX_LINE_BYTES)
+    try:
+        with progress_bar(size, f"reading {Path(path).name}") as bar:
+            return _read_rows(args, csv.reader(_text_lines(path, bar, end)), end)
+    finally:
+        csv.field_size_limit(limit)  # the process's setting, as it was
 
 
 def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     path = args.foreign
-    csv.field_size_limit(MAX_LINE_BYTES)  # a quoted field running over many lines stops here
     try:
         header = [h.strip() for h in next(reader)]
     except StopIteration:
