@@ -118,6 +118,8 @@ def rows(n, t=lambda i: 0.01 * i, extra=""):
         (b"t,acc\n0,1\n0.01,\xff\n", ["--time-col", "t", "--acc-col", "acc"],
          "f.csv:3: not UTF-8 text (invalid start byte at byte offset 15)"),
         ("", ["--time-col", "t", "--acc-col", "acc"], "f.csv:1: empty file, no header row"),
+        (b"t,acc\r0,1\r0.1,2\r", ["--time-col", "t", "--acc-col", "acc"],
+         "f.csv:1: a line break (\\r) inside a row; lines must end with \\n or \\r\\n (a file with classic Mac"),
         ("t,acc\n" + rows(30), ["--time-col", "t", "--check-time-col", "t", "--acc-col", "acc"],
          "--check-time-col needs --arrival-col"),
         ("t,acc,s\n" + rows(25, extra=",0.5") + "0.3,1,\n",

@@ -203,6 +203,14 @@ def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
         csv.field_size_limit(limit)  # the process's setting, as it was
 
 
+def _csv_error(path: str, reader, err: csv.Error) -> RecordingError:
+    if "new-line character" in str(err):
+        # lines end at \n: a lone \r (classic Mac line ends) is taken for a break inside a row
+        return RecordingError(f"{path}:{reader.line_num}: a line break (\\r) inside a row; lines must end with "
+                              "\\n or \\r\\n (a file with classic Mac line ends? convert them)")
+    return RecordingError(f"{path}:{reader.line_num}: cannot be read as CSV: {err}")
+
+
 def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     path = args.foreign
     try:
@@ -210,7 +218,7 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
     except StopIteration:
         raise RecordingError(f"{path}:1: empty file, no header row") from None
     except csv.Error as err:
-        raise RecordingError(f"{path}:{reader.line_num}: cannot be read as CSV: {err}") from None
+        raise _csv_error(path, reader, err) from None
     wanted = _wanted(args)
     index = {}
     for role, name in wanted.items():
@@ -228,7 +236,7 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
         except StopIteration:
             break
         except csv.Error as err:
-            raise RecordingError(f"{path}:{reader.line_num}: cannot be read as CSV: {err}") from None
+            raise _csv_error(path, reader, err) from None
         if not row:
             continue
         line = reader.line_num
