@@ -1,6 +1,7 @@
 """Robustness benchmark: the attacks of issue 16 rerun against the real daemon, 127.0.0.1 only.
 
     .venv/bin/python benchmarks/robustness_benchmark.py [--flood 1100] [--fd-limit 1024] [--hold-s 6]
+        [--reloads 20] [--only daemon|offline] [--json FILE]
 
 The daemon (`adxlgw run`, emulated board, CAN off) runs as its own process with its
 open-file limit lowered to --fd-limit (resource.setrlimit in the child before exec:
@@ -29,9 +30,23 @@ Cases (each bounded in count and time):
 - hostile state files: the daemon started on each file of issue 16; check: it reaches
   "ready", the file is moved aside, POSITION is not NaN-from-the-file and
   NOT_REFERENCED is set.
+- reload races: while the PLC polls on one connection, --reloads SIGHUPs 0.1 s apart,
+  the config file replaced (atomically) before each: alternately a good change outside
+  [modbus] (calibration.zero_g_duty_x) and a bad file (in turn: TOML nested 5 000 deep,
+  and modbus.port set to a port this script holds); then 5 SIGHUPs back to back (reloads
+  running at once) on a good file and, after a pause, 5 on the nested one; then the good
+  file once more and a last SIGHUP. Check: the daemon lives, the PLC's
+  connection is never dropped, every spaced SIGHUP ends in exactly one "config
+  reloaded" (INFO) or "reload refused" (ERROR) line, as many refusals as bad files; each
+  burst runs at least one reload (the kernel merges a SIGHUP sent while one is pending),
+  each with its file's outcome; no traceback; the last good reload applies.
 
-Not covered here: reload races (SIGHUP; the daemon's reload is being reworked) and the
-hostile recordings/configs of the offline commands (another part of issue 16).
+Then the offline commands (no daemon): `estimate` (realtime and smoothed), `fit-drift`,
+`diagnose` and `import` on each hostile recording of issue 16, `config --check` on each
+hostile config (the files: tests/hostile_files.py, shared with the tests), each command
+in its own process; per run: exit code, stderr lines, the command's own peak RSS, wall
+time. Goal: exit 2 with one error line (a warning before it allowed), or exit 0 where the
+file is usable; no traceback; < 500 MB.
 """
 from __future__ import annotations
 
@@ -57,6 +72,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.machine_info import machine  # noqa: E402
 from drivers.modbus_map import BY_NAME, WordOrder, decode_register  # noqa: E402
 from drivers.published_values import StatusBits  # noqa: E402
+from tests import hostile_files as hostile  # noqa: E402
 
 ADXLGW = Path(sys.executable).with_name("adxlgw")
 PLC_IP = "127.0.0.2"
@@ -97,14 +113,15 @@ class Daemon:
         self.state = workdir / "state.json"
         if state_bytes is not None:
             self.state.write_bytes(state_bytes)
-        config = workdir / "gateway.toml"
-        config.write_text(
+        self.config = config = workdir / "gateway.toml"
+        self.config_text = (
             '[serial]\nport = "emulated"\n'
             f'[modbus]\nport = {self.port}\nwrite_allow = ["{PLC_IP}"]\nmax_connections = {max_connections}\n'
             f"idle_timeout_s = {idle_timeout_s}\npeer_log_interval_s = 10.0\n"
             "[can]\nenabled = false\n"
             f'[state]\npath = "{self.state}"\n'
         )
+        config.write_text(self.config_text)
         self.log_path = workdir / "daemon.log"
         self._log = open(self.log_path, "wb")
         limit = (fd_limit, fd_limit)
@@ -118,6 +135,18 @@ class Daemon:
             if self.process.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"daemon did not start: {self.log_path.read_text()[-2000:]}")
             time.sleep(0.1)
+
+    def replace_config(self, data: bytes) -> None:
+        """The config file replaced at once (written beside it, renamed over it)."""
+        tmp = self.config.with_suffix(".tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, self.config)
+
+    def log_since(self, offset: int, end: int | None = None) -> str:
+        """The log from byte `offset` (to byte `end`)."""
+        with open(self.log_path, "rb") as fh:
+            fh.seek(offset)
+            return fh.read(-1 if end is None else end - offset).decode("utf-8", "replace")
 
     def log_bytes(self) -> int:
         return self.log_path.stat().st_size
@@ -369,6 +398,177 @@ def bad_frame_flood(daemon: Daemon, count: int = 2000):
     return None, check
 
 
+def reload_races(daemon: Daemon, count: int, gap_s: float = 0.1):
+    """SIGHUPs in quick succession, good and bad config files in turn (see the module doc)."""
+    held_port = socket.socket()
+    held_port.bind(("127.0.0.1", 0))
+    held_port.listen()
+    busy = held_port.getsockname()[1]
+    good = [daemon.config_text.replace('[serial]\n', f'[calibration]\nzero_g_duty_x = {duty}\n[serial]\n')
+            for duty in (0.5005, 0.4995)]
+    nested = daemon.workdir / "nested.toml"
+    bad = {"TOML nested 5 000 deep": hostile.nested_toml(nested).read_bytes(),
+           "modbus.port in use": daemon.config_text.replace(f"port = {daemon.port}\n", f"port = {busy}\n").encode()}
+    plan = []  # (kind, bytes)
+    for k in range(count):
+        if k % 2 == 0:
+            plan.append(("good", good[(k // 2) % 2].encode()))
+        else:
+            name = list(bad)[(k // 2) % len(bad)]
+            plan.append((name, bad[name]))
+
+    # then bursts: `burst` SIGHUPs back to back (reloads running at once) on a good file,
+    # a pause, the same on a bad one. The kernel merges a SIGHUP sent while another is still
+    # pending, so a burst runs 1 to `burst` reloads: each must match its file
+    burst = 5
+    bursts = [("good", good[1].encode()), ("bad", bad["TOML nested 5 000 deep"])]
+
+    def outcomes(text: str) -> tuple[int, int]:
+        lines = text.splitlines()
+        return (sum("config reloaded from" in line for line in lines),
+                sum("reload refused" in line or "reload failed" in line for line in lines))
+
+    def settle(since: int, at_least: int) -> int:
+        """Wait until `at_least` reloads ended since `since`, and 0.5 s more without one."""
+        deadline = time.monotonic() + 20
+        while sum(outcomes(daemon.log_since(since))) < at_least and time.monotonic() < deadline:
+            time.sleep(0.1)
+        seen = -1
+        while seen != sum(outcomes(daemon.log_since(since))) and time.monotonic() < deadline:
+            seen = sum(outcomes(daemon.log_since(since)))
+            time.sleep(0.5)
+        return daemon.log_bytes()
+
+    def attack():
+        marks = [daemon.log_bytes()]
+
+        def storm():
+            for _, data in plan:
+                daemon.replace_config(data)
+                daemon.process.send_signal(signal.SIGHUP)
+                time.sleep(gap_s)
+            marks.append(settle(marks[-1], count))
+            for _, data in bursts:
+                daemon.replace_config(data)
+                for _ in range(burst):
+                    daemon.process.send_signal(signal.SIGHUP)
+                marks.append(settle(marks[-1], 1))
+
+        thread = threading.Thread(target=storm, daemon=True)
+        thread.start()
+        return {"thread": thread, "marks": marks, "sockets": [held_port]}
+
+    def check(held):
+        held["thread"].join()
+        marks = held["marks"]
+        spaced = daemon.log_since(marks[0], marks[1])
+        applied, refused = outcomes(spaced)
+        n_bad = sum(kind != "good" for kind, _ in plan)
+        in_bursts = []
+        for k, (kind, _) in enumerate(bursts):
+            a, r = outcomes(daemon.log_since(marks[k + 1], marks[k + 2]))
+            in_bursts.append((kind, a, r))
+        bursts_ok = all((a + r >= 1) and (r == 0 if kind == "good" else a == 0) for kind, a, r in in_bursts)
+        text = daemon.log_since(marks[0])
+        refusals = [line for line in text.splitlines() if "reload refused" in line or "reload failed" in line]
+        at_error = all(line.startswith(("ERROR", "<3>")) for line in refusals)
+        reasons = {name: sum(1 for line in refusals if key in line)
+                   for name, key in (("nested", "nested too deeply"), ("port in use", "in use"))}
+        # the last word: the good file again, one more SIGHUP, applied
+        before = daemon.log_bytes()
+        daemon.replace_config(good[0].encode())
+        daemon.process.send_signal(signal.SIGHUP)
+        settle(before, 1)
+        final_applied = outcomes(daemon.log_since(before)) == (1, 0)
+        traceback = "Traceback" in daemon.log_since(marks[0])
+        ok = (daemon.alive() and applied + refused == count and refused == n_bad and bursts_ok and at_error
+              and final_applied and not traceback)
+        burst_text = ", ".join(f"{kind} file: {a} applied, {r} refused" for kind, a, r in in_bursts)
+        return ok, (f"{count} SIGHUPs {gap_s:g} s apart: {applied} applied, {refused} refused of {n_bad} bad; "
+                    f"bursts of {burst} back to back: {burst_text}; refusals ({reasons['nested']} nested, "
+                    f"{reasons['port in use']} port in use) at ERROR: {'all' if at_error else 'NOT all'}; last good "
+                    f"reload applied: {'yes' if final_applied else 'NO'}; traceback: {'YES' if traceback else 'none'}; "
+                    f"daemon alive: {'yes' if daemon.alive() else 'NO'}")
+
+    return attack, check
+
+
+# --------------------------------------------------------------------------- #
+# The offline commands on hostile files
+# --------------------------------------------------------------------------- #
+RECORDING_COMMANDS = {
+    "estimate realtime": lambda f, d: ["estimate", f, "--out", d / "out.csv"],
+    "estimate smoothed": lambda f, d: ["estimate", f, "--method", "smoothed", "--out", d / "out.parquet"],
+    "fit-drift": lambda f, d: ["fit-drift", f, "--plot", d / "drift.png"],
+    "diagnose": lambda f, d: ["diagnose", f],
+}
+GOAL_RSS_MB = 500
+
+
+def hostile_recordings(workdir: Path) -> dict[str, tuple[Path, list[str]]]:
+    """name → (file, import's column options for the same file without its metadata)."""
+    sim = hostile.simulated_run()
+    raw_cols = ["--time-col", "seq", "--acc-col", "t1x"]  # a time counting down, repeating: seq
+    acc_cols = ["--time-col", "t_s", "--acc-col", "acc_x_mps2"]
+    return {
+        "seq counting down": (hostile.seq_counting_down(workdir / "down.csv", sim), raw_cols),
+        "same seq on every row": (hostile.seq_repeating(workdir / "same.csv", sim), raw_cols),
+        f"a field of {hostile.LONG_FIELD_CHARS} characters": (hostile.long_field(workdir / "long.csv"), acc_cols),
+        "a non-UTF-8 byte near the end": (hostile.non_utf8_in_the_data(workdir / "latin.csv", sim), raw_cols),
+        "noise-free rest": (hostile.quiet_rest(workdir / "still.csv", step_mg=None), acc_cols),
+        "10 mg-quantised rest": (hostile.quiet_rest(workdir / "quant.csv", step_mg=10.0), acc_cols),
+        "one 1e300 sample in noise": (hostile.impossible_samples(workdir / "huge.csv"), acc_cols),
+        "truncated last line": (hostile.truncated(workdir / "cut.csv", sim), raw_cols),
+    }
+
+
+def run_offline(args: list, cwd: Path) -> dict:
+    """One command in its own process (started from a bare launcher, so its peak RSS is its
+    own: tests/hostile_files.run_measured): exit code, stderr lines, peak RSS, wall time."""
+    code, stderr, peak, wall = hostile.run_measured([ADXLGW, *args], cwd=cwd)
+    lines = stderr.strip().splitlines()
+    return {"exit": code, "stderr_lines": len(lines), "error_lines": sum(": error: " in line for line in lines),
+            "peak_rss_mb": round(peak / 2**20, 1), "wall_s": round(wall, 2), "traceback": "Traceback" in stderr,
+            "last_line": lines[-1][:160] if lines else ""}
+
+
+def offline_cases(workdir: Path) -> list[dict]:
+    files = workdir / "files"
+    files.mkdir()
+    out = workdir / "out"
+    out.mkdir()
+    runs = []
+    for name, (path, import_cols) in hostile_recordings(files).items():
+        commands = {c: make(path, out) for c, make in RECORDING_COMMANDS.items()}
+        foreign = hostile.without_metadata(path, files / f"foreign-{path.name}")
+        commands["import"] = ["import", foreign, *import_cols, "--out", out / "imported.csv"]
+        for command, args in commands.items():
+            runs.append(offline_run(name, command, args, out))
+    configs = {"TOML nested 5 000 deep (arrays)": hostile.nested_toml(files / "arrays.toml"),
+               "TOML nested 5 000 deep (inline tables)": hostile.nested_toml(files / "tables.toml", inline_tables=True)}
+    for name, path in configs.items():
+        runs.append(offline_run(name, "config --check", ["config", "--check", path], out))
+    return runs
+
+
+def offline_run(name: str, command: str, args: list, cwd: Path) -> dict:
+    r = {"case": f"{name}: {command}", "file": name, "command": command, **run_offline(args, cwd)}
+    # "served" for the table: the goal met — a refusal in one error line (warnings said before
+    # it are allowed), or the file used without an error — no traceback, within memory
+    one_line_refusal = r["exit"] == 2 and r["error_lines"] == 1
+    used = r["exit"] == 0 and r["error_lines"] == 0
+    r["served"] = (one_line_refusal or used) and not r["traceback"] and r["peak_rss_mb"] < GOAL_RSS_MB
+    print(format_offline(r), flush=True)
+    return r
+
+
+def format_offline(r: dict) -> str:
+    return (f"{r['file']:<42} {r['command']:<18} goal: {'yes' if r['served'] else 'NO '}  exit {r['exit']:3d}  stderr lines {r['stderr_lines']:3d} "
+            f"(errors {r['error_lines']})  "
+            f"peak RSS {r['peak_rss_mb']:6.1f} MB  {r['wall_s']:6.2f} s  {'TRACEBACK  ' if r['traceback'] else ''}"
+            f"{r['last_line']}")
+
+
 STATE_FILES = {
     "string position": b'{"version": 1, "last_position_m": "abc"}',
     "NaN position": b'{"version": 1, "last_position_m": NaN}',
@@ -404,50 +604,66 @@ def hostile_state(workdir: Path, name: str, data: bytes, fd_limit: int) -> dict:
     }
 
 
+def daemon_cases(workdir: Path, args, polls: int) -> list[dict]:
+    rows = []
+    main_dir = workdir / "main"
+    main_dir.mkdir()
+    daemon = Daemon(main_dir, args.fd_limit)
+    try:
+        cases = [
+            ("baseline", (None, None), False),
+            (f"idle flood {args.flood}", idle_flood(daemon, args.flood), False),
+            ("slowloris 200", slowloris(daemon), False),
+            ("malformed then valid", malformed_then_valid(daemon), False),
+            ("pipelining 500", pipelining(daemon), False),
+            ("bad-frame flood 2000", bad_frame_flood(daemon), False),
+            (f"reload races: {args.reloads} SIGHUPs", reload_races(daemon, args.reloads), True),
+        ]
+        for name, (attack, check), plc_first in cases:
+            # the reload race polls twice as long: its storm and bursts take ~6 s
+            rows.append(run_case(name, daemon, polls * (2 if name.startswith("reload") else 1), attack, check,
+                                 plc_first))
+            print(format_row(rows[-1]), flush=True)
+    finally:
+        daemon.stop()
+    fd_dir = workdir / "fd"
+    fd_dir.mkdir()
+    # no limit, no idle timeout: only the accept-error handling stands between the flood and the log
+    exhausted = Daemon(fd_dir, args.fd_limit, max_connections=10_000, idle_timeout_s=0)
+    try:
+        rows.append(run_case(f"fd exhaustion {args.flood} (max_connections above the fd limit)", exhausted,
+                             polls, *idle_flood(exhausted, args.flood), plc_first=True))
+        print(format_row(rows[-1]), flush=True)
+    finally:
+        exhausted.stop()
+    for name, data in STATE_FILES.items():
+        rows.append(hostile_state(workdir, name, data, args.fd_limit))
+        print(format_row(rows[-1]), flush=True)
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--flood", type=int, default=1100, help="idle connections in the flood cases")
     parser.add_argument("--fd-limit", type=int, default=1024, help="the daemon's open-file limit")
     parser.add_argument("--hold-s", type=float, default=6.0, help="how long the PLC polls during each attack")
+    parser.add_argument("--reloads", type=int, default=20, help="SIGHUPs in the reload-race case")
+    parser.add_argument("--only", choices=("daemon", "offline"), help="run only the daemon or the offline cases")
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = parser.parse_args()
     polls = max(10, round(args.hold_s / POLL_PERIOD_S))
-    print(f"# {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}")
+    print(f"# {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}; "
+          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"# daemon open-file limit {args.fd_limit}; flood {args.flood}; PLC polls every "
           f"{POLL_PERIOD_S * 1000:.0f} ms for {args.hold_s:g} s per case")
     rows = []
     with tempfile.TemporaryDirectory(prefix="adxlgw-robust-") as tmp:
         workdir = Path(tmp)
-        main_dir = workdir / "main"
-        main_dir.mkdir()
-        daemon = Daemon(main_dir, args.fd_limit)
-        try:
-            cases = [
-                ("baseline", (None, None), False),
-                (f"idle flood {args.flood}", idle_flood(daemon, args.flood), False),
-                ("slowloris 200", slowloris(daemon), False),
-                ("malformed then valid", malformed_then_valid(daemon), False),
-                ("pipelining 500", pipelining(daemon), False),
-                ("bad-frame flood 2000", bad_frame_flood(daemon), False),
-            ]
-            for name, (attack, check), plc_first in cases:
-                rows.append(run_case(name, daemon, polls, attack, check, plc_first))
-                print(format_row(rows[-1]), flush=True)
-        finally:
-            daemon.stop()
-        fd_dir = workdir / "fd"
-        fd_dir.mkdir()
-        # no limit, no idle timeout: only the accept-error handling stands between the flood and the log
-        exhausted = Daemon(fd_dir, args.fd_limit, max_connections=10_000, idle_timeout_s=0)
-        try:
-            rows.append(run_case(f"fd exhaustion {args.flood} (max_connections above the fd limit)", exhausted,
-                                 polls, *idle_flood(exhausted, args.flood), plc_first=True))
-            print(format_row(rows[-1]), flush=True)
-        finally:
-            exhausted.stop()
-        for name, data in STATE_FILES.items():
-            rows.append(hostile_state(workdir, name, data, args.fd_limit))
-            print(format_row(rows[-1]), flush=True)
+        if args.only != "offline":
+            rows += daemon_cases(workdir, args, polls)
+        if args.only != "daemon":
+            print("# offline commands on hostile files, each in its own process (its own peak RSS: started from a bare launcher)")
+            rows += offline_cases(workdir)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
     return 0 if all(r["served"] for r in rows) else 1

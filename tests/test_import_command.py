@@ -13,7 +13,10 @@ from hypothesis import strategies as st
 
 from gateway.cli import main as cli_main
 
-from gateway.offline.recording import read_recording, to_acceleration
+from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
+from tests import hostile_files
+from tests.hostile_files import run_measured
+from tests.pty_helpers import stderr_on_a_pty
 from tests.test_retiming import bursty_arrivals
 
 REPO = Path(__file__).resolve().parents[1]
@@ -107,12 +110,16 @@ def rows(n, t=lambda i: 0.01 * i, extra=""):
          "f.csv:5: column 't': time does not increase"),
         ("t,acc\n" + rows(3) + "soon,1\n", ["--arrival-col", "t", "--acc-col", "acc"],
          "f.csv:5: column 't': 'soon' is not a number"),
+        ("t,acc\n" + rows(3) + "9" * 400 + ",1\n", ["--time-col", "t", "--acc-col", "acc"],
+         "f.csv:5: column 't': '" + "9" * 40 + "…' is not finite"),
         ("t,acc,h\n" + rows(25, extra=",1") + "0.3,1,maybe\n",
          ["--arrival-col", "t", "--acc-col", "acc", "--hint-col", "h"],
          "f.csv:27: column 'h': 'maybe' is neither the rest value '1' nor the moving value '0'"),
         (b"t,acc\n0,1\n0.01,\xff\n", ["--time-col", "t", "--acc-col", "acc"],
          "f.csv:3: not UTF-8 text (invalid start byte at byte offset 15)"),
         ("", ["--time-col", "t", "--acc-col", "acc"], "f.csv:1: empty file, no header row"),
+        (b"t,acc\r0,1\r0.1,2\r", ["--time-col", "t", "--acc-col", "acc"],
+         "f.csv:1: a line break (\\r) inside a row; lines must end with \\n or \\r\\n (a file with classic Mac"),
         ("t,acc\n" + rows(30), ["--time-col", "t", "--check-time-col", "t", "--acc-col", "acc"],
          "--check-time-col needs --arrival-col"),
         ("t,acc,s\n" + rows(25, extra=",0.5") + "0.3,1,\n",
@@ -210,3 +217,84 @@ def test_leiria_reference_as_logged_on_the_arrival_clock(tmp_path):
     err = ref[known] - foreign["ref_z_m"][known]
     # measured 2026-11-24: RMS 1.4 mm, max 7.9 mm over moves of 327–961 mm
     assert np.sqrt(np.mean(err ** 2)) < 0.003 and np.abs(err).max() < 0.012
+
+
+def test_a_line_over_the_recordings_line_limit_is_refused_in_one_line(tmp_path, capsys):
+    # a logger's free-text column (never asked for) with a 140 000-character cell: the file
+    # was read whole before; now the recordings' line limit stops it, nothing written
+    width = MAX_LINE_BYTES + 10_000
+    src = _write(tmp_path, "t,acc,note\n" + rows(30, extra=",ok") + "0.3,1," + "x" * width + "\n" + "0.31,1,ok\n")
+    out = tmp_path / "o.csv"
+    code = cli_main(["import", str(src), "--time-col", "t", "--acc-col", "acc", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and len(err) < 300
+    assert f"f.csv:32: line of {width + 6} bytes: longer than {MAX_LINE_BYTES} bytes" in err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["f.csv"]
+    # a quoted field over many lines, each under the limit: stopped at the same size
+    src = _write(tmp_path, "t,acc,note\n0,1,ok\n0.1,1,\"" + ("x" * 60_000 + "\n") * 3 + "\"\n", name="g.csv")
+    code = cli_main(["import", str(src), "--time-col", "t", "--acc-col", "acc", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"g.csv:4: cannot be read as CSV: field larger than field limit ({MAX_LINE_BYTES})" in err
+    assert not out.exists()
+
+
+def test_memory_follows_the_wanted_columns_not_the_file(tmp_path):
+    # a wide logger file: 2 wanted columns among 52, 150 MB. Before, the import held the file
+    # as bytes, as text and as a list of lines (measured 2026-11-26: 238 MB above the same
+    # command on its first 1 000 rows); now blocks of whole lines and 8 bytes a wanted cell
+    # (measured: 12 MB above). Compared with the small file's peak, so the interpreter,
+    # numpy, pyarrow and numba (~320 MB) do not count; RSS does not depend on the load.
+    rng = np.random.default_rng(5)
+    unused = ",".join(f"{k * 1.5:.6f}" for k in range(50))
+    big, small = tmp_path / "big.csv", tmp_path / "small.csv"
+    n = 150_000
+    acc = rng.normal(0, 0.01, n)
+    with open(big, "w") as fh:
+        fh.write("t,acc," + ",".join(f"u{k}" for k in range(50)) + "\n")
+        for start in range(0, n, 10_000):
+            fh.write("".join(f"{i * 0.002:.3f},{acc[i]:.5f},{unused},{unused}\n"
+                             for i in range(start, min(n, start + 10_000))))
+    with open(big) as fh, open(small, "w") as out:
+        out.writelines(fh.readline() for _ in range(1001))
+    size = big.stat().st_size
+    assert size > 100e6
+    peaks = {}
+    for src in (small, big):
+        code, err, peaks[src.name], _ = run_measured([sys.executable, "-m", "gateway.cli", "import", src, "--time-col",
+                                                      "t", "--acc-col", "acc", "--out", tmp_path / "o.csv"])
+        assert code == 0, err
+    assert len(read_recording(tmp_path / "o.csv")) == n
+    grown = peaks["big.csv"] - peaks["small.csv"]
+    assert grown < size / 3, f"{grown / 1e6:.0f} MB more for a {size / 1e6:.0f} MB file"
+
+
+def test_progress_bar_on_a_terminal_and_quiet_otherwise(tmp_path):
+    src = _write(tmp_path, "t,acc\n" + rows(3000))
+    cmd = [sys.executable, "-m", "gateway.cli", "import", str(src), "--time-col", "t", "--acc-col", "acc",
+           "--out", str(tmp_path / "o.csv")]
+    quiet = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert quiet.returncode == 0, quiet.stderr
+    assert "%|" not in quiet.stderr and "reading" not in quiet.stderr
+    code, seen = stderr_on_a_pty(cmd)
+    assert code == 0
+    assert b"reading f.csv" in seen and b"%|" in seen
+
+
+def test_a_last_line_cut_short_is_refused_as_a_truncated_file(tmp_path, capsys):
+    # a logger killed mid-row: the last line has no line end and fewer cells than the header
+    sim = hostile_files.simulated_run()
+    recording = hostile_files.truncated(tmp_path / "r.csv", sim)
+    src = hostile_files.without_metadata(recording, tmp_path / "f.csv")
+    n_lines = src.read_bytes().count(b"\n") + 1
+    out = tmp_path / "o.csv"
+    code = cli_main(["import", str(src), "--arrival-col", "t_host_s", "--acc-col", "t1x", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"f.csv:{n_lines}: has 8 cells, the header has 10 (the last line is cut short: a truncated file?)" in err
+    assert not out.exists()
+    # complete rows without a final line end: imported
+    whole = hostile_files.without_metadata(hostile_files.write_raw(tmp_path / "w.csv", sim), tmp_path / "g.csv")
+    whole.write_bytes(whole.read_bytes().rstrip(b"\n"))
+    assert cli_main(["import", str(whole), "--arrival-col", "t_host_s", "--acc-col", "t1x", "--out", str(out)]) == 0

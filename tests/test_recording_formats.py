@@ -1,6 +1,5 @@
 """Recordings as CSV and Parquet: the same content both ways, read in chunks like whole,
 and the realtime estimate streamed chunk by chunk gives the whole-file numbers."""
-import os
 import subprocess
 import sys
 
@@ -22,6 +21,7 @@ from gateway.offline.recording import (
     to_acceleration,
     write_recording,
 )
+from tests.pty_helpers import stderr_on_a_pty
 
 
 def adxlgw(*args, cwd=None):
@@ -175,25 +175,11 @@ def test_record_writer_streams_parquet_like_csv(tmp_path):
 
 
 def test_progress_bar_on_a_terminal_and_quiet_otherwise(tmp_path):
-    import pty
-
     simulated(tmp_path / "a.csv")
     cmd = [sys.executable, "-m", "gateway.cli", "estimate", str(tmp_path / "a.csv"), "--out", str(tmp_path / "e.csv")]
     quiet = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert quiet.returncode == 0 and "%|" not in quiet.stderr and "it/s" not in quiet.stderr
     # stderr on a pseudo-terminal: the bar is drawn there (and cleared when done)
-    leader, follower = pty.openpty()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=follower)
-    os.close(follower)
-    seen = b""
-    while True:
-        try:
-            data = os.read(leader, 4096)
-        except OSError:  # EIO: the command closed its end
-            break
-        if not data:
-            break
-        seen += data
-    assert proc.wait(timeout=300) == 0
-    os.close(leader)
+    code, seen = stderr_on_a_pty(cmd)
+    assert code == 0
     assert b"estimating" in seen and b"%|" in seen

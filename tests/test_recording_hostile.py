@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import gateway.offline.recording as recording
-from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
-from gateway.core.simulator import simulate
 from gateway.errors import RecordingError
 from gateway.offline.recording import open_recording, read_recording, to_acceleration, write_recording
+from tests import hostile_files as hostile
+from tests.hostile_files import write_raw
 
 
 def adxlgw(*args, cwd=None):
@@ -31,23 +31,12 @@ def one_line_exit_2(r, *fragments):
 
 @pytest.fixture(scope="module")
 def sim_columns():
-    run = simulate(reciprocating_strokes(StrokeSettings(strokes=3)), seed=21)
-    return {"tick_hz": f"{run.tick_hz:g}", "axis": "x"}, run.recording_columns()
-
-
-def write_raw(path, sim_columns, **replace):
-    meta, cols = sim_columns
-    cols = dict(cols)
-    cols.update(replace)
-    write_recording(path, meta, cols)
-    return path
+    return hostile.simulated_run()
 
 
 def test_truncated_csv_names_the_cut_line_and_writes_nothing(tmp_path, sim_columns):
-    path = write_raw(tmp_path / "r.csv", sim_columns)
-    data = path.read_bytes()
-    path.write_bytes(data[:-9])  # a logger killed mid-row
-    n_lines = data[:-9].count(b"\n") + 1
+    path = hostile.truncated(tmp_path / "r.csv", sim_columns)  # a logger killed mid-row
+    n_lines = path.read_bytes().count(b"\n") + 1
     out = tmp_path / "e.csv"
     r = adxlgw("estimate", path, "--out", out)
     one_line_exit_2(r, f"r.csv:{n_lines}:", "cells, the header has", "truncated")
@@ -88,21 +77,21 @@ def test_non_utf8_is_named_with_its_byte_offset(tmp_path, sim_columns):
         r = adxlgw(*command)
         one_line_exit_2(r, "r.csv:1:", "not UTF-8", "byte offset 10")
     # deep in the data
-    path = write_raw(tmp_path / "s.csv", sim_columns)
-    data = path.read_bytes()
-    at = len(data) - 50
-    bad = data[:at] + b"\xff" + data[at + 1:]
-    path.write_bytes(bad)
+    path = hostile.non_utf8_in_the_data(tmp_path / "s.csv", sim_columns, from_end=50)
+    bad = path.read_bytes()
+    at = len(bad) - 50
     line = bad[:at].count(b"\n") + 1
     with pytest.raises(RecordingError, match=f"s.csv:{line}: not UTF-8 text .* at byte offset {at}"):
         read_recording(path)
 
 
 def test_a_field_over_131072_characters_is_refused_by_the_line_limit(tmp_path):
-    path = tmp_path / "r.csv"
-    path.write_text("t_s,acc_x_mps2\n0,1\n0.1," + "9" * 140_000 + "\n0.2,1\n")
+    path = hostile.long_field(tmp_path / "r.csv")
     r = adxlgw("estimate", path, "--out", tmp_path / "e.csv")
     one_line_exit_2(r, "r.csv:3:", f"longer than {recording.MAX_LINE_BYTES} bytes")
+    # the same as the file's last line, cut without its newline (a tail once not measured)
+    r = adxlgw("diagnose", hostile.long_field(tmp_path / "r.csv", last_line=True))
+    one_line_exit_2(r, "r.csv:3:", f"line of {hostile.LONG_FIELD_CHARS + 4} bytes: longer than")
     path.write_text("t_s,acc_x_mps2," + "x" * 140_000 + "\n0,1,2\n")
     r = adxlgw("diagnose", path)
     one_line_exit_2(r, "r.csv:1:", "longer than")
@@ -110,8 +99,8 @@ def test_a_field_over_131072_characters_is_refused_by_the_line_limit(tmp_path):
 
 def test_seq_counting_down_or_repeating_is_counted_not_a_blow_up(tmp_path, sim_columns):
     n = sim_columns[1]["seq"].size
-    down = write_raw(tmp_path / "down.csv", sim_columns, seq=(60000 - np.arange(n)) % 65536)
-    same = write_raw(tmp_path / "same.csv", sim_columns, seq=np.full(n, 7))
+    down = hostile.seq_counting_down(tmp_path / "down.csv", sim_columns)
+    same = hostile.seq_repeating(tmp_path / "same.csv", sim_columns)
     s = to_acceleration(read_recording(down))
     assert s.lost_before.sum() == 0 and s.report.sequence.backwards == n - 1
     assert to_acceleration(read_recording(same)).report.sequence.repeats == n - 1
@@ -136,14 +125,9 @@ def test_seq_claiming_more_losses_than_a_board_can_is_refused(tmp_path, sim_colu
 
 
 def test_impossible_samples_are_flagged_invalid_not_integrated(tmp_path):
-    t = np.arange(4000) * 0.002
-    acc = np.random.default_rng(3).normal(0, 0.02, t.size)
-    acc[2500] = 1e300
-    acc[2600] = -5e3
-    path = tmp_path / "r.csv"
-    write_recording(path, {"axis": "x"}, {"t_s": t, "acc_x_mps2": acc})
+    path = hostile.impossible_samples(tmp_path / "r.csv", {2500: 1e300, 2600: -5e3}, n=4000)
     s = to_acceleration(read_recording(path))
-    assert not s.valid[2500] and not s.valid[2600] and s.valid.sum() == t.size - 2
+    assert not s.valid[2500] and not s.valid[2600] and s.valid.sum() == 4000 - 2
     assert s.report.impossible == 2
     out = tmp_path / "e.csv"
     r = adxlgw("estimate", path, "--out", out)
@@ -198,3 +182,30 @@ def test_a_refused_file_exits_2_every_time_not_sometimes_134(tmp_path, sim_colum
         for _ in range(4):
             one_line_exit_2(adxlgw("estimate", path, "--method", "smoothed", "--out", tmp_path / "e.csv"),
                             "samples were lost for")
+
+
+@pytest.mark.parametrize("method", ["realtime", "smoothed"])
+def test_a_rest_without_noise_is_refused_in_one_line_not_a_traceback(tmp_path, method):
+    # the acceleration form's noise settings come from its initial rest; a noise-free one
+    # (a synthetic file) raised from the settings with a traceback, exit 1
+    path = hostile.quiet_rest(tmp_path / "r.csv", step_mg=None)
+    r = adxlgw("estimate", path, "--method", method, "--out", tmp_path / "e.csv")
+    one_line_exit_2(r, "r.csv: cannot estimate", "the rest is constant: no noise to measure")
+    assert not (tmp_path / "e.csv").exists()
+    # the raw form's settings come from the sensor model: the rest's noise is not needed
+    r = adxlgw("estimate", path, "--method", method, "--noise-from", "sensor", "--out", tmp_path / "e.csv")
+    assert r.returncode == 0, r.stderr
+    # diagnose (with the file's reference) falls back to the data-sheet noise and says so
+    r = adxlgw("diagnose", path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert "the rest is constant" in r.stderr and "data-sheet values are used" in r.stderr
+
+
+def test_a_file_of_one_sample_is_refused_in_one_line(tmp_path):
+    # the streamed estimate took its settings from a first chunk of one row: the sample
+    # period of one sample was NaN, a traceback (exit 1)
+    path = tmp_path / "r.csv"
+    write_recording(path, {"axis": "x"}, {"t_s": np.zeros(1), "acc_x_mps2": np.ones(1)})
+    r = adxlgw("estimate", path, "--out", tmp_path / "e.csv")
+    one_line_exit_2(r, "r.csv: cannot estimate (realtime): only 1 sample")
+    assert not (tmp_path / "e.csv").exists()

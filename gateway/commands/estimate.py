@@ -77,9 +77,15 @@ def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: 
         return from_sensor_model(SensorParams(), drift_fit=drift, axis=series.axis)
     if drift is not None:
         raise InputError("--drift-model describes the ADXL202; it cannot be combined with noise from the rest")
+    if len(series) < 2:  # the streamed estimate's first chunk: a file of one row
+        raise NoRestError(f"only {len(series)} sample: no sample period, no rest to measure the noise on")
     period = float(np.median(np.diff(series.t_s)))
     rest = find_initial_rest(series.acc_mps2, series.valid, period)
-    return from_rest(series.acc_mps2[rest.start:rest.stop], period)
+    try:
+        return from_rest(series.acc_mps2[rest.start:rest.stop], period)
+    except ValueError as err:  # e.g. a noise-free rest: a rest, but no noise to set the filter from
+        raise NoRestError(f"the initial rest (samples {rest.start}–{rest.stop - 1}) cannot give the noise "
+                          f"settings: {err}") from err
 
 
 def track_writer(path: str, track: EstimateTrack) -> ColumnWriter:

@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+import os
 import sys
-from decimal import Decimal
+from array import array
+from pathlib import Path
 
 import numpy as np
 
@@ -20,7 +22,8 @@ from gateway.core.retiming import (Retiming, RetimingError, RetimingSettings, on
                                    timing_error)
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
-from gateway.offline.recording import HINT_COLUMN, write_recording
+from gateway.offline.progress import progress_bar
+from gateway.offline.recording import HINT_COLUMN, MAX_LINE_BYTES, cell_text, line_blocks, write_recording
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}
 TIME_SCALES = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -93,31 +96,40 @@ def _number(cell: str, path: str, line: int, column: str):
     try:
         value = float(cell)
     except ValueError:
-        raise RecordingError(f"{path}:{line}: column {column!r}: {cell!r} is not a number") from None
+        raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(cell)} is not a number") from None
     if not math.isfinite(value):
-        raise RecordingError(f"{path}:{line}: column {column!r}: {cell!r} is not finite")
+        raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(cell)} is not finite")
     return value
 
 
-def _read_text(path: str) -> str:
+def _float(value, path: str, line: int, column: str, minus=0) -> float:
+    """value − minus as a float: exact first when both are integers."""
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read()
-    except OSError as err:
-        raise RecordingError(f"{path}: cannot read: {err.strerror or err}") from err
-    try:
-        return raw.decode("utf-8-sig")  # a spreadsheet's byte-order mark is not part of the header
-    except UnicodeDecodeError as err:
-        line = raw.count(b"\n", 0, err.start) + 1
-        raise RecordingError(f"{path}:{line}: not UTF-8 text ({err.reason} at byte offset {err.start})") from None
+        return float(value - minus)
+    except OverflowError:  # an integer of hundreds of digits
+        raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(str(value))} is not finite") from None
 
 
-def _seconds(values: list, unit: str) -> np.ndarray:
-    """Seconds since the first row; exact integer differences first (nanoseconds since 1970)."""
-    t0 = values[0]
-    diffs = [float(Decimal(t - t0)) if isinstance(t, int) and isinstance(t0, int) else float(t - t0)
-             for t in values]
-    return np.array(diffs) * TIME_SCALES[unit]
+def _text_lines(path: str, bar, end: dict):
+    """The file's lines as text (without their line ends), read a block at a time: the line
+    length limit of recordings (MAX_LINE_BYTES), UTF-8 checked, named by its byte offset.
+    end["cut"]: whether the last line has no line end (a file cut short?)."""
+    for block, first_line, offset in line_blocks(path, path):
+        end["cut"] = not block.endswith(b"\n")
+        try:
+            text = block.decode("utf-8")
+        except UnicodeDecodeError as err:
+            line = first_line + block.count(b"\n", 0, err.start)
+            raise RecordingError(f"{path}:{line}: not UTF-8 text ({err.reason} at byte offset "
+                                 f"{offset + err.start})") from None
+        if offset == 0:
+            text = text.removeprefix("\ufeff")  # a spreadsheet's byte-order mark is not part of the header
+        lines = text.split("\n")
+        if text.endswith("\n"):
+            lines.pop()
+        for line in lines:
+            yield line[:-1] if line.endswith("\r") else line
+        bar.update(len(block))
 
 
 def _hint(cell: str, args, path: str, line: int) -> float:
@@ -158,37 +170,101 @@ def _wanted(args) -> dict[str, str]:
     return wanted
 
 
-def read_foreign(args) -> tuple[dict[str, list], list[int], int]:
-    """Cells of the wanted columns for rows with a time and an acceleration; their line numbers."""
+class _Column:
+    """One wanted column's numbers as compact doubles (8 bytes a row, not a Python object).
+    A time column keeps each cell minus the first, computed exactly when both are integers
+    (nanoseconds since 1970 exceed a double's precision), so it is seconds since the first
+    row once scaled by its unit."""
+
+    def __init__(self, relative: bool):
+        self.values = array("d")
+        self.relative = relative
+        self.first = None  # the first cell of a relative column, as read (int or float)
+
+    def numbers(self) -> np.ndarray:
+        return np.frombuffer(self.values, dtype=float) if self.values else np.zeros(0)
+
+
+def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+    """Numbers of the wanted columns for rows with a time and an acceleration, and their
+    line numbers; the file streamed (only these columns kept), with a progress bar."""
     path = args.foreign
-    reader = csv.reader(_read_text(path).splitlines())
+    try:
+        size = os.path.getsize(path)
+    except OSError as err:
+        raise RecordingError(f"{path}: cannot read: {err.strerror or err}") from err
+    end = {"cut": False}
+    # a quoted field running over many lines stops at the line limit too
+    limit = csv.field_size_limit(MAX_LINE_BYTES)
+    try:
+        with progress_bar(size, f"reading {Path(path).name}") as bar:
+            return _read_rows(args, csv.reader(_text_lines(path, bar, end)), end)
+    finally:
+        csv.field_size_limit(limit)  # the process's setting, as it was
+
+
+def _csv_error(path: str, reader, err: csv.Error) -> RecordingError:
+    if "new-line character" in str(err):
+        # lines end at \n: a lone \r (classic Mac line ends) is taken for a break inside a row
+        return RecordingError(f"{path}:{reader.line_num}: a line break (\\r) inside a row; lines must end with "
+                              "\\n or \\r\\n (a file with classic Mac line ends? convert them)")
+    return RecordingError(f"{path}:{reader.line_num}: cannot be read as CSV: {err}")
+
+
+def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+    path = args.foreign
     try:
         header = [h.strip() for h in next(reader)]
     except StopIteration:
         raise RecordingError(f"{path}:1: empty file, no header row") from None
+    except csv.Error as err:
+        raise _csv_error(path, reader, err) from None
     wanted = _wanted(args)
     index = {}
     for role, name in wanted.items():
         if name not in header:
             raise RecordingError(f"{path}:1: no column {name!r} in the header")
         index[role] = header.index(name)
-    values: dict[str, list] = {role: [] for role in wanted}
-    lines: list[int] = []
+    columns = {role: _Column(relative=role in ("time", "check")) for role in wanted}
+    lines = array("q")
     skipped = 0
-    for line, row in enumerate(reader, start=2):
+    last_cells = len(header)
+    rows = iter(reader)
+    while True:
+        try:
+            row = next(rows)
+        except StopIteration:
+            break
+        except csv.Error as err:
+            raise _csv_error(path, reader, err) from None
         if not row:
             continue
+        line = reader.line_num
+        last_cells = len(row)
         cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
         if not cells["time"] or not cells["acc"]:
             skipped += 1
             continue
         for role, cell in cells.items():
+            column = columns[role]
             if role == "hint":
-                values[role].append(_hint(cell, args, path, line))
+                column.values.append(_hint(cell, args, path, line))
+            elif not cell:
+                column.values.append(math.nan)
+            elif column.relative:
+                number = _number(cell, path, line, wanted[role])
+                if column.first is None:
+                    column.first = number
+                column.values.append(_float(number, path, line, wanted[role], minus=column.first))
             else:
-                values[role].append(_number(cell, path, line, wanted[role]) if cell else float("nan"))
+                column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
         lines.append(line)
-    return values, lines, skipped
+    if end["cut"] and last_cells < len(header):
+        # a logger killed mid-row (rows of fewer cells are fine elsewhere: other kinds of row)
+        raise RecordingError(f"{path}:{reader.line_num}: has {last_cells} cells, the header has {len(header)} "
+                             "(the last line is cut short: a truncated file?)")
+    return ({role: column.numbers() for role, column in columns.items()},
+            np.frombuffer(lines, dtype=np.int64) if lines else np.zeros(0, dtype=np.int64), skipped)
 
 
 def _retime(args, arrival_s: np.ndarray, lines: list[int]) -> Retiming:
@@ -238,7 +314,7 @@ def run(args: argparse.Namespace) -> int:
     if len(lines) < need:
         raise RecordingError(f"{args.foreign}: {len(lines)} rows with both {time_col!r} and {args.acc_col!r}; "
                              f"{'re-timing needs' if args.arrival_col else 'a recording needs'} at least {need}")
-    t_in = _seconds(values["time"], args.time_unit)
+    t_in = values["time"] * TIME_SCALES[args.time_unit]  # seconds since the first row
     if not args.arrival_col:  # arrival times are checked by the re-timing
         back = np.flatnonzero(np.diff(t_in) <= 0)
         if back.size:
@@ -270,11 +346,11 @@ def run(args: argparse.Namespace) -> int:
             "retimed_floor_max_ms": f"{timing.floor_s.max() * 1e3:.3f}",
         })
         if args.check_time_col:
-            empty = [line for line, v in zip(lines, values["check"]) if not isinstance(v, int) and math.isnan(v)]
-            if empty:
-                raise RecordingError(f"{args.foreign}:{empty[0]}: column {args.check_time_col!r}: empty cell "
+            empty = np.flatnonzero(np.isnan(values["check"]))
+            if empty.size:
+                raise RecordingError(f"{args.foreign}:{lines[empty[0]]}: column {args.check_time_col!r}: empty cell "
                                      "(the check needs a time in every row)")
-            err = timing_error(t_s, _seconds(values["check"], args.time_unit))
+            err = timing_error(t_s, values["check"] * TIME_SCALES[args.time_unit])
             notes.append(f"  against {args.check_time_col!r}: timing error max {err.max_s * 1e3:.2f} ms, "
                          f"RMS {err.rms_s * 1e3:.2f} ms, sample-spacing RMS {err.interval_rms_s * 1e3:.3f} ms "
                          f"(after removing a constant {err.offset_s:.4f} s)")

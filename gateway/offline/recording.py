@@ -139,7 +139,7 @@ def _error(path, line, column, what) -> RecordingError:
     return RecordingError(f"{where}: {what}")
 
 
-def _cell_text(cell: str) -> str:
+def cell_text(cell: str) -> str:
     return repr(cell if len(cell) <= 40 else cell[:40] + "…")
 
 
@@ -261,6 +261,60 @@ class _Validator:
             self._last_t = float(t[-1])
 
 
+# ---- CSV text in blocks of whole lines ---------------------------------------------------
+
+
+def line_blocks(file: str, name: str, offset: int = 0, first_line: int = 1):
+    """The file from byte `offset` (line `first_line`) as (bytes of whole lines, 1-based line
+    number of its first line, byte offset of its first byte), about BLOCK_BYTES at a time, the
+    tail without a final newline last. Memory follows the block, not the file. A line longer
+    than MAX_LINE_BYTES is a RecordingError naming `name` and the line. Also used by
+    `adxlgw import` for foreign CSV files."""
+    try:
+        fh = open(file, "rb")
+    except OSError as err:
+        raise RecordingError(f"{name}: cannot read: {err.strerror or err}") from err
+    with fh:
+        fh.seek(offset)
+        line = first_line
+        rest = b""
+        while True:
+            try:
+                data = fh.read(BLOCK_BYTES)
+            except OSError as err:
+                raise RecordingError(f"{name}: cannot read: {err.strerror or err}") from err
+            buf = rest + data if rest else data
+            if not data:
+                if buf:
+                    _check_line_lengths(buf, name, line)
+                    yield buf, line, offset
+                return
+            cut = buf.rfind(b"\n")
+            if cut < 0:
+                if len(buf) > MAX_LINE_BYTES:
+                    raise _error(name, line, None, f"line longer than {MAX_LINE_BYTES} bytes")
+                rest = buf
+                continue
+            block, rest = buf[:cut + 1], buf[cut + 1:]
+            _check_line_lengths(block, name, line)
+            yield block, line, offset
+            line += block.count(b"\n")
+            offset += len(block)
+
+
+def _check_line_lengths(block: bytes, name: str, first_line: int) -> None:
+    """Cheaply: only a block longer than the limit can hold a line longer than it."""
+    if len(block) > MAX_LINE_BYTES:
+        ends = np.flatnonzero(np.frombuffer(block, dtype=np.uint8) == 10)
+        if not block.endswith(b"\n"):
+            ends = np.append(ends, len(block))
+        lengths = np.diff(np.concatenate([[-1], ends])) - 1
+        if lengths.size and lengths.max() > MAX_LINE_BYTES:
+            k = int(np.argmax(lengths > MAX_LINE_BYTES))
+            raise _error(name, first_line + k, None,
+                         f"line of {int(lengths[k])} bytes: longer than {MAX_LINE_BYTES} bytes")
+
+
 # ---- sources ---------------------------------------------------------------------------
 
 
@@ -323,36 +377,7 @@ class CsvSource(RecordingSource):
         return int((self.size_bytes - self._data_offset) / self._bytes_per_row) + 1
 
     def _blocks(self):
-        """(bytes of whole lines, 1-based line number of its first line), then the tail."""
-        line = self._header_line + 1
-        offset = self._data_offset
-        try:
-            fh = open(self._file, "rb")
-        except OSError as err:
-            raise RecordingError(f"{self.path}: cannot read: {err.strerror or err}") from err
-        with fh:
-            fh.seek(offset)
-            rest = b""
-            while True:
-                try:
-                    data = fh.read(BLOCK_BYTES)
-                except OSError as err:
-                    raise RecordingError(f"{self.path}: cannot read: {err.strerror or err}") from err
-                buf = rest + data if rest else data
-                if not data:
-                    if buf:
-                        yield buf, line, offset
-                    return
-                cut = buf.rfind(b"\n")
-                if cut < 0:
-                    if len(buf) > MAX_LINE_BYTES:
-                        raise _error(self.path, line, None, f"line longer than {MAX_LINE_BYTES} bytes")
-                    rest = buf
-                    continue
-                block, rest = buf[:cut + 1], buf[cut + 1:]
-                yield block, line, offset
-                line += block.count(b"\n")
-                offset += len(block)
+        return line_blocks(self._file, self.path, self._data_offset, self._header_line + 1)
 
     def chunks(self, columns=None, progress=None):
         import pyarrow as pa
@@ -384,14 +409,8 @@ class CsvSource(RecordingSource):
                 progress.update(len(block))
 
     def _check_lines(self, block: bytes, first_line: int, offset: int) -> None:
-        """Line length and UTF-8, cheaply: a full scan only of blocks that can fail."""
-        if len(block) > MAX_LINE_BYTES:
-            ends = np.flatnonzero(np.frombuffer(block, dtype=np.uint8) == 10)
-            lengths = np.diff(np.concatenate([[-1], ends])) - 1
-            if lengths.size and lengths.max() > MAX_LINE_BYTES:
-                k = int(np.argmax(lengths > MAX_LINE_BYTES))
-                raise _error(self.path, first_line + k, None,
-                             f"line of {int(lengths[k])} bytes: longer than {MAX_LINE_BYTES} bytes")
+        """UTF-8, cheaply: a full decode only of blocks that are not plain ASCII (the line
+        length is checked by `line_blocks`)."""
         if not block.isascii():
             try:
                 block.decode("utf-8")
@@ -451,7 +470,7 @@ class CsvSource(RecordingSource):
         if first is not None:
             row, _, name, cell = first
             return _error(self.path, self._line_of_row(block, first_line, row), name,
-                          f"{_cell_text(cell)} is not a number")
+                          f"{cell_text(cell)} is not a number")
         return _error(self.path, f"{first_line}-{lines[-1][0] if lines else first_line}", None,
                       f"cannot be read: {str(err).splitlines()[0]}")
 
