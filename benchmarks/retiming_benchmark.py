@@ -28,6 +28,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.cli import main as adxlgw  # noqa: E402
+from gateway.core.evaluation import move_errors  # noqa: E402
 from gateway.offline.recording import HINT_COLUMN, read_recording  # noqa: E402
 
 LEIRIA = REPO / "datasets" / "leiria-robot"
@@ -52,22 +53,16 @@ def run(*args) -> tuple[int, str]:
 
 
 def worst_move_percent(recording: Path, estimate: Path) -> tuple[float, list[str]]:
-    """Per move between two rests of the hint column: |estimated − robot| displacement, % of the move."""
+    """Per move between two rests of the hint column (`evaluation.move_errors`, as the
+    estimation benchmark scores: from the end of one rest to the end of the next):
+    |estimated − robot| displacement, % of the move."""
     rec = read_recording(recording)
-    rest = rec.columns[HINT_COLUMN] == 1
-    ref = rec.columns["ref_pos_m"]
     pos = np.genfromtxt(estimate, delimiter=",", names=True, comments="#")["pos_m"]
-    edges = np.flatnonzero(np.diff(np.r_[0, rest.astype(np.int8), 0]))
-    rests = list(zip(edges[::2], edges[1::2]))  # (start, stop) of each rest
     worst, moves = 0.0, []
-    for (_, end), (start, _) in zip(rests, rests[1:]):
-        i, j = end - 1, start  # the last sample of one rest, the first of the next
-        d_ref, d_est = ref[j] - ref[i], pos[j] - pos[i]
-        if abs(d_ref) < MIN_MOVE_M:
-            continue
-        pct = 100.0 * abs(d_est - d_ref) / abs(d_ref)
+    for m in move_errors(pos, rec.columns["ref_pos_m"], rec.columns[HINT_COLUMN] == 1, min_move_m=MIN_MOVE_M):
+        pct = 100.0 * abs(m.error_m) / abs(m.ref_m)
         worst = max(worst, pct)
-        moves.append(f"{d_ref * 1e3:+.0f} mm: {pct:.1f} %")
+        moves.append(f"{m.ref_m * 1e3:+.0f} mm: {pct:.1f} %")
     return worst, moves
 
 
