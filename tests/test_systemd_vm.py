@@ -24,7 +24,7 @@ from tests.vmcan.harness import REPO_ROOT, VmResult, VmSettings, default_guest_e
 pytestmark = [pytest.mark.vm, pytest.mark.slow]
 
 REPORT = "systemd-report.json"
-# the whole VM run: ~6-8 min on this machine idle (docs/daemon.md); the harness kills it after this
+# the whole VM run: 5-7 min measured here under load (docs/daemon.md); the harness kills it after this
 VM_TIMEOUT_S = 1500.0
 START_TIMEOUT_S = 600  # the VM drop-in's TimeoutStartSec (emulated CPU: cold imports)
 WATCHDOG_S = 30  # the VM drop-in's WatchdogSec
