@@ -57,3 +57,27 @@ def test_a_board_that_cannot_start_is_a_device_error_not_a_wait():
 
     with pytest.raises(DeviceError, match="the emulated board did not start"):
         asyncio.run(asyncio.wait_for(start(), timeout=120))
+
+
+def test_sigterm_ends_the_board_cleanly_while_it_watches_stdin(tmp_path):
+    """systemd's stop sends SIGTERM to the whole cgroup, the board child included. Its
+    stdin watcher (a daemon thread) used to sit in sys.stdin.buffer.read1() holding the
+    BufferedReader's lock, so interpreter shutdown waited ~1 s for that lock and then
+    aborted ("Fatal Python error: _enter_buffered_busy", SIGABRT): 1.2 s per stop on this
+    machine, ten times that under qemu's emulated CPU."""
+    board = subprocess.Popen(
+        [sys.executable, "-m", "gateway.cli", "emulate", "--loop", "--no-wait", "--exit-with-stdin",
+         "--link", str(tmp_path / "board")],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert board.stdout.readline(), board.stderr.read()
+        time.sleep(0.5)
+        board.terminate()
+        board.wait(timeout=60)  # stdin still open: communicate() would close it, and EOF ends the watcher
+        err = board.stderr.read()
+    finally:
+        if board.poll() is None:
+            board.kill()
+            board.wait()
+    assert board.returncode == 0, err
+    assert "Fatal Python error" not in err, err

@@ -75,7 +75,7 @@ class _SerialOut:
 def _stop_at_end_of_stdin() -> None:
     """Block on stdin until its writer is gone (the parent closed it or died), then stop
     as SIGTERM would: the loop ends, the pty and its link are removed."""
-    while sys.stdin.buffer.read1(4096):
+    while os.read(sys.stdin.fileno(), 4096):
         pass
     os.kill(os.getpid(), signal.SIGTERM)
 

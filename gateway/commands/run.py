@@ -4,6 +4,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import os
+import sys
+from typing import NoReturn
 
 from gateway.config import Config, load_config
 from gateway.daemon.preflight import refuse_unrunnable
@@ -64,8 +67,24 @@ def serve(cfg: Config, reload) -> int:
         return asyncio.run(Gateway(cfg, reload=reload, view=view).run())
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> NoReturn:
     overrides = overrides_from(args)
     cfg = load_with_overrides(args.config, overrides)
     reload = (lambda: load_with_overrides(args.config, overrides)) if args.config else None
-    return serve(cfg, reload)
+    exit_now(serve(cfg, reload))
+
+
+def exit_now(code: int) -> NoReturn:
+    """End the process without the interpreter's teardown. The gateway has stopped by
+    now: ports and servers closed, state saved, "stopped" logged. What the teardown would
+    still do is collect and free every object of numpy, scipy, numba and pymodbus: 0.4-0.6 s
+    of a 0.6 s stop on this machine's CPU (SIGTERM to exit, measured in docs/daemon.md),
+    against the unit's TimeoutStopSec=2s, and ~10x that on a slow CPU. Only the log is
+    left to flush; nothing of ours is registered with atexit."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken stream: nothing more can be said on it
+            pass
+    os._exit(code)

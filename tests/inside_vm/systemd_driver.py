@@ -1,7 +1,7 @@
 """Runs as a service under the real systemd of tests/inside_vm/systemd_job.sh and drives
 the shipped unit the way an operator does: systemctl start, reload, stop; a Modbus
 client on one TCP connection; journalctl -p err; a board that falls silent. Writes what
-it saw as JSON (argv[1]); judges nothing itself (no host-side test judges it yet).
+it saw as JSON (argv[1]); judges nothing itself: tests/test_systemd_vm.py does, on the host.
 """
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ UNIT = "adxl-gateway"
 CONFIG = Path("/etc/adxl-gateway/gateway.toml")
 
 
-def run(*argv: str, timeout_s: float = 900) -> dict:
+def run(*argv: str, timeout_s: float = 900, tail: int = 4000) -> dict:
     started = time.monotonic()
     r = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)
-    return {"rc": r.returncode, "seconds": round(time.monotonic() - started, 3), "stdout": r.stdout[-4000:],
-            "stderr": r.stderr[-4000:]}
+    return {"rc": r.returncode, "seconds": round(time.monotonic() - started, 3), "stdout": r.stdout[-tail:],
+            "stderr": r.stderr[-tail:]}
 
 
 def show(*props: str) -> dict[str, str]:
@@ -92,6 +92,10 @@ def board_pid(main_pid: int) -> int | None:
     return None
 
 
+def watchdog_us() -> int:
+    return int(show("WatchdogTimestampMonotonic")["WatchdogTimestampMonotonic"])
+
+
 def main(report_path: Path) -> None:
     from drivers.published_values import StatusBits
 
@@ -99,74 +103,85 @@ def main(report_path: Path) -> None:
     try:
         report["start"] = run("systemctl", "start", UNIT)  # Type=notify: returns at READY=1
         report["start"].update(show("ActiveState", "SubState", "StatusText", "WatchdogUSec", "MainPID",
-                                    "TimeoutStartUSec"))
-        first = show("WatchdogTimestampMonotonic")["WatchdogTimestampMonotonic"]
-        time.sleep(1.2 * seconds(show("WatchdogUSec")["WatchdogUSec"]))  # a daemon that did not ping is restarted
+                                    "TimeoutStartUSec", "TimeoutStopUSec", "Environment"))
+        watchdog_s = seconds(show("WatchdogUSec")["WatchdogUSec"])
+        # pings only once samples flow; then one per WatchdogSec/2
+        first = wait_for(watchdog_us, 2 * watchdog_s) or 0
+        time.sleep(1.2 * watchdog_s)  # a daemon that did not ping in here is restarted
         later = show("WatchdogTimestampMonotonic", "NRestarts", "ActiveState")
-        report["watchdog_pings"] = {"first_us": int(first), "later_us": int(later["WatchdogTimestampMonotonic"]),
+        report["watchdog_pings"] = {"watchdog_s": watchdog_s, "first_us": first,
+                                    "later_us": int(later["WatchdogTimestampMonotonic"]),
                                     "restarts": int(later["NRestarts"]), "active": later["ActiveState"]}
 
+        # Under emulation the plain-Python gateway and the emulated board share a slow CPU:
+        # samples come with gaps, so the position is rarely VALID there (docs/daemon.md).
+        # What is checked is systemd's part: one TCP connection, kept across reloads.
         modbus = ModbusConnection()
-        wait_for(lambda: modbus.read_inputs(1, 1)[0] & StatusBits.VALID, 60)
-        before = modbus.read_inputs(1, 1)[0]
-        report["reload"] = run("systemctl", "reload", UNIT)
-        time.sleep(3)
-        after = modbus.read_inputs(1, 1)[0]  # on the same connection
-        report["reload"].update({"status_before": before, "status_after": after,
+        map_version = modbus.read_inputs(0, 1)[0]
+        report["reload"] = run("systemctl", "reload", UNIT)  # ExecReload: SIGHUP, returns at once
+        # the daemon's loop may take seconds to get to the signal here: wait for its word
+        reloaded = wait_for(lambda: journal_count("config reloaded") >= 1, 120)
+        after = modbus.read_inputs(1, 1)[0]  # on the same connection: ConnectionError if it was dropped
+        report["reload"].update({"logged": bool(reloaded), "status_after": after,
                                  "config_reloaded_bit": bool(after & StatusBits.CONFIG_RELOADED),
-                                 "same_connection": True, "restarts": int(show("NRestarts")["NRestarts"])})
+                                 "same_connection": modbus.read_inputs(0, 1)[0] == map_version,
+                                 "restarts": int(show("NRestarts")["NRestarts"]),
+                                 "main_pid": int(show("MainPID")["MainPID"])})
 
         good = CONFIG.read_text()
         CONFIG.write_text(good + "\n[modbus]\nbogus = 1\n")  # refused, logged as an error
         report["bad_reload"] = run("systemctl", "reload", UNIT)
-        time.sleep(3)
+        refused = wait_for(lambda: journal_count("reload refused") >= 1, 120)
         CONFIG.write_text(good)
-        report["bad_reload"]["still_serving"] = bool(modbus.read_inputs(1, 1)[0] & StatusBits.VALID)
+        report["bad_reload"].update({"logged": bool(refused),
+                                     "still_serving": modbus.read_inputs(0, 1)[0] == map_version,
+                                     "restarts": int(show("NRestarts")["NRestarts"]),
+                                     "main_pid": int(show("MainPID")["MainPID"]),
+                                     "reloads_applied": journal_count("config reloaded")})
         report["journal_err"] = run("journalctl", "-p", "err", "-u", UNIT, "-o", "cat", "--no-pager")["stdout"]
-        report["journal_info"] = run("journalctl", "-p", "info", "-u", UNIT, "-o", "cat", "--no-pager")["stdout"]
         modbus.sock.close()
 
-        report["stop"] = run("systemctl", "stop", UNIT)
+        # the board falls silent: SIGSTOP its process (the daemon's child with
+        # port = "emulated"); no samples, so no WATCHDOG=1, so systemd restarts the unit.
+        # Done before the stop so one cold start (minutes under emulation) is saved.
+        main_pid = int(show("MainPID")["MainPID"])
+        board = wait_for(lambda: board_pid(main_pid), 60)
+        report["silent_board"] = {"main_pid": main_pid, "board_pid": board}
+        if board:
+            pinged = watchdog_us()
+            report["silent_board"]["pinging_before"] = bool(wait_for(lambda: watchdog_us() > pinged, 2 * watchdog_s))
+            os.kill(board, signal.SIGSTOP)
+            stopped_at = time.monotonic()
+            restarted = wait_for(lambda: int(show("NRestarts")["NRestarts"]) >= 1, 4 * watchdog_s)
+            report["silent_board"].update({"restarted": bool(restarted),
+                                           "seconds": round(time.monotonic() - stopped_at, 1)})
+            back = wait_for(lambda: show("ActiveState", "SubState") == {"ActiveState": "active",
+                                                                         "SubState": "running"}, 600)
+            report["silent_board"]["back_after_s"] = round(time.monotonic() - stopped_at, 1) if back else None
+            report["silent_board"].update(show("NRestarts", "ActiveState", "MainPID"))
+            # samples flow again from the new board (and the stop below is from a running gateway)
+            pinged = watchdog_us()
+            report["silent_board"]["pinging_after"] = bool(wait_for(lambda: watchdog_us() > pinged, 2 * watchdog_s))
+
+        report["stop"] = run("systemctl", "stop", UNIT)  # returns once the unit is inactive
         report["stop"].update(show("ActiveState", "Result"))
         state = Path("/var/lib/adxl-gateway/state.json")
         report["state"] = {"path": str(state), "resolved": str(state.resolve()), "exists": state.exists(),
                            "content": json.loads(state.read_text()) if state.exists() else None}
-
-        report["restart_start"] = run("systemctl", "start", UNIT)
-        main_pid = int(show("MainPID")["MainPID"])
-        board = wait_for(lambda: board_pid(main_pid), 30)
-        report["silent_board"] = {"main_pid": main_pid, "board_pid": board}
-        if board:
-            wait_for(lambda: modbus_valid(), 60)
-            os.kill(board, signal.SIGSTOP)  # the board falls silent: no samples, so no WATCHDOG=1
-            stopped_at = time.monotonic()
-            restarted = wait_for(lambda: int(show("NRestarts")["NRestarts"]) >= 1, 60)
-            report["silent_board"].update({"restarted": bool(restarted),
-                                           "seconds": round(time.monotonic() - stopped_at, 1)})
-            wait_for(lambda: show("ActiveState")["ActiveState"] == "active", 90)
-            report["silent_board"].update(show("NRestarts", "ActiveState", "MainPID"))
-            report["silent_board"]["journal"] = run("journalctl", "-u", UNIT, "-o", "cat", "--no-pager")["stdout"]
         report["security"] = run("systemd-analyze", "security", "--no-pager", UNIT)
-        report["final_stop"] = run("systemctl", "stop", UNIT)
     except Exception:  # noqa: BLE001 — the report says what broke; the host test fails on it
         report["driver_error"] = traceback.format_exc()
     finally:
-        report["journal"] = run("journalctl", "-u", UNIT, "-o", "short-monotonic", "--no-pager")["stdout"]
+        report["journal"] = run("journalctl", "-u", UNIT, "-o", "short-monotonic", "--no-pager",
+                                tail=40000)["stdout"]
         report_path.write_text(json.dumps(report, indent=1))
         Path(str(report_path) + ".done").touch()
 
 
-def modbus_valid() -> bool:
-    from drivers.published_values import StatusBits
-
-    try:
-        conn = ModbusConnection()
-        try:
-            return bool(conn.read_inputs(1, 1)[0] & StatusBits.VALID)
-        finally:
-            conn.sock.close()
-    except OSError:
-        return False
+def journal_count(text: str) -> int:
+    out = subprocess.run(["journalctl", "-u", UNIT, "-o", "cat", "--no-pager"], capture_output=True, text=True,
+                         timeout=60).stdout
+    return out.count(text)
 
 
 if __name__ == "__main__":
