@@ -204,6 +204,15 @@ def main() -> None:
         v = cpu[name]
         print(f"  {name:44s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %   "
               f"wakeups {np.median(woken[name]):4.0f}/s")
+    if args.compare:
+        # the host's load moves all readers of one run together: each run's difference
+        # to this checkout's gateway is steadier than the medians side by side
+        here = np.array(cpu["gateway, default config"])
+        print("each checkout's gateway minus this one's (default config), per run:")
+        for name in names[-len(args.compare):]:
+            d = np.array(cpu[name]) - here
+            print(f"  {name:44s} median {np.median(d):+5.2f} points   range {d.min():+.2f}…{d.max():+.2f}   "
+                  f"({int(np.sum(d < 0))} of {len(d)} runs below)")
     probe_names = list(PROBES)
     _, outs, _ = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
     print("SamplePipeline.feed after each wakeup (µs per chunk, mean), and the same call on a second")
