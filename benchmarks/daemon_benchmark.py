@@ -203,10 +203,11 @@ finally:
 """
 
 
-def start_gateway(tmp: Path, link: str, port: int, min_interval_ms: int, sync: bool, instrumented: bool):
+def start_gateway(tmp: Path, link: str, port: int, min_interval_ms: int, sync: bool, instrumented: bool,
+                  max_connections: int = 64):
     config = tmp / "gw.toml"
     config.write_text(
-        f'[serial]\nport = "{link}"\n[modbus]\nport = {port}\n'
+        f'[serial]\nport = "{link}"\n[modbus]\nport = {port}\nmax_connections = {max_connections}\n'
         f'[can]\ninterface = "virtual"\nchannel = "bench"\nmin_interval_ms = {min_interval_ms}\n'
         f'sync_to_updates = {"true" if sync else "false"}\n'
         f'[state]\npath = "{tmp / "state.json"}"\n[service]\nlog_level = "warning"\n'
@@ -287,7 +288,10 @@ def one_run(seconds: float, min_interval_ms: int, instrumented: bool, clients: i
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-bench-"))
     pty = PtyPort(tmp / "board")
     port = free_port()
-    gw, trace = start_gateway(tmp, str(pty.link), port, min_interval_ms, sync, instrumented)
+    # the clients, the latency poller and a spare: above 64 (the default modbus.max_connections)
+    # the server would refuse the load rather than serve it
+    gw, trace = start_gateway(tmp, str(pty.link), port, min_interval_ms, sync, instrumented,
+                              max_connections=max(64, clients + 2))
     if not pty.wait_for_reader(30):
         raise SystemExit("gateway never opened the board port")
     frames = board_frames(seconds)

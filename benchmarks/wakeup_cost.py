@@ -22,7 +22,10 @@ now in cache).
 
 With `--compare DIR` (a checkout of another commit, e.g. `git worktree add /tmp/old
 HEAD~5`), that checkout's gateway runs beside this one's with its default config, in the
-same runs: a change measured side by side with the code before it.
+same runs: a change measured side by side with the code before it. `--compare` may be
+given several times (several commits, all in the same runs); `--gateways-only` leaves out
+the thread reader and the gateways woken per frame, so that more checkouts fit on the
+machine's cores beside the floor.
 """
 from __future__ import annotations
 
@@ -171,15 +174,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=8.0)
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--compare", metavar="DIR", help="another checkout whose gateway runs beside this one's")
+    ap.add_argument("--compare", metavar="DIR", action="append", default=[],
+                    help="another checkout whose gateway runs beside this one's (may be repeated)")
+    ap.add_argument("--gateways-only", action="store_true",
+                    help="only the floor and the gateways with their default config")
     args = ap.parse_args()
     variants = dict(VARIANTS)
-    if args.compare:
-        other = str(Path(args.compare).resolve())
-        variants[f"gateway @ {args.compare}, default config"] = (
-            lambda link: GATEWAY.format(root=other, link=link, can=True, batch=5))
+    if args.gateways_only:
+        variants = {name: code for name, code in variants.items()
+                    if name in ("asyncio reader (the floor)", "gateway, default config")}
+    for other in args.compare:
+        variants[f"gateway @ {other}, default config"] = (
+            lambda link, root=str(Path(other).resolve()): GATEWAY.format(root=root, link=link, can=True, batch=5))
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
-          f"--repeat {args.repeat}" + (f" --compare {args.compare}" if args.compare else ""))
+          f"--repeat {args.repeat}" + (" --gateways-only" if args.gateways_only else "")
+          + "".join(f" --compare {other}" for other in args.compare))
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
     names = list(variants)
     cpu = {name: [] for name in names}
@@ -195,6 +204,15 @@ def main() -> None:
         v = cpu[name]
         print(f"  {name:44s} median {np.median(v):4.1f} %   range {min(v):.1f}–{max(v):.1f} %   "
               f"wakeups {np.median(woken[name]):4.0f}/s")
+    if args.compare:
+        # the host's load moves all readers of one run together: each run's difference
+        # to this checkout's gateway is steadier than the medians side by side
+        here = np.array(cpu["gateway, default config"])
+        print("each checkout's gateway minus this one's (default config), per run:")
+        for name in names[-len(args.compare):]:
+            d = np.array(cpu[name]) - here
+            print(f"  {name:44s} median {np.median(d):+5.2f} points   range {d.min():+.2f}…{d.max():+.2f}   "
+                  f"({int(np.sum(d < 0))} of {len(d)} runs below)")
     probe_names = list(PROBES)
     _, outs, _ = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
     print("SamplePipeline.feed after each wakeup (µs per chunk, mean), and the same call on a second")

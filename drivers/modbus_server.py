@@ -928,23 +928,23 @@ class _GatewayRequestHandler(ServerRequestHandler):
         super().server_send(pdu, addr)
 
 
-class _TcpServer(ModbusTcpServer):
+class _GatewayServer:
+    """What the TCP and the RTU server add to pymodbus' own: the gateway they serve and
+    its request handler for every connection (mixed in before the pymodbus class)."""
+
     is_rtu = False
 
     def __init__(self, gateway: ModbusServer, **kwargs: object) -> None:
         self.gateway = gateway
-        super().__init__(**kwargs)  # type: ignore[arg-type]
+        super().__init__(**kwargs)  # type: ignore[call-arg]
 
     def callback_new_connection(self) -> _GatewayRequestHandler:
         return _GatewayRequestHandler(self)
 
 
-class _SerialServer(ModbusSerialServer):
+class _TcpServer(_GatewayServer, ModbusTcpServer):
+    is_rtu = False
+
+
+class _SerialServer(_GatewayServer, ModbusSerialServer):
     is_rtu = True
-
-    def __init__(self, gateway: ModbusServer, **kwargs: object) -> None:
-        self.gateway = gateway
-        super().__init__(**kwargs)  # type: ignore[arg-type]
-
-    def callback_new_connection(self) -> _GatewayRequestHandler:
-        return _GatewayRequestHandler(self)

@@ -60,14 +60,14 @@ def test_standstill_counts_carry_sensor_noise_on_top_of_timer_quantisation():
 
 
 def test_timer_counts_by_hand():
-    from gateway.core.simulator import _timer_counts
+    from gateway.core.simulator import timer_counts
 
     class Fixed:
         def uniform(self):
             return 0.0
 
     edges = np.array([0.0, 2.0, 4.5])  # seconds, tick rate 10 Hz
-    t1x, t1y, t2 = _timer_counts(edges, np.array([0.5, 0.26]), np.array([0.04, 1.0]), 10.0, Fixed())
+    t1x, t1y, t2 = timer_counts(edges, np.array([0.5, 0.26]), np.array([0.04, 1.0]), 10.0, Fixed())
     assert t2.tolist() == [20, 25]
     assert t1x.tolist() == [10, 6]  # floor(2.0 + 0.26·2.5 = 2.65 s → 26) − 20
     assert t1y.tolist() == [0, 25]

@@ -149,7 +149,7 @@ def filtered_white_noise(rng: np.random.Generator, n: int, period_s: float, sens
     return y
 
 
-def _timer_counts(edges_s: np.ndarray, duty_x, duty_y, tick_hz: float, rng: np.random.Generator):
+def timer_counts(edges_s: np.ndarray, duty_x, duty_y, tick_hz: float, rng: np.random.Generator):
     """8051 capture: each edge is latched as floor(t·f + phase); T1, T2 are differences of latches.
 
     Because T2 counts are differences of successive latches, their sum telescopes: the
@@ -201,7 +201,7 @@ def simulate(
     for sensed, axis in ((acc_x_g, sensor.x), (acc_y_g, sensor.y)):
         sensed = np.clip(sensed, -sensor.range_g, sensor.range_g)
         duties.append(0.5 + 0.125 * (1.0 + axis.sensitivity_error_frac) * sensed)
-    t1x, t1y, t2 = _timer_counts(edges_s, duties[0], duties[1], sensor.tick_hz, ctx.rng("timer"))
+    t1x, t1y, t2 = timer_counts(edges_s, duties[0], duties[1], sensor.tick_hz, ctx.rng("timer"))
 
     latency = ctx.rng("host").exponential(host.latency_mean_s, n)
     t_host_s = edges_s[1:] + host.frame_time_s + latency

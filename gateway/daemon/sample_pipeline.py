@@ -74,14 +74,19 @@ _compiled_seq_step = jit(seq_step)
 
 
 @jit
-def run_samples(buf, pos, last_seq, st, kstate, prm):
+def run_samples(buf, pos, last_seq, st, prm, x, P, misc, ring_z, ring_ok, snap, gain, out):
     """The run of whole, CRC-valid SAMPLE frames from `buf[pos]` on, each through
     decoding, continuity, timing, conversion and one estimator step.
+
+    The estimator's `KernelState` comes as its eight arrays (`*state`, in its field
+    order) and is put together here: numba's dispatcher types plain arrays in C from a
+    cache, a named tuple of them more slowly, and this call is made at every wakeup.
 
     Returns (end, samples, last_seq, lost, gaps, repeats, backwards) as
     `SampleSink.take_samples`; the
     timeline in `st` moves on, the run's results are in its R_* slots.
     """
+    kstate = K.KernelState(x, P, misc, ring_z, ring_ok, snap, gain, out)
     timed = st[S_TIMED] > 0.0
     next_t = st[S_NEXT_T]
     last_period = st[S_LAST_PERIOD]
@@ -234,8 +239,8 @@ class SamplePipeline:
         # first sample of the board
         probe = RealtimeEstimator(settings)
         # (a read-only array: what np.frombuffer gives take_samples; another type compiles anew)
-        run_samples(np.frombuffer(b"", np.uint8) if JIT_ENABLED else b"", 0, -1, np.zeros(N_SLOTS), probe.state,
-                    probe.params)
+        run_samples(np.frombuffer(b"", np.uint8) if JIT_ENABLED else b"", 0, -1, np.zeros(N_SLOTS), probe.params,
+                    *probe.state)
 
     # ---------------------------------------------------------------- input --
     def feed(self, data: bytes | bytearray | memoryview) -> ChunkResult:
@@ -255,7 +260,7 @@ class SamplePipeline:
             buf = self._array
         st = self._st
         end, taken, last_seq, lost_total, gaps, repeats, backwards = run_samples(
-            buf, pos, last_seq, st, self.estimator.state, self.estimator.params)
+            buf, pos, last_seq, st, self.estimator.params, *self.estimator.state)
         self._latest = None
         (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:N_SLOTS].tolist()
         c = self.counters
