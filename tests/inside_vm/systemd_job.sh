@@ -66,6 +66,19 @@ UNIT
         ;;
 esac
 
+# The venv (and the package, installed editable) live in this checkout, wherever it was
+# cloned: under /tmp or /var/tmp the unit's PrivateTmp hides it, under /root or /home
+# ProtectHome does — a fresh clone in /tmp could not even exec the daemon (no journal line).
+case "$repo" in
+    /tmp/*|/var/tmp/*|/root/*|/home/*)
+        cat >/etc/systemd/system/adxl-gateway.service.d/checkout-in-a-hidden-tree.conf <<UNIT
+[Service]
+ProtectHome=tmpfs
+BindReadOnlyPaths=$repo
+UNIT
+        ;;
+esac
+
 cat >/etc/systemd/system/adxl-vmtest.target <<UNIT
 [Unit]
 Description=adxl-gateway under systemd: the test
