@@ -66,12 +66,13 @@ UNIT
         ;;
 esac
 
-# The venv (and the package, installed editable) live in this checkout, wherever it was
-# cloned: under /tmp or /var/tmp the unit's PrivateTmp hides it, under /root or /home
-# ProtectHome does — a fresh clone in /tmp could not even exec the daemon (no journal line).
+# The venv (and the package, installed editable) live in this checkout. Under /root or
+# /home ProtectHome hides it: shown read-only, like the Python tree above. (Under /tmp or
+# /var/tmp nothing can show it: DynamicUser implies a private /tmp, and a bind mount from
+# there fails with 226/NAMESPACE — tests/test_systemd_vm.py refuses such a checkout.)
 case "$repo" in
-    /tmp/*|/var/tmp/*|/root/*|/home/*)
-        cat >/etc/systemd/system/adxl-gateway.service.d/checkout-in-a-hidden-tree.conf <<UNIT
+    /root/*|/home/*)
+        cat >/etc/systemd/system/adxl-gateway.service.d/checkout-in-home.conf <<UNIT
 [Service]
 ProtectHome=tmpfs
 BindReadOnlyPaths=$repo
