@@ -132,6 +132,11 @@ def test_kill_9_during_saves_leaves_a_valid_state_and_the_next_load_cleans_up(tm
         process = subprocess.Popen([sys.executable, "-c", SAVER, str(path)], stdout=subprocess.PIPE,
                                    cwd=Path(__file__).resolve().parent.parent)
         assert process.stdout.readline() == b"saving\n"
+        # the kill must land among the saves, not before the first one has finished: on a
+        # loaded machine 50 ms after "saving" the file did not exist yet (a CI run failed so)
+        deadline = time.monotonic() + 30
+        while not path.exists() and time.monotonic() < deadline:
+            time.sleep(0.005)
         time.sleep(0.05 + 0.03 * attempt)
         os.kill(process.pid, signal.SIGKILL)
         process.wait(5)
