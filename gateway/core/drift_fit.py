@@ -8,7 +8,7 @@ standstill and calls the model adequate when what remains is white. Here:
   correlation, so its residual can be white if the model is right;
 - parameter standard deviations come from the fit's covariance (scaled by the residual
   variance: curve_fit's absolute_sigma=False);
-- whiteness: Ljung–Box on the block residual (numpy + scipy.stats.chi2). The full-rate
+- whiteness: Ljung–Box on the block residual (numpy + the χ² tail as scipy.special.gammaincc). The full-rate
   residual is never white — the sensor's own CX filter colours it (lag-1 ≈ 0.5) — so
   whiteness is judged at the block rate, and the full-rate lag-1 autocorrelation is
   reported beside it;
@@ -27,8 +27,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import curve_fit
-from scipy.stats import chi2
+from scipy.special import gammaincc
 
 from gateway.core.drift_model import DriftModel, drift_g
 
@@ -145,7 +144,8 @@ def ljung_box(x, lags: int | None = None) -> LjungBox:
     h = lags if lags is not None else min(20, n // 5)
     rho = autocorrelation(x, h)[1:]
     q = n * (n + 2) * float(np.sum(rho**2 / (n - np.arange(1, h + 1))))
-    return LjungBox(statistic=q, lags=h, p_value=float(chi2.sf(q, h)), n=n)
+    # chi2.sf(q, h), without importing scipy.stats (see the import)
+    return LjungBox(statistic=q, lags=h, p_value=float(gammaincc(0.5 * h, 0.5 * q)), n=n)
 
 
 def octave_taus(n: int, max_fraction: float = 0.25) -> np.ndarray:
@@ -261,6 +261,10 @@ def fit_drift(t_s, acc_g, period_s: float | None = None, block_s: float = 1.0) -
     first, last = float(np.mean(bm[: max(3, bm.size // 20)])), float(np.mean(bm[-max(3, bm.size // 20):]))
     p0 = (last - first, first, span / 5.0)
     bounds = ([-np.inf, -np.inf, max(period, 1e-6)], [np.inf, np.inf, 100.0 * span])
+    # imported here: the daemon imports this module (noise terms) but never fits, and
+    # scipy.optimize would add to its start
+    from scipy.optimize import curve_fit
+
     params, cov = curve_fit(_drift_curve, t_rel, bm, p0=p0, bounds=bounds, maxfev=20000)
     c1, c2, time_constant = (float(v) for v in params)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
