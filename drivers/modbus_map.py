@@ -420,6 +420,32 @@ def encode_rows(
     return clamped_any
 
 
+class ServerRowEncoder:
+    """Writes SERVER_ROWS into an image, encoding a row again only when its value changed.
+
+    The server answers every read from one image; between two reads usually only the
+    request counter moves, and encoding all of the server's rows per request was a fifth
+    of the gateway's CPU with 50 polling clients. `diagnostics` is anything with the
+    fields of ServerDiagnostics (the server passes its live counters, not a copy).
+    """
+
+    def __init__(self, word_order: WordOrder) -> None:
+        self._word_order = word_order
+        self._rows = tuple((r, r.source.removeprefix("server.")) for r in SERVER_ROWS)
+        self._last: list[object] = [None] * len(self._rows)
+
+    def write(self, words: list[int], diagnostics: object, *, all_rows: bool = False) -> None:
+        """Bring the server's rows in `words` up to date; `all_rows` after `words` was
+        replaced by a new image (whose server rows are not these)."""
+        last = self._last
+        for i, (register, field) in enumerate(self._rows):
+            value = getattr(diagnostics, field)
+            if all_rows or value != last[i]:
+                encoded, _ = encode_register(register, value, self._word_order)
+                words[register.address : register.address + register.words] = encoded
+                last[i] = value
+
+
 def encode_input_registers(
     values: PublishedValues,
     diagnostics: ServerDiagnostics = ServerDiagnostics(),

@@ -61,6 +61,7 @@ from pymodbus.exceptions import ModbusIOException
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.pdu.mei_message import ReadDeviceInformationRequest, ReadDeviceInformationResponse
+from pymodbus.pdu.register_message import ReadInputRegistersResponse
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 from pymodbus.simulator import DataType, SimData, SimDevice
@@ -74,12 +75,10 @@ from .modbus_map import (
     HOLDING_SIZE,
     INPUT_SIZE,
     MAP_VERSION,
-    SERVER_ROWS,
     CommandResult,
-    ServerDiagnostics,
+    ServerRowEncoder,
     WordOrder,
     encode_input_registers,
-    encode_rows,
     string32_complaint,
 )
 from .modbus_ports import RtuPortProblem, probe_rtu_port, tcp_listen_problem
@@ -270,6 +269,37 @@ class ModbusCounters:
     rtu_open_failures: int = 0
 
 
+_COUNTER_FIELDS = tuple(f.name for f in dataclasses.fields(ModbusCounters))
+
+
+@dataclass(slots=True)
+class _Tally:
+    """The server's live numbers: ModbusCounters' fields and the rest of ServerDiagnostics'.
+
+    Mutable: bumped per request (a new frozen snapshot per request cost more than the
+    request's own handling); `ModbusServer.counters` hands out frozen copies."""
+
+    requests: int = 0
+    exceptions: int = 0
+    rejected_writes: int = 0
+    clients_connected: int = 0
+    connections_total: int = 0
+    commands_done: int = 0
+    commands_declined: int = 0
+    commands_failed: int = 0
+    rejected_frames: int = 0
+    refused_connections: int = 0
+    closed_connections: int = 0
+    accept_errors: int = 0
+    rtu_open_failures: int = 0
+    command_counter: int = 0
+    command_result: CommandResult = CommandResult.NONE
+    version_major: int = 0
+    version_minor: int = 0
+    version_patch: int = 0
+    device_name: str = ""
+
+
 class ModbusServer:
     """Serves the register map over Modbus TCP and, if configured, Modbus RTU.
 
@@ -292,10 +322,14 @@ class ModbusServer:
         self._priority_networks = config.priority_networks()
         self.identity = DeviceIdentity(device_name=config.device_name, map_version=MAP_VERSION)
         self._version = version_numbers(self.identity.version)
-        self._counters = ModbusCounters()
-        self._command_counter = 0
-        self._command_result = CommandResult.NONE
+        major, minor, patch = self._version
+        self._tally = _Tally(version_major=major, version_minor=minor, version_patch=patch,
+                             device_name=config.device_name)
+        # What a read of the input table answers: the newest snapshot's image with the
+        # server's rows written over it (by _server_rows, only those that changed).
         self._image: list[int] = encode_input_registers(NOTHING_PUBLISHED, word_order=config.word_order)
+        self._server_rows = ServerRowEncoder(config.word_order)
+        self._server_rows.write(self._image, self._tally, all_rows=True)
         self._pending: ValuesSource | None = None
         self._device_context: SimDevice | None = None
         self._tcp: _TcpServer | None = None
@@ -323,7 +357,33 @@ class ModbusServer:
 
     @property
     def counters(self) -> ModbusCounters:
-        return self._counters
+        t = self._tally
+        return ModbusCounters(**{name: getattr(t, name) for name in _COUNTER_FIELDS})
+
+    def input_registers(self, address: int, count: int) -> list[int] | ExcCodes:
+        """The words a read of `count` input registers from `address` answers (Modbus
+        function 04), or the exception code for a range outside the table.
+
+        The newest snapshot (encoded here, on the first read after `update`) with the
+        server's own rows as they are now; input reads never go through pymodbus's
+        datastore (the hot request: its per-register checks and a copy of the whole
+        table per read cost as much as the rest of the request).
+        """
+        if address < 0 or count < 1 or address + count > INPUT_SIZE:
+            return ExcCodes.ILLEGAL_ADDRESS
+        if self._before_read is not None:
+            self._before_read()
+        image = self._image
+        if self._pending is not None:
+            image = self._image = encode_input_registers(current(self._pending), word_order=self.config.word_order)
+            self._pending = None
+            self._server_rows.write(image, self._tally, all_rows=True)
+        else:
+            self._server_rows.write(image, self._tally)
+        words = image[address : address + count]
+        if self._rtu_down and address <= _STATUS_ADDRESS < address + count:
+            words[_STATUS_ADDRESS - address] |= int(StatusBits.MODBUS_RTU_DOWN)
+        return words
 
     @property
     def tcp_port(self) -> int | None:
@@ -553,30 +613,10 @@ class ModbusServer:
             action=self._on_register_access,
         )
 
-    def _diagnostics(self) -> ServerDiagnostics:
-        c = self._counters
-        major, minor, patch = self._version
-        return ServerDiagnostics(
-            requests=c.requests,
-            exceptions=c.exceptions,
-            rejected_writes=c.rejected_writes,
-            clients_connected=c.clients_connected,
-            command_counter=self._command_counter,
-            command_result=self._command_result,
-            rejected_frames=c.rejected_frames,
-            refused_connections=c.refused_connections,
-            closed_connections=c.closed_connections,
-            version_major=major,
-            version_minor=minor,
-            version_patch=patch,
-            device_name=self.config.device_name,
-        )
-
     def _bump(self, **deltas: int) -> None:
-        c = self._counters
-        self._counters = dataclasses.replace(
-            c, **{name: getattr(c, name) + delta for name, delta in deltas.items()}
-        )
+        t = self._tally
+        for name, delta in deltas.items():
+            setattr(t, name, getattr(t, name) + delta)
 
     def _refusal(self, function_code: int, handler: _GatewayRequestHandler) -> ExcCodes | None:
         """Why this request must not reach the datastore, or None."""
@@ -613,24 +653,10 @@ class ModbusServer:
         """pymodbus SimDevice action: called before every datastore access.
 
         `address` is the request's start address, `current_registers` pymodbus's list
-        for the whole table (starting at address 0), `set_values` None for reads.
+        for the whole table (starting at address 0), `set_values` None for reads. Only
+        the holding table comes here: input reads are answered by `input_registers`.
         """
-        del start_address, count
-        if function_code == READ_INPUT:
-            # One slice assignment from the current image, then the live server rows;
-            # no await until pymodbus slices the answer out of this list.
-            if self._before_read is not None:
-                self._before_read()
-            if self._pending is not None:
-                self._image = encode_input_registers(current(self._pending), word_order=self.config.word_order)
-                self._pending = None
-            current_registers[0:INPUT_SIZE] = self._image
-            encode_rows(
-                SERVER_ROWS, current_registers, NOTHING_PUBLISHED, self._diagnostics(), self.config.word_order
-            )
-            if self._rtu_down:
-                current_registers[_STATUS_ADDRESS] |= int(StatusBits.MODBUS_RTU_DOWN)
-            return None
+        del function_code, start_address, count
         if set_values is None:
             return None  # holding read: command registers rest at 0
         return self._write_commands(address, current_registers, [int(v) for v in set_values])
@@ -661,8 +687,8 @@ class ModbusServer:
             except Exception:  # the daemon's bug must not take the server down
                 log.exception("on_command(%s) from %s raised", command.name, source)
                 result = CommandResult.FAILED
-        self._command_counter += 1
-        self._command_result = result
+        self._tally.command_counter += 1
+        self._tally.command_result = result
         self._bump(
             commands_done=int(result is CommandResult.DONE),
             commands_declined=int(result is CommandResult.DECLINED),
@@ -670,6 +696,15 @@ class ModbusServer:
         )
         log.info("Modbus command %s from %s: %s", command.name, source, result.name)
         return result
+
+
+class _InputRegistersResponse(ReadInputRegistersResponse):
+    """pymodbus's response with the words packed in one call (its encode packs one
+    register at a time, growing a bytes object: a measurable share of a 67-word read)."""
+
+    def encode(self) -> bytes:
+        count = len(self.registers)
+        return struct.pack(f">B{count}H", 2 * count, *self.registers)
 
 
 def _clear_registers(registers: list[int]) -> None:
@@ -900,6 +935,8 @@ class _GatewayRequestHandler(ServerRequestHandler):
         refusal = self.gateway._refusal(pdu.function_code, self)
         if refusal is not None:
             response: ModbusPDU = ExceptionResponse(pdu.function_code, refusal)
+        elif pdu.function_code == READ_INPUT:
+            response = self._read_input(pdu)
         elif pdu.function_code == ENCAPSULATED_INTERFACE:
             if isinstance(pdu, ReadDeviceInformationRequest):
                 response = self.gateway._identification(pdu)
@@ -917,6 +954,16 @@ class _GatewayRequestHandler(ServerRequestHandler):
         response.transaction_id = pdu.transaction_id
         response.dev_id = pdu.dev_id
         self.server_send(response, None)
+
+    def _read_input(self, pdu: ModbusPDU) -> ModbusPDU:
+        try:
+            words = self.gateway.input_registers(pdu.address, pdu.count)
+        except Exception as exc:  # a bug encoding the image answers 04, the server lives on
+            log.error("Modbus request %s failed: %s\n%s", pdu, exc, traceback.format_exc())
+            return ExceptionResponse(pdu.function_code, ExcCodes.DEVICE_FAILURE)
+        if isinstance(words, ExcCodes):
+            return ExceptionResponse(pdu.function_code, words)
+        return _InputRegistersResponse(registers=words)
 
     def server_send(self, pdu: ModbusPDU | None, addr: tuple | None) -> None:
         if pdu is None or self._closing or self.transport is None:

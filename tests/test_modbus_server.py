@@ -144,6 +144,34 @@ def test_every_input_register_reads_back_the_published_values(order: WordOrder) 
     run(scenario())
 
 
+def test_a_read_of_part_of_the_table_answers_that_part_of_the_same_image() -> None:
+    requests_row = BY_NAME["MODBUS_REQUESTS"]
+
+    async def scenario() -> None:
+        async with serving(tcp_config()) as server:
+            async with tcp_client(server.tcp_port) as client:
+                whole = await read_table(client)
+                rng = random.Random(12)
+                for n in range(2, 40):
+                    address = rng.randrange(INPUT_SIZE)
+                    count = rng.randint(1, INPUT_SIZE - address)
+                    response = await client.read_input_registers(address, count=count, device_id=1)
+                    assert not response.isError(), (address, count)
+                    part = list(response.registers)
+                    assert len(part) == count
+                    for offset, word in enumerate(part):
+                        at = address + offset
+                        if requests_row.address <= at < requests_row.address + requests_row.words:
+                            continue
+                        assert word == whole[at], (address, count, at)
+                    # the request counter in the answer counts this request
+                    if address <= requests_row.address and requests_row.address + 2 <= address + count:
+                        i = requests_row.address - address
+                        assert (part[i] << 16 | part[i + 1]) == n, (address, count)
+
+    run(scenario())
+
+
 def test_values_given_as_a_function_are_built_only_when_a_client_reads() -> None:
     """update() with a function (what the daemon does per sample): called at the next
     read, once per update however many reads follow, never without a read."""
