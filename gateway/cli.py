@@ -16,22 +16,22 @@ from gateway.log_setup import configure_logging, error_prefix
 
 log = logging.getLogger("adxlgw")
 
-# subcommand modules in the order `adxlgw --help` lists them
-COMMAND_MODULES = (
-    "demo",
-    "run",
-    "simulate",
-    "emulate",
-    "record",
-    "import_csv",
-    "fit_drift",
-    "estimate",
-    "diagnose",
-    "config_cmd",
-    "regmap",
-    "dbc",
-    "install_files",
-)
+# subcommand → its module, in the order `adxlgw --help` lists them
+COMMAND_MODULES = {
+    "demo": "demo",
+    "run": "run",
+    "simulate": "simulate",
+    "emulate": "emulate",
+    "record": "record",
+    "import": "import_csv",
+    "fit-drift": "fit_drift",
+    "estimate": "estimate",
+    "diagnose": "diagnose",
+    "config": "config_cmd",
+    "regmap": "regmap",
+    "dbc": "dbc",
+    "install-files": "install_files",
+}
 
 
 def version() -> str:
@@ -41,7 +41,20 @@ def version() -> str:
         return "unknown (not installed)"
 
 
-def build_parser() -> argparse.ArgumentParser:
+def chosen_command(argv: list[str]) -> str | None:
+    """The subcommand named on the command line, if it is one of ours (options before it
+    take no values)."""
+    for arg in argv:
+        if not arg.startswith("-"):
+            return arg if arg in COMMAND_MODULES else None
+    return None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every subcommand, or with `only` of that one: each subcommand's
+    module imports what it needs (the simulator, scipy.stats, the diagnosis…), and the
+    daemon started by systemd — after a crash too, while a PLC sees no answer — should
+    not wait for the offline tools' imports (about half a second)."""
     parser = argparse.ArgumentParser(
         prog="adxlgw",
         description="ADXL202/8051 accelerometer gateway: distance and velocity over Modbus and CAN.",
@@ -49,9 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     parser.add_argument("--version", action="version", version=f"adxlgw {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMAND_MODULES:
-        module = importlib.import_module(f"gateway.commands.{name}")
-        module.add_parser(sub)
+    for command, name in COMMAND_MODULES.items():
+        if only is None or command == only:
+            importlib.import_module(f"gateway.commands.{name}").add_parser(sub)
     return parser
 
 
@@ -68,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     # logging first: the subcommands' imports may already have something to say
     configure_logging(sys.stderr)
     warn_if_not_compiled()
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(only=chosen_command(argv))
     args = parser.parse_args(argv)
     if args.verbose:
         logging.getLogger().setLevel(logging.DEBUG)
