@@ -201,6 +201,16 @@ def test_a_rest_without_noise_is_refused_in_one_line_not_a_traceback(tmp_path, m
     assert "the rest is constant" in r.stderr and "data-sheet values are used" in r.stderr
 
 
+@pytest.mark.parametrize("method", ["realtime", "smoothed"])
+def test_a_rest_quantised_coarser_than_its_noise_is_a_rest(tmp_path, method):
+    # 2 mg of noise quantised to 10 mg: the 2 s rest is one value with a rare one-step
+    # flicker, which was taken for motion ("the recording moves after 0.211 s", exit 2)
+    path = hostile.quiet_rest(tmp_path / "q.csv", step_mg=10.0)
+    r = adxlgw("estimate", path, "--method", method, "--out", tmp_path / "e.csv")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert (tmp_path / "e.csv").exists()
+
+
 def test_a_file_of_one_sample_is_refused_in_one_line(tmp_path):
     # the streamed estimate took its settings from a first chunk of one row: the sample
     # period of one sample was NaN, a traceback (exit 1)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MOTION_RUN = 3  # samples in a row off the rest that end it (see find_initial_rest)
 MAD_TO_SIGMA = 1.4826  # σ of a normal distribution from its median absolute deviation
 
 
@@ -48,7 +49,14 @@ def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
         sigma = float(np.std(head)) or 1e-12
     away = ok & (np.abs(a - centre) > k_sigma * sigma)
     away[:start] = False
-    moving = np.flatnonzero(away)
+    # Motion lasts: the rest ends at the first of MOTION_RUN samples in a row off the rest.
+    # A lone sample off it is not motion — a logger that quantises coarser than the noise
+    # (10 mg) shows a still rest as one value with a one-step flicker now and then, and
+    # that flicker, taken for motion 0.2 s into a 2 s rest, refused the recording.
+    run = away[: a.size - MOTION_RUN + 1].copy()
+    for lag in range(1, MOTION_RUN):
+        run &= away[lag : a.size - MOTION_RUN + 1 + lag]
+    moving = np.flatnonzero(run)
     end = int(moving[0]) if moving.size else a.size
     stop = end - int(round(guard_s / period_s)) if moving.size else end
     if stop - start < n_min:
