@@ -76,6 +76,7 @@ from .modbus_map import (
     INPUT_SIZE,
     MAP_VERSION,
     CommandResult,
+    ServerDiagnostics,
     ServerRowEncoder,
     WordOrder,
     encode_input_registers,
@@ -272,32 +273,17 @@ class ModbusCounters:
 _COUNTER_FIELDS = tuple(f.name for f in dataclasses.fields(ModbusCounters))
 
 
-@dataclass(slots=True)
-class _Tally:
-    """The server's live numbers: ModbusCounters' fields and the rest of ServerDiagnostics'.
+def _tally_fields() -> list[tuple[str, object, dataclasses.Field]]:
+    counters = {f.name: f for f in dataclasses.fields(ModbusCounters)}
+    extra = [f for f in dataclasses.fields(ServerDiagnostics) if f.name not in counters]
+    return [(f.name, f.type, dataclasses.field(default=f.default)) for f in (*counters.values(), *extra)]
 
-    Mutable: bumped per request (a new frozen snapshot per request cost more than the
-    request's own handling); `ModbusServer.counters` hands out frozen copies."""
 
-    requests: int = 0
-    exceptions: int = 0
-    rejected_writes: int = 0
-    clients_connected: int = 0
-    connections_total: int = 0
-    commands_done: int = 0
-    commands_declined: int = 0
-    commands_failed: int = 0
-    rejected_frames: int = 0
-    refused_connections: int = 0
-    closed_connections: int = 0
-    accept_errors: int = 0
-    rtu_open_failures: int = 0
-    command_counter: int = 0
-    command_result: CommandResult = CommandResult.NONE
-    version_major: int = 0
-    version_minor: int = 0
-    version_patch: int = 0
-    device_name: str = ""
+#: The server's live numbers: ModbusCounters' fields and the rest of ServerDiagnostics'
+#: (made from both, so that it cannot miss one). Mutable: bumped per request (a new frozen
+#: snapshot per request cost more than the request's own handling); `ModbusServer.counters`
+#: hands out frozen copies, the register image reads it as its ServerDiagnostics.
+_Tally = dataclasses.make_dataclass("_Tally", _tally_fields(), slots=True)
 
 
 class ModbusServer:
