@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
-from gateway.core.reference_point import find_initial_rest
+from gateway.core.reference_point import find_initial_rest, resolution
 from gateway.core.simulator import simulate
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
@@ -30,10 +30,20 @@ def test_the_rest_ends_where_the_motion_starts_whatever_the_logger_resolution(st
     assert first_move - int(0.2 / period_s) <= rest.stop <= first_move, (rest.stop, first_move)
 
 
-def test_a_lone_sample_off_the_rest_is_not_motion_a_lasting_one_step_is():
+def test_a_one_step_flicker_is_not_motion_a_lasting_step_or_a_jump_is():
     acc = np.zeros(2000)
-    acc[150::97] = 0.1  # a one-step flicker (and a spike of 10 steps) on a rest with no noise
-    acc[500] = 1.0
-    acc[1500:] = 0.1  # one step, held: the axis moves (or the offset did)
-    rest = find_initial_rest(acc, np.ones(acc.size, bool), 0.002)
+    acc[150::97] = 0.1  # a one-step flicker on a rest with no noise (the data's step: 0.1)
+    held = acc.copy()
+    held[1500:] = 0.1  # one step, held: the axis moves (or the offset did)
+    rest = find_initial_rest(held, np.ones(acc.size, bool), 0.002)
     assert 1450 <= rest.stop <= 1500, rest.stop
+    jump = acc.copy()
+    jump[1200] = 0.5  # five steps off, even for one sample: ends the rest as it always did
+    rest = find_initial_rest(jump, np.ones(acc.size, bool), 0.002)
+    assert 1150 <= rest.stop <= 1200, rest.stop
+
+
+def test_resolution_is_the_smallest_step_between_values():
+    assert resolution([0.3, 0.1, 0.1, 0.2]) == pytest.approx(0.1)
+    assert resolution([5.0, 5.0]) == 0.0
+    assert resolution(np.random.default_rng(0).normal(size=1000)) < 1e-2

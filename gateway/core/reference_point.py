@@ -11,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-MOTION_RUN = 3  # samples in a row off the rest that end it (see find_initial_rest)
+MOTION_RUN = 3  # samples in a row a step off the rest that end it (see find_initial_rest)
+RESOLUTION_SAMPLES = 200_000  # enough to see a logger's step, bounded for a 12-hour file
 MAD_TO_SIGMA = 1.4826  # σ of a normal distribution from its median absolute deviation
 
 
@@ -29,6 +30,13 @@ class Rest:
     @property
     def samples(self) -> int:
         return self.stop - self.start
+
+
+def resolution(values) -> float:
+    """The smallest step between two distinct values: a quantised logger's resolution,
+    ~0 for data written as floats."""
+    steps = np.diff(np.unique(np.asarray(values, dtype=float)))
+    return float(steps.min()) if steps.size else 0.0
 
 
 def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
@@ -49,14 +57,18 @@ def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
         sigma = float(np.std(head)) or 1e-12
     away = ok & (np.abs(a - centre) > k_sigma * sigma)
     away[:start] = False
-    # Motion lasts: the rest ends at the first of MOTION_RUN samples in a row off the rest.
-    # A lone sample off it is not motion — a logger that quantises coarser than the noise
-    # (10 mg) shows a still rest as one value with a one-step flicker now and then, and
-    # that flicker, taken for motion 0.2 s into a 2 s rest, refused the recording.
+    # A logger that quantises coarser than the noise (10 mg) shows a still rest as one
+    # value with a one-step flicker now and then; taken for motion 0.2 s into a 2 s rest,
+    # that flicker refused the recording. A sample within a step and a half of the rest
+    # level ends it only as part of MOTION_RUN such samples in a row; anything further off
+    # ends it at once, as before (for data written as floats the step is ~0: no change).
+    step = resolution(a[ok][:RESOLUTION_SAMPLES])
     run = away[: a.size - MOTION_RUN + 1].copy()
     for lag in range(1, MOTION_RUN):
         run &= away[lag : a.size - MOTION_RUN + 1 + lag]
-    moving = np.flatnonzero(run)
+    motion = away & (np.abs(a - centre) > 1.5 * step)
+    motion[: run.size] |= run
+    moving = np.flatnonzero(motion)
     end = int(moving[0]) if moving.size else a.size
     stop = end - int(round(guard_s / period_s)) if moving.size else end
     if stop - start < n_min:
