@@ -55,18 +55,19 @@ def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
     sigma = MAD_TO_SIGMA * float(np.median(np.abs(head - centre)))
     if sigma == 0.0:  # a quantised, noise-free signal: fall back to the plain spread
         sigma = float(np.std(head)) or 1e-12
-    away = ok & (np.abs(a - centre) > k_sigma * sigma)
+    deviation = np.abs(a - centre)
+    away = ok & (deviation > k_sigma * sigma)
     away[:start] = False
     # A logger that quantises coarser than the noise (10 mg) shows a still rest as one
     # value with a one-step flicker now and then; taken for motion 0.2 s into a 2 s rest,
     # that flicker refused the recording. A sample within a step and a half of the rest
     # level ends it only as part of MOTION_RUN such samples in a row; anything further off
     # ends it at once, as before (for data written as floats the step is ~0: no change).
-    step = resolution(a[ok][:RESOLUTION_SAMPLES])
+    step = resolution(a[:RESOLUTION_SAMPLES][ok[:RESOLUTION_SAMPLES]])
     run = away[: a.size - MOTION_RUN + 1].copy()
     for lag in range(1, MOTION_RUN):
         run &= away[lag : a.size - MOTION_RUN + 1 + lag]
-    motion = away & (np.abs(a - centre) > 1.5 * step)
+    motion = away & (deviation > 1.5 * step)
     motion[: run.size] |= run
     moving = np.flatnonzero(motion)
     end = int(moving[0]) if moving.size else a.size
