@@ -21,7 +21,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 # scipy.special, not scipy.stats: the same function (chi2.ppf is 2·gammaincinv(ν/2, q)),
-# bit for bit, and 0.5 s less of the daemon's start (a restart's blind time)
+# bit for bit; scipy.stats alone is ~0.5 s of import (python -X importtime), which the
+# daemon's start (a restart's blind time) need not pay
 from scipy.special import gammaincinv
 
 from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation, noise_terms
