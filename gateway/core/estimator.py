@@ -46,14 +46,21 @@ class Estimate:
     flags: int  # estimator_kernel.F_*
 
     @classmethod
-    def from_kernel(cls, t_s: float, out: np.ndarray) -> "Estimate":
-        """The estimate in a kernel output array (`KernelState.out`, layout O_*)."""
+    def from_kernel(cls, t_s: float, out: np.ndarray, reference_m: float = 0.0,
+                    held_std_unknown: bool = False) -> "Estimate":
+        """The estimate in a kernel output array (`KernelState.out`, layout O_*), the
+        position measured from `reference_m`. With `held_std_unknown`, the position's σ
+        is NaN before the filter has initialised (the position is held there, not
+        estimated, and the kernel's variance 0 would claim it exact)."""
         o = out.tolist()  # one conversion, not twelve numpy scalars
         pos_var, vel_var = o[K.O_POS_VAR], o[K.O_VEL_VAR]
-        return cls(float(t_s), o[K.O_POS], o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS],
-                   math.sqrt(pos_var) if pos_var >= 0.0 else math.nan,
+        flags = int(o[K.O_FLAGS])
+        pos_std = math.sqrt(pos_var) if pos_var >= 0.0 else math.nan
+        if held_std_unknown and not flags & K.F_INITIALISED:
+            pos_std = math.nan
+        return cls(float(t_s), o[K.O_POS] - reference_m, o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS], pos_std,
                    math.sqrt(vel_var) if vel_var >= 0.0 else math.nan,
-                   o[K.O_INNOV], o[K.O_NIS], o[K.O_ZUPT_INNOV], o[K.O_ZUPT_NIS], int(o[K.O_FLAGS]))
+                   o[K.O_INNOV], o[K.O_NIS], o[K.O_ZUPT_INNOV], o[K.O_ZUPT_NIS], flags)
 
     @property
     def standstill(self) -> bool:

@@ -28,6 +28,15 @@ AXIS_INVALID_HOLD_S = 1.0
 # a 75 mm σ). Gaps of a few samples stay bridged (they cost < 1 mm there).
 OUTAGE_S = 0.25
 
+_HOLDING = K.F_INPUT_INVALID | K.F_TIME_ERROR  # as Estimate.holding
+_SIMULATED = int(StatusExtBits.SIMULATED)
+_HINT_AT_REST = int(StatusExtBits.HINT_AT_REST)
+_HINT_MOVING = int(StatusExtBits.HINT_MOVING)
+_HINT_CONFLICT = int(StatusExtBits.HINT_CONFLICT)
+_OFFSET_STEP = int(StatusExtBits.OFFSET_STEP)
+_STOP_BY_HINT = int(StatusExtBits.STOP_BY_HINT)
+_EXT_WORDS: dict[int, StatusExtBits] = {}  # each word made once (enum calls cost per snapshot)
+
 
 @dataclass(slots=True)
 class BoardEvents:
@@ -42,7 +51,7 @@ class BoardEvents:
     outage_at_s: float | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen: built per snapshot, and a frozen init is slower
 class LinkHealth:
     """What the supervisor knows of the wires, for the status bits and counters."""
 
@@ -84,6 +93,8 @@ class BoardIntake:
     def drain(self) -> bool:
         """Everything received so far through the pipeline, chunk by chunk; True if any
         sample was estimated. A sample's events carry its chunk's arrival time."""
+        if not self._inbox:
+            return False
         batch, self._inbox = self._inbox, []
         sampled = False
         for arrived_s, data in batch:
@@ -134,47 +145,62 @@ class BoardIntake:
         return self._values
 
     def condition(self, now_s: float, health: LinkHealth) -> GatewayCondition:
-        est = self.pipeline.latest()
+        return self._condition(now_s, health, self.pipeline.latest())
+
+    def status_ext(self, health: LinkHealth) -> StatusExtBits:
+        return self._status_ext(health, self.pipeline.latest())
+
+    # (_condition and _status_ext take the estimate read once per snapshot, and test its
+    # flag bits directly: this runs for every snapshot, on a VM cold at each wakeup, and
+    # a property or a call there costs more than the test it wraps)
+    def _condition(self, now_s: float, health: LinkHealth, est: Estimate | None) -> GatewayCondition:
         ev = self.events
+        flags = -1 if est is None else est.flags
+        fault_at = ev.estimator_fault_at_s
+        last_sample = ev.last_sample_s
         return GatewayCondition(
             now_s=now_s,
             have_estimate=est is not None,
             port_open=health.port_open,
-            last_sample_s=ev.last_sample_s,
+            last_sample_s=last_sample,
             last_byte_s=health.last_byte_s,
             stale_after_s=health.stale_after_s,
             lost_after_s=health.lost_after_s,
             referenced=self.pipeline.referenced,
-            standstill=bool(est and est.standstill),
-            estimator_fault=bool(est and est.fault) or _recent(ev.estimator_fault_at_s, now_s),
-            holding=bool(est and (est.holding or not est.initialised)),
+            standstill=est is not None and flags & K.F_STANDSTILL != 0,
+            estimator_fault=(est is not None and flags & K.F_FAULT != 0)
+            or (fault_at is not None and now_s - fault_at < EVENT_HOLD_S),
+            holding=est is not None and (flags & _HOLDING != 0 or flags & K.F_INITIALISED == 0),
             axis_invalid=now_s < ev.axis_invalid_until_s,
             saturated_until_s=ev.saturated_until_s,
             board_reset_at_s=ev.board_reset_at_s,
             samples_lost_at_s=ev.samples_lost_at_s,
             config_reloaded_at_s=health.config_reloaded_at_s,
-            bias_estimating=bool(est and est.bias_estimating),
+            bias_estimating=est is not None and flags & K.F_BIAS_ESTIMATING != 0,
             # silent longer than an outage: whatever comes next, the axis may have moved; and
             # before the first estimate of a (re)start with the velocity unknown, the position
             # shown (the last saved one) is not trustworthy either
-            untrusted=(est.untrusted if est is not None else self.pipeline.estimator.position_untrusted)
-            or (ev.last_sample_s is not None and now_s - ev.last_sample_s > OUTAGE_S),
+            untrusted=(flags & K.F_UNTRUSTED != 0 if est is not None else self.pipeline.estimator.position_untrusted)
+            or (last_sample is not None and now_s - last_sample > OUTAGE_S),
         )
 
-    def status_ext(self, health: LinkHealth) -> StatusExtBits:
-        est = self.pipeline.latest()
-        bits = StatusExtBits.SIMULATED if health.simulated else StatusExtBits(0)
+    def _status_ext(self, health: LinkHealth, est: Estimate | None) -> StatusExtBits:
+        bits = _SIMULATED if health.simulated else 0
         hint = self.pipeline.hint
         if hint is not None:
-            bits |= StatusExtBits.HINT_AT_REST if hint else StatusExtBits.HINT_MOVING
+            bits |= _HINT_AT_REST if hint else _HINT_MOVING
         if est is not None:
-            if est.flags & K.F_HINT_CONFLICT:
-                bits |= StatusExtBits.HINT_CONFLICT
-            if est.flags & K.F_OFFSET_STEP:
-                bits |= StatusExtBits.OFFSET_STEP
-            if est.standstill and self.pipeline.stop_by_hint:
-                bits |= StatusExtBits.STOP_BY_HINT
-        return bits
+            flags = est.flags
+            if flags & K.F_HINT_CONFLICT:
+                bits |= _HINT_CONFLICT
+            if flags & K.F_OFFSET_STEP:
+                bits |= _OFFSET_STEP
+            if flags & K.F_STANDSTILL and self.pipeline.stop_by_hint:
+                bits |= _STOP_BY_HINT
+        word = _EXT_WORDS.get(bits)
+        if word is None:
+            word = _EXT_WORDS[bits] = StatusExtBits(bits)
+        return word
 
     def _build(self, health: LinkHealth) -> PublishedValues:
         now = self._published_at
@@ -190,7 +216,7 @@ class BoardIntake:
         last_sample = self.events.last_sample_s
         return PublishedValues(
             position_m=pos, velocity_mps=vel, acceleration_mps2=acc,
-            status=status_bits(self.condition(now, health)),
+            status=status_bits(self._condition(now, health, est)),
             heartbeat=self._heartbeat,
             sample_counter=p.counters.samples,
             last_sample_age_ms=None if last_sample is None else (now - last_sample) * 1000,
@@ -199,9 +225,5 @@ class BoardIntake:
             lost_samples=c.samples_lost, crc_errors=c.crc_errors,
             board_resets=p.counters.resets_announced + p.counters.resets_inferred,
             can_send_errors=health.can_send_errors,
-            status_ext=self.status_ext(health),
+            status_ext=self._status_ext(health, est),
         )
-
-
-def _recent(at_s: float | None, now_s: float) -> bool:
-    return at_s is not None and now_s - at_s < EVENT_HOLD_S

@@ -380,13 +380,8 @@ class SamplePipeline:
         if not self._estimated:
             return None
         state = self.estimator.state
-        est = Estimate.from_kernel(state.misc[K.M_T_PREV], state.out)
-        # before the filter has initialised the position is held, not estimated: its error
-        # is not known (the kernel's variance there is 0, which would claim an exact one)
-        pos_std = est.pos_std_m if est.initialised else math.nan
-        return Estimate(est.t_s, est.pos_m - self.reference_offset_m, est.vel_mps, est.acc_mps2, est.bias_mps2,
-                        pos_std, est.vel_std_mps, est.innovation_mps2, est.nis,
-                        est.zupt_velocity_error_mps, est.zupt_nis, est.flags)
+        # one Estimate, built once per change: every wire's snapshot reads it
+        return Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
 
     @property
     def stop_by_hint(self) -> bool:

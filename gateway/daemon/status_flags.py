@@ -35,8 +35,9 @@ class GatewayCondition:
     untrusted: bool = False  # the estimator cannot tell a cruise from a stop now
 
 
-def _recent(at_s: float | None, now_s: float) -> bool:
-    return at_s is not None and now_s - at_s < EVENT_HOLD_S
+# StatusBits(int) is two Python calls (enum's __call__ and __new__) per snapshot; the
+# words a gateway shows are few, so each is made once (at most 2**16 entries)
+_STATUS_WORDS: dict[int, StatusBits] = {}
 
 
 _VALID = int(StatusBits.VALID)
@@ -78,11 +79,13 @@ def status_bits(c: GatewayCondition) -> StatusBits:
         bits |= _AXIS_INVALID
     if c.now_s < c.saturated_until_s:
         bits |= _SATURATED
-    if _recent(c.board_reset_at_s, c.now_s):
+    # (events held EVENT_HOLD_S; written out, not a helper: this runs for every snapshot)
+    now = c.now_s
+    if c.board_reset_at_s is not None and now - c.board_reset_at_s < EVENT_HOLD_S:
         bits |= _BOARD_RESET
-    if _recent(c.samples_lost_at_s, c.now_s):
+    if c.samples_lost_at_s is not None and now - c.samples_lost_at_s < EVENT_HOLD_S:
         bits |= _SAMPLES_LOST
-    if _recent(c.config_reloaded_at_s, c.now_s):
+    if c.config_reloaded_at_s is not None and now - c.config_reloaded_at_s < EVENT_HOLD_S:
         bits |= _CONFIG_RELOADED
     if c.bias_estimating:
         bits |= _BIAS_ESTIMATING
@@ -90,4 +93,7 @@ def status_bits(c: GatewayCondition) -> StatusBits:
         bits |= _UNTRUSTED
     if c.have_estimate and not bits & _UNUSABLE:
         bits |= _VALID
-    return StatusBits(bits)
+    word = _STATUS_WORDS.get(bits)
+    if word is None:
+        word = _STATUS_WORDS[bits] = StatusBits(bits)
+    return word
