@@ -273,8 +273,9 @@ class CanPublisher:
         if self._timer is not None:
             self._timer.cancel()
         assert self._loop is not None
-        delay = self._next_due + self._timer_lag_s - time.monotonic()
-        self._timer = self._loop.call_later(max(0.0, delay), self._on_timer)
+        # call_at on the loop's clock (time.monotonic for asyncio's loops): one call fewer
+        # than call_later, at every transmission; a time in the past fires at once
+        self._timer = self._loop.call_at(self._next_due + self._timer_lag_s, self._on_timer)
 
     def _on_timer(self) -> None:
         self._timer = None

@@ -8,6 +8,7 @@ the port is still missing is heard (issue 16).
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 from typing import Callable
 
@@ -78,12 +79,15 @@ class BoardPort:
                 log.warning("%s; retrying in %.1f s", err, delay)
                 await asyncio.sleep(delay)
 
-    async def serve(self, consume: Callable[[bytes], None]) -> None:
-        """Hand every chunk to `consume` (in the loop's reader callback) until cancelled;
-        reopen the port when `reopen()` was asked for."""
+    async def serve(self, consume: Callable[[bool, bytes], None]) -> None:
+        """Hand every chunk to `consume(batched, data)` (in the loop's reader callback)
+        until cancelled; reopen the port when `reopen()` was asked for. `batched`: the
+        port's kernel wakes the reader per batch of frames (`batches`), known per open
+        port and so told with each chunk rather than asked at every wakeup."""
         while True:
             self._reopen.clear()
-            reader = asyncio.create_task(self.source.deliver(consume), name="board-reader")
+            reader = asyncio.create_task(self.source.deliver(functools.partial(consume, self.batches)),
+                                         name="board-reader")
             reopen = asyncio.create_task(self._reopen.wait())
             try:
                 await asyncio.wait({reader, reopen}, return_when=asyncio.FIRST_COMPLETED)

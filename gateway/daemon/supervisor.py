@@ -278,9 +278,12 @@ class Gateway:
             waiting = self.board.read_pending()
             if waiting:
                 self.intake.receive(self.clock(), waiting)
-        if self.intake.waiting_chunks and self.intake.drain():
+        intake = self.intake
+        if intake.drain():
             # as of the newest sample's arrival, as if each chunk had been handled then
-            self._publish(self.intake.events.last_sample_s)
+            # (_publish written out: this runs at every wakeup)
+            intake.publish(intake.events.last_sample_s)
+            self.wires.published()
             # push the quiet tick back, about once per tick (not per batch)
             if self._tick_handle is not None and self._tick_due - now < self.publish_tick_s:
                 self._arm_tick(now)
@@ -294,18 +297,20 @@ class Gateway:
     def fresh_values(self) -> PublishedValues:
         """What the wires show, after everything received so far — the bytes waiting in
         the port included — went through the pipeline. Every reader calls this."""
-        self._drain(self.clock(), take_waiting=not self._port_just_read)
+        if not self._port_just_read:  # (else: asked from inside receive's drain, which took everything)
+            self._drain(self.clock())
         return self.intake.snapshot(self._health())
 
     def _health(self) -> LinkHealth:
-        board = self.board
+        source = self.board.source  # (the port itself: read per snapshot, one hop fewer)
         serial = self.cfg.serial
+        can = self.wires.can
         return LinkHealth(
-            port_open=board.is_open,
-            last_byte_s=board.last_data_monotonic_s,
+            port_open=source is not None and source.is_open,
+            last_byte_s=None if source is None else source.last_data_monotonic_s,
             stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
             config_reloaded_at_s=self._reloaded_at,
-            can_send_errors=self.can.send_errors if self.can else 0,
+            can_send_errors=0 if can is None else can.send_errors,
             simulated=self.cfg.serial.port == "emulated",
         )
 
@@ -324,7 +329,8 @@ class Gateway:
         if self._tick_handle is not None:
             self._tick_handle.cancel()
         self._tick_due = now + delay
-        self._tick_handle = self._loop.call_later(delay, self._quiet_tick)
+        # (call_at on the loop's clock, time.monotonic: one call fewer than call_later)
+        self._tick_handle = self._loop.call_at(time.monotonic() + delay, self._quiet_tick)
 
     def _quiet_tick(self) -> None:
         """While no samples come: publish every tick, so the heartbeat, the sample age
@@ -366,9 +372,8 @@ class Gateway:
         await asyncio.to_thread(self.state_store.save, state)
 
     # ---------------------------------------------------------------- tasks --
-    def _receive_from_port(self, data: bytes) -> None:
-        # known per open port (a reopened one may not batch), read per wakeup: cheap
-        self._kernel_batches = self.board.batches
+    def _receive_from_port(self, batched: bool, data: bytes) -> None:
+        self._kernel_batches = batched  # per open port: a reopened one may not batch
         self.receive(data)
 
     async def _board_supervisor(self) -> None:
