@@ -223,6 +223,9 @@ class SamplePipeline:
         self.counters = PipelineCounters()
         self.board = BoardInfo()
         self._decoder = StreamDecoder(sink=self)
+        #: What the decoder saw (bytes, frames, CRC errors, samples lost, …): live, read
+        #: only (an attribute, not a property: every snapshot reads it)
+        self.decoder_counters: DecoderCounters = self._decoder.live_counters
         self._buf: bytes | None = None  # the decoder's buffer and its numpy view (see take_samples)
         self._array: np.ndarray | None = None
         self._st = np.zeros(N_SLOTS)
@@ -387,11 +390,6 @@ class SamplePipeline:
     def stop_by_hint(self) -> bool:
         """The current standstill was accepted on the machine's hint."""
         return self._st[S_STOP_BY_HINT] > 0.0
-
-    @property
-    def decoder_counters(self) -> DecoderCounters:
-        """What the decoder saw (bytes, frames, CRC errors, samples lost, …): live, read only."""
-        return self._decoder.live_counters
 
     @property
     def last_seq(self) -> int:
