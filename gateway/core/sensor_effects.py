@@ -68,14 +68,18 @@ class TemperatureTerm(ErrorTerm):
     cycle_s: float = 6.0
     name = "temperature_offset"
 
-    def _temp(self, ctx):
-        t = ctx.t_s
+    def _temp(self, ctx, t):
         phase = float(ctx.rng("temperature").uniform(0.0, 2.0 * math.pi))
         return 25.0 + self.swing_c * np.sin(2.0 * math.pi * t / self.cycle_s + phase)
 
     def acceleration_g(self, ctx, ax, ay):
-        temp = self._temp(ctx)
-        ctx.temp_c[:] = np.round(temp, 2)  # the board reports 0.01 °C
+        temp = self._temp(ctx, ctx.t_s)
+        # the recording's temp_c is the board's latest STATUS value (recording format):
+        # the temperature measured once per second (at a phase of the board's own), in
+        # 0.01 °C, held until the next report
+        report_phase_s = float(ctx.rng("status reports").uniform(0.0, 1.0))
+        reported_at = np.floor(ctx.t_s - report_phase_s) + report_phase_s
+        ctx.temp_c[:] = np.round(self._temp(ctx, reported_at), 2)
         return ax + self.offset_g_per_c * (temp - 25.0), ay
 
     def samples(self, ctx, run):

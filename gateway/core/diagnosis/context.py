@@ -1,6 +1,7 @@
 """What the diagnosis looks at: one recording's arrays, in SI units, plus what the baseline knows."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,6 +14,59 @@ G = STANDARD_GRAVITY_MPS2
 # The baseline's drift shape ε(t) ∝ 1 − e^(−t/T): T from the sensor model (30 min); on a
 # record of seconds it is a straight line, on hours the paper's exponential.
 DRIFT_TIME_CONSTANT_S = 1800.0
+
+
+def held_samples_smoothed(t_s: np.ndarray, held: np.ndarray) -> np.ndarray:
+    """A smooth quantity from a column that holds each report until the next one.
+
+    The board's temperature reaches a recording once per second (STATUS) and each row
+    carries the latest value: a staircase. An effect that follows the temperature
+    follows the board's real one, which moves smoothly between reports (a thermal mass),
+    and is on average half a report period ahead of the held value; regressed on the
+    staircase, the steps leave a residual that reads as a wandering bias. So: each new
+    value is taken as the temperature at its first row (when its report came), a
+    value held longer than the usual report period (a temperature that did not move)
+    as that value again every period, and a cubic spline goes through those points (the
+    first value is left out: it was reported before the recording began, at a time not
+    known; the spline's end pieces reach back to the first row).
+    A column that changes at every row (a logger with a temperature per sample) has a
+    point at every row: the spline goes through them all and returns it unchanged.
+    NaN rows stay NaN; with fewer than four points the column is returned as it is.
+    """
+    held = np.asarray(held, dtype=float)
+    t_s = np.asarray(t_s, dtype=float)
+    good = np.flatnonzero(np.isfinite(held))
+    if good.size < 4:
+        return held.copy()
+    tg, vg = t_s[good], held[good]
+    first = np.concatenate([[0], np.flatnonzero(np.diff(vg) != 0) + 1])
+    if first.size < 4:
+        return held.copy()
+    # the usual report period: the median time a value is held
+    period = float(np.median(np.diff(tg[first])))
+    ends = np.append(tg[first[1:]], tg[-1])
+    knot_t, knot_v = [], []
+    for k, start in enumerate(first):
+        if k == 0 and first.size > 4:
+            continue  # the first value was reported before the first row: when is not known
+        t0 = tg[start]
+        repeats = max(int((ends[k] - t0) / period + 1e-9), 1) if period > 0 else 1
+        for j in range(repeats):
+            knot_t.append(t0 + j * period)
+            knot_v.append(vg[start])
+    knot_t, knot_v = np.asarray(knot_t), np.asarray(knot_v)
+    keep = np.concatenate([[True], np.diff(knot_t) > 0])
+    knot_t, knot_v = knot_t[keep], knot_v[keep]
+    if knot_t.size < 4:
+        return held.copy()
+    from scipy.interpolate import CubicSpline  # (imported here: only a temperature column needs it)
+
+    spline = CubicSpline(knot_t, knot_v)
+    # within a report period of the first and last points the spline's end pieces go on
+    # (the temperature keeps moving after its last report); further out it is held
+    out = np.full(held.shape, np.nan)
+    out[good] = spline(np.clip(tg, knot_t[0] - period, knot_t[-1] + period))
+    return out
 
 
 @dataclass
@@ -74,6 +128,13 @@ class DiagnosisInput:
     @property
     def has_reference(self) -> bool:
         return self.ref_acc_mps2 is not None and self.ref_vel_mps is not None
+
+    @functools.cached_property
+    def temperature_c(self) -> np.ndarray | None:
+        """The board temperature at each sample, from the temp_c column as recordings
+        carry it: the latest STATUS value (docs: recording format; the board reports once
+        per second in 0.01 °C), a staircase of a smooth quantity (`held_samples_smoothed`)."""
+        return None if self.temp_c is None else held_samples_smoothed(self.t_s, self.temp_c)
 
     def column_ok(self, name: str, min_std: float = 0.0) -> bool:
         """True when the column exists, is mostly finite and varies by more than min_std."""

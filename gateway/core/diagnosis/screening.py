@@ -64,7 +64,7 @@ def candidate_regressors(prep: Prepared, reading: np.ndarray, pos: np.ndarray | 
     if d.other_mps2 is not None:
         out["other axis"] = d.other_mps2
     if d.temp_c is not None:
-        out["temperature"] = d.temp_c
+        out["temperature"] = d.temperature_c
     out["time"] = d.t_s - d.t_s[0]
     if d.t_host_s is not None:
         delay = d.t_host_s - d.t_s

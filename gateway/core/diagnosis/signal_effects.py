@@ -187,7 +187,7 @@ class TemperatureOffset(SignalEffect):
         return None
 
     def _regressor(self, prep):
-        temp = prep.data.temp_c
+        temp = prep.data.temperature_c  # the reports' staircase made smooth again
         fill = float(np.nanmean(temp))
         return np.nan_to_num(temp, nan=fill) - fill
 
