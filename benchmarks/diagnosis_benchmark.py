@@ -150,6 +150,18 @@ def param_table(stats: list[dict]) -> list[str]:
     return rows
 
 
+def independent_rows(chosen: str | None) -> list[str | None]:
+    """The independent generator's rows to run: its effects (hum among them) and None for clean."""
+    rows: list[str | None] = list(independent.EFFECT_SIZES) + [None]
+    if chosen is None:
+        return rows
+    names = [c.strip() for c in chosen.split(",") if c.strip()]
+    unknown = [n for n in names if n != "clean" and n not in independent.EFFECT_SIZES]
+    if unknown:
+        raise SystemExit(f"unknown independent row(s) {unknown}; known: {', '.join(independent.EFFECT_SIZES)}, clean")
+    return [None if n == "clean" else n for n in names]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=100, help="seeded cases per effect and clean (seeds 0…N−1)")
@@ -163,6 +175,12 @@ def main() -> int:
     parser.add_argument("--independent-cases", type=int, default=50,
                         help="cases per hidden effect (and clean, and hum) of the independent generator "
                              f"(seeds {INDEPENDENT_SEED0}…)")
+    parser.add_argument("--independent-seed0", type=int, default=INDEPENDENT_SEED0,
+                        help=f"first seed of the independent generator's cases (default {INDEPENDENT_SEED0}; "
+                             "a new range for a run after a change, so that no seed looked at before is judged)")
+    parser.add_argument("--independent-effects", default=None,
+                        help="comma-separated rows of the independent generator (its effects, 'clean', 'hum'; "
+                             "default: all)")
     args = parser.parse_args()
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     unknown = [e for e in effects if e not in EFFECTS]
@@ -184,8 +202,8 @@ def main() -> int:
     if own and not args.no_clean:
         tasks += [((), seed) for seed in range(args.cases)]
     if args.generator in ("independent", "both"):
-        seeds = range(INDEPENDENT_SEED0, INDEPENDENT_SEED0 + args.independent_cases)
-        tasks += [("independent", e, seed) for e in list(independent.EFFECT_SIZES) + [None] for seed in seeds]
+        seeds = range(args.independent_seed0, args.independent_seed0 + args.independent_cases)
+        tasks += [("independent", e, seed) for e in independent_rows(args.independent_effects) for seed in seeds]
     start = time.perf_counter()
     outcomes: list[CaseOutcome] = []
     with Pool(args.jobs) as pool:
@@ -202,7 +220,7 @@ def main() -> int:
         rows, ind_stats = independent_table(ind_outs)
         clean_ind = [o for o in ind_outs if o.effect is None]
         print(f"independent generator (tests/independent_generator), {args.independent_cases} cases per row, "
-              f"seeds {INDEPENDENT_SEED0}…; {np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
+              f"seeds {args.independent_seed0}…; {np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
         print()
         print("\n".join(rows))
         print("  found: the hidden effect named; correct: found and nothing else named (clean: nothing named;")
