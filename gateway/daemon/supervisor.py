@@ -19,7 +19,7 @@ Modbus read or a CAN frame needs them); the CAN frames of a due cycle go out fro
 inside that publish, locked onto the wakeups (drivers/can_publisher.py). Nothing else
 wakes the process while samples flow: the publishing tick is a timer that the batches
 keep pushing back, and fires only once the board has been quiet for PUBLISH_TICK_S to
-2 × PUBLISH_TICK_S (then every PUBLISH_TICK_S).
+3 × PUBLISH_TICK_S (then every PUBLISH_TICK_S).
 """
 from __future__ import annotations
 
@@ -54,6 +54,8 @@ PUBLISH_TICK_S = 0.01  # staleness, heartbeat and republishing while no samples 
 # and estimated, if nothing needs the numbers sooner (see Gateway.receive).
 MAX_DEFER_S = PUBLISH_TICK_S
 MAX_DEFER_CHUNKS = 64
+# while samples flow, the quiet tick is kept this many ticks ahead (see _drain)
+QUIET_AFTER_TICKS = 3
 # the machine's standstill hints: the value each command sets
 _HINTS = {Command.HINT_AT_REST: True, Command.HINT_MOVING: False, Command.HINT_UNKNOWN: None}
 HOUSEKEEPING_S = 0.25  # terminal view, state save when something changed
@@ -284,9 +286,11 @@ class Gateway:
             # (_publish written out: this runs at every wakeup)
             intake.publish(intake.events.last_sample_s)
             self.wires.published()
-            # push the quiet tick back, about once per tick (not per batch)
+            # push the quiet tick back once less than a tick is left, to three ticks ahead:
+            # about every second batch at 500 samples/s, not every one (re-arming an
+            # asyncio timer is a dozen calls); it fires 1–3 ticks after the last sample
             if self._tick_handle is not None and self._tick_due - now < self.publish_tick_s:
-                self._arm_tick(now)
+                self._arm_tick(now, QUIET_AFTER_TICKS * self.publish_tick_s)
 
     def _publish(self, now: float) -> None:
         """New values as of `now`: the heartbeat moves and every wire will show them
