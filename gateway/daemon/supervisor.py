@@ -324,9 +324,9 @@ class Gateway:
     def _arm_tick(self, now: float, delay: float | None = None) -> None:
         """(Re)schedule the quiet tick `delay` (default two ticks) from now.
 
-        While samples flow, each batch pushes it back to 2 ticks ahead once less than
-        one is left, so it fires 1–2 ticks after the last sample without waking the
-        process while samples flow.
+        While samples flow, a batch pushes it back to QUIET_AFTER_TICKS ticks ahead once
+        less than one is left, so it fires 1–3 ticks after the last sample without
+        waking the process while samples flow.
         """
         if delay is None:
             delay = 2 * self.publish_tick_s
