@@ -265,6 +265,8 @@ HOLDING_SIZE = max(r.address + r.words for r in HOLDING_REGISTERS)
 SERVER_ROWS: tuple[Register, ...] = tuple(
     r for r in INPUT_REGISTERS if r.source.startswith("server.")
 )
+#: Rows that come from the published snapshot (the rest of the input table).
+VALUE_ROWS: tuple[Register, ...] = tuple(r for r in INPUT_REGISTERS if r not in SERVER_ROWS)
 BY_NAME: dict[str, Register] = {r.name: r for r in REGISTERS}
 
 INT32_NOT_AVAILABLE = -(2**31)
@@ -444,6 +446,14 @@ class ServerRowEncoder:
                 encoded, _ = encode_register(register, value, self._word_order)
                 words[register.address : register.address + register.words] = encoded
                 last[i] = value
+
+
+def write_value_rows(words: list[int], values: PublishedValues, word_order: WordOrder = WordOrder.ABCD) -> None:
+    """A new snapshot into an input image in place: its rows (VALUE_ROWS), SCALED_CLAMPED
+    in STATUS when a value was clamped; the server's own rows are left as they are (the
+    server keeps them with a ServerRowEncoder)."""
+    if encode_rows(VALUE_ROWS, words, values, ServerDiagnostics(), word_order):
+        words[BY_NAME["STATUS"].address] |= int(StatusBits.SCALED_CLAMPED)
 
 
 def encode_input_registers(

@@ -80,6 +80,7 @@ from .modbus_map import (
     ServerRowEncoder,
     WordOrder,
     encode_input_registers,
+    write_value_rows,
     string32_complaint,
 )
 from .modbus_ports import RtuPortProblem, probe_rtu_port, tcp_listen_problem
@@ -361,11 +362,11 @@ class ModbusServer:
             self._before_read()
         image = self._image
         if self._pending is not None:
-            image = self._image = encode_input_registers(current(self._pending), word_order=self.config.word_order)
+            # the snapshot's rows only: the server's own are kept up to date below (each
+            # read gets a slice, a copy: writing the image in place changes no answer given)
+            write_value_rows(image, current(self._pending), self.config.word_order)
             self._pending = None
-            self._server_rows.write(image, self._tally, all_rows=True)
-        else:
-            self._server_rows.write(image, self._tally)
+        self._server_rows.write(image, self._tally)
         words = image[address : address + count]
         if self._rtu_down and address <= _STATUS_ADDRESS < address + count:
             words[_STATUS_ADDRESS - address] |= int(StatusBits.MODBUS_RTU_DOWN)

@@ -19,7 +19,8 @@ import pytest
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from drivers.modbus_map import BY_NAME, HOLDING_SIZE, INPUT_REGISTERS, INPUT_SIZE, MAP_VERSION, RegType, WordOrder
+from drivers.modbus_map import (BY_NAME, HOLDING_SIZE, INPUT_REGISTERS, INPUT_SIZE, MAP_VERSION, VALUE_ROWS, RegType,
+                                WordOrder, encode_input_registers)
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import Command, PublishedValues, StatusBits
 
@@ -168,6 +169,28 @@ def test_a_read_of_part_of_the_table_answers_that_part_of_the_same_image() -> No
                     if address <= requests_row.address and requests_row.address + 2 <= address + count:
                         i = requests_row.address - address
                         assert (part[i] << 16 | part[i + 1]) == n, (address, count)
+
+    run(scenario())
+
+
+def test_each_read_shows_the_newest_snapshot_whole_and_nothing_of_the_one_before() -> None:
+    # the image is updated in place per snapshot (the server's own rows kept): a bit or a
+    # word of an earlier snapshot must not survive — e.g. SCALED_CLAMPED of a clamped one
+    clamped = PublishedValues(position_m=math.inf, velocity_mps=-1.0, status=StatusBits.VALID, heartbeat=1)
+    snapshots = [SAMPLE, clamped, PublishedValues(heartbeat=2), SAMPLE, clamped, SAMPLE]
+
+    async def scenario() -> None:
+        async with serving(tcp_config()) as server:
+            async with tcp_client(server.tcp_port) as client:
+                for values in snapshots:
+                    server.update(values)
+                    words = await read_table(client)
+                    fresh = encode_input_registers(values)
+                    for row in VALUE_ROWS:
+                        span = slice(row.address, row.address + row.words)
+                        assert words[span] == fresh[span], (row.name, values)
+                    clamped_bit = bool(words[BY_NAME["STATUS"].address] & StatusBits.SCALED_CLAMPED)
+                    assert clamped_bit == (values is clamped)
 
     run(scenario())
 
