@@ -117,9 +117,13 @@ def draw_terms(effect_names: tuple[str, ...], seed: int) -> tuple[ErrorTerm, ...
     return tuple(draw_effect(name, rng) for name in effect_names)
 
 
-def make_case(effect_names: tuple[str, ...], seed: int) -> tuple[tuple[ErrorTerm, ...], DiagnosisInput]:
-    """A simulated recording with these effects hidden in it: (the terms, what diagnose gets)."""
+def make_case(effect_names: tuple[str, ...], seed: int,
+              adjust: Callable[[ErrorTerm], ErrorTerm] | None = None) -> tuple[tuple[ErrorTerm, ...], DiagnosisInput]:
+    """A simulated recording with these effects hidden in it: (the terms, what diagnose gets).
+    `adjust` changes each drawn term before the simulation (e.g. a slower temperature swing)."""
     terms = draw_terms(tuple(effect_names), seed)
+    if adjust is not None:
+        terms = tuple(adjust(t) for t in terms)
     run = simulate(_profile(scenario_for(tuple(effect_names))), SENSOR, seed=seed, error_terms=terms)
     rec = Recording(f"<simulated seed {seed}>", {"tick_hz": str(run.tick_hz)},
                     {k: np.asarray(v, dtype=float) for k, v in run.recording_columns().items()}, "raw")

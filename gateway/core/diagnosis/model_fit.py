@@ -139,10 +139,18 @@ def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = Non
 
 
 def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dict[str, np.ndarray],
-                       base_start: np.ndarray) -> list[float]:
+                       base_start: np.ndarray) -> list[tuple[float, float]]:
     """Cross-validation: each model fitted on one half of the record, the log-likelihood
     gain of adding the effect on the *other* half, whose offset and drift are refitted
-    there (whitened residual, Gaussian with its own variance). One value per fold."""
+    there (whitened residual, Gaussian with its own variance). One (gain, reach) per fold.
+
+    reach: what the effect predicts on the judged half beyond its offset and drift — the
+    two models' predictions' difference there, whitened, offset and drift projected out,
+    in units of the residual's variance (a χ²). A fold can decide for or against the
+    effect only where that is large: a right effect gains about reach/2 there, a wrong one
+    loses about as much, each ± √reach. A slow effect (a temperature swing over the record)
+    is nearly a line on each half: it reaches almost nothing, and its gain is noise.
+    """
     from gateway.core.diagnosis.judgement import halves
 
     first, second = halves(prep)
@@ -154,18 +162,24 @@ def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dic
             if train.sum() < 50 * prep.block or test.sum() < 50 * prep.block:
                 return []
             prep.fit_mask = train
-            sse = []
+            # offset and drift are the baseline's, refitted on the half they are judged on
+            # (a level extrapolated from the other half would decide the comparison)
+            cols = np.column_stack([prep.whiten_masked(c, test) for c in (np.ones(test.size), prep.drift_shape)])
+
+            def judged(x):
+                w = prep.whiten_masked(np.where(test, x, 0.0), test)
+                return w - cols @ np.linalg.lstsq(cols, w, rcond=None)[0]
+
+            sse, predictions = [], []
             for effects in (effects_without, effects_with):
                 fit = fit_model(prep, effects, {k: v for k, v in start.items()}, base_start=base_start)
-                r = np.where(test, measured - predict(prep, fit.effects, fit.theta), 0.0)
-                w = prep.whiten_masked(r, test)
-                # offset and drift are the baseline's, refitted on the half they are judged on
-                # (a level extrapolated from the other half would decide the comparison)
-                cols = np.column_stack([prep.whiten_masked(c, test) for c in (np.ones(test.size), prep.drift_shape)])
-                w = w - cols @ np.linalg.lstsq(cols, w, rcond=None)[0]
+                predictions.append(predict(prep, fit.effects, fit.theta))
+                w = judged(measured - predictions[-1])
                 sse.append(float(np.dot(w, w)))
             n = int(test.sum())
-            gains.append(-0.5 * n * math.log(max(sse[1], 1e-300) / max(sse[0], 1e-300)))
+            d = judged(predictions[1] - predictions[0])
+            reach = float(np.dot(d, d)) / max(sse[0] / max(n, 1), 1e-300)
+            gains.append((-0.5 * n * math.log(max(sse[1], 1e-300) / max(sse[0], 1e-300)), reach))
     finally:
         prep.fit_mask = saved
     return gains
