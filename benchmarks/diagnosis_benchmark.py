@@ -193,8 +193,12 @@ def main() -> int:
     print(f"command: {command.rstrip()}")
     print(f"date:    {date}")
     print(f"machine: {machine()}")
-    print(f"cases:   paper scenario, {STROKES} strokes (bias_random_walk: a 60 s standstill); {args.cases} seeded "
-          f"cases per effect (seeds 0–{args.cases - 1}), documented effect sizes; {args.jobs} worker(s)")
+    if args.generator in ("own", "both"):
+        print(f"cases:   paper scenario, {STROKES} strokes (bias_random_walk: a 60 s standstill); {args.cases} seeded "
+              f"cases per effect (seeds 0–{args.cases - 1}), documented effect sizes; {args.jobs} worker(s)")
+    else:
+        print(f"cases:   the independent generator only, {args.independent_cases} per row from seed "
+              f"{args.independent_seed0}; {args.jobs} worker(s)")
     print(flush=True)
 
     own = args.generator in ("own", "both")
