@@ -210,17 +210,21 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             cv = out_of_sample_gain(prep, tuple(accepted) + (e,), tuple(accepted),
                                     {**start, e.name: theta}, current.theta[:2])
             decided = [g for g, reach in cv if reach >= CV_MIN_REACH]
+            folds = ", ".join(f"{g:.1f} at reach {reach:.3g}" for g, reach in cv) or "n/a"
             if not cv or (decided and min(decided) <= CV_MIN_GAIN):
                 candidates[e.name] = Candidate(e.name, "rejected", dbic, p,
-                                               "fitted on one half, it does not predict the other "
-                                               f"(log-likelihood gain {', '.join(f'{g:.1f}' for g, _ in cv) or 'n/a'})")
+                                               f"fitted on one half, it does not predict the other "
+                                               f"(log-likelihood gain {folds})")
                 usable.remove(e)
                 continue
-            chosen = (dbic, e, fit, p)
+            # said beside an accepted effect when no half could judge it (the report shows it)
+            note = "" if decided else (f"cross-validation could not judge (gain {folds}; a half decides from "
+                                       f"reach {CV_MIN_REACH:g}): decided in-sample")
+            chosen = (dbic, e, fit, p, note)
         if chosen is None:
             break
-        dbic, best, fit, p = chosen
-        candidates[best.name] = Candidate(best.name, "accepted", dbic, p, "")
+        dbic, best, fit, p, note = chosen
+        candidates[best.name] = Candidate(best.name, "accepted", dbic, p, note)
         accepted.append(best)
         usable.remove(best)
         for e in accepted:
