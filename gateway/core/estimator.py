@@ -27,6 +27,10 @@ from gateway.core.smoother import run_backward
 METHODS = ("raw", "paper", "realtime", "smoothed")
 
 
+# the flags that make an estimate's numbers the last ones, not live (Estimate.holding)
+HOLDING_FLAGS = K.F_INPUT_INVALID | K.F_TIME_ERROR
+
+
 @dataclass(frozen=True, slots=True)
 class Estimate:
     """One sample's estimate and the health the daemon publishes: the one estimate type
@@ -83,7 +87,7 @@ class Estimate:
     @property
     def holding(self) -> bool:
         """The numbers are the last ones, not live: no valid input, or time did not advance."""
-        return bool(self.flags & (K.F_INPUT_INVALID | K.F_TIME_ERROR))
+        return bool(self.flags & HOLDING_FLAGS)
 
     @property
     def fault(self) -> bool:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 from drivers.published_values import PublishedValues, StatusExtBits
 from gateway.core import estimator_kernel as K
-from gateway.core.estimator import Estimate
+from gateway.core.estimator import HOLDING_FLAGS, Estimate
 from gateway.daemon.sample_pipeline import ChunkResult, SamplePipeline
 from gateway.daemon.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
 
@@ -28,7 +28,6 @@ AXIS_INVALID_HOLD_S = 1.0
 # a 75 mm σ). Gaps of a few samples stay bridged (they cost < 1 mm there).
 OUTAGE_S = 0.25
 
-_HOLDING = K.F_INPUT_INVALID | K.F_TIME_ERROR  # as Estimate.holding
 _SIMULATED = int(StatusExtBits.SIMULATED)
 _HINT_AT_REST = int(StatusExtBits.HINT_AT_REST)
 _HINT_MOVING = int(StatusExtBits.HINT_MOVING)
@@ -170,7 +169,7 @@ class BoardIntake:
             standstill=est is not None and flags & K.F_STANDSTILL != 0,
             estimator_fault=(est is not None and flags & K.F_FAULT != 0)
             or (fault_at is not None and now_s - fault_at < EVENT_HOLD_S),
-            holding=est is not None and (flags & _HOLDING != 0 or flags & K.F_INITIALISED == 0),
+            holding=est is not None and (flags & HOLDING_FLAGS != 0 or flags & K.F_INITIALISED == 0),
             axis_invalid=now_s < ev.axis_invalid_until_s,
             saturated_until_s=ev.saturated_until_s,
             board_reset_at_s=ev.board_reset_at_s,
