@@ -65,9 +65,57 @@ def add_parser(sub) -> None:
     p.add_argument("--ignore-hint", action="store_true",
                    help="do not use the recording's standstill_hint column (the machine's 'at rest' / "
                         "'moving'; realtime and smoothed use it when present)")
+    p.add_argument("--skip-s", type=_seconds, default=0.0, metavar="SECONDS",
+                   help="leave out the recording's first SECONDS (e.g. a sensor settling at power-up, a "
+                        "logger's first rows); the estimate and the reference's position begin after them")
     p.add_argument("--returns-to-start", action="store_true",
                    help="the motion ends where it began (net displacement zero): print the final position as its error")
     p.set_defaults(run=run)
+
+
+def _seconds(text: str) -> float:
+    """A duration ≥ 0 from the command line (a wrong one: argparse's one line, exit 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0.0):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a duration in seconds (a number ≥ 0)")
+    return value
+
+
+class Skip:
+    """--skip-s over a recording read whole or chunk by chunk: the rows before the first
+    row's time + skip_s left out, the reference position measured from its value at the
+    first row kept (where the estimate begins)."""
+
+    def __init__(self, skip_s: float):
+        self.skip_s = skip_s
+        self.until_s: float | None = None
+        self.ref_origin_m: float | None = None
+
+    def __call__(self, series: AccelerationSeries) -> AccelerationSeries:
+        if not self.skip_s or not len(series):
+            return series
+        if self.until_s is None:
+            self.until_s = float(series.t_s[0]) + self.skip_s
+        if self.ref_origin_m is None:
+            kept = series.t_s >= self.until_s
+            ref = series.reference.get("ref_pos_m")
+            if not kept.any():
+                return series.from_time(self.until_s)
+            self.ref_origin_m = float(ref[kept][0]) if ref is not None else 0.0
+        return series.from_time(self.until_s, self.ref_origin_m)
+
+
+def _no_rest(args: argparse.Namespace, err: NoRestError) -> InputError:
+    """The one-line refusal; where the motion seems to begin at the very first samples, the
+    way out for a sensor that settles there."""
+    hint = ""
+    if args.skip_s == 0.0 and "moves after 0.0" in str(err):
+        hint = ("; if the first samples are the sensor settling at power-up (not motion), --skip-s "
+                "SECONDS leaves them out")
+    return InputError(f"{args.recording}: cannot estimate ({args.method}): {err}{hint}")
 
 
 def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: FittedDrift | None) -> EstimatorSettings:
@@ -191,6 +239,9 @@ def run(args: argparse.Namespace) -> int:
     form = rec.form
     series = to_acceleration(rec)
     del rec  # the raw counts are not needed once converted (smoothed: ~40 bytes per sample)
+    series = Skip(args.skip_s)(series)
+    if args.skip_s and len(series) == 0:
+        raise RecordingError(f"{args.recording}: no rows after the first {args.skip_s:g} s (--skip-s)")
     _warn_input(series)
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
@@ -206,7 +257,7 @@ def run(args: argparse.Namespace) -> int:
         )
         hints.say()
     except NoRestError as err:
-        raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err
+        raise _no_rest(args, err) from err
     for note in track.notes:
         print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
     if settings is not None:
@@ -266,9 +317,13 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
     ref_names: list[str] = []
     last_series = None
     hints = HintUse(args)
+    skip = Skip(args.skip_s)
     try:
         with reading_bar(source, "estimating") as bar:
             for series in acceleration_chunks(source, progress=bar):
+                series = skip(series)
+                if args.skip_s and not len(series):
+                    continue
                 if runner is None:
                     settings = settings_for(series, source.form, args.noise_from, drift)
                     runner = RealtimeChunks(settings)
@@ -287,13 +342,14 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
                                ref["ref_acc_mps2"] if "ref_acc_mps2" in ref_names else None)
                 last_series = series
         if runner is None:
-            raise RecordingError(f"{args.recording}: no data rows")
+            raise RecordingError(f"{args.recording}: no data rows"
+                                 + (f" after the first {args.skip_s:g} s (--skip-s)" if args.skip_s else ""))
         notes = runner.finish()
         hints.say()
     except NoRestError as err:
         if writer is not None:
             writer.abort()
-        raise InputError(f"{args.recording}: cannot estimate ({args.method}): {err}") from err
+        raise _no_rest(args, err) from err
     except BaseException:
         if writer is not None:
             writer.abort()

@@ -133,6 +133,21 @@ class AccelerationSeries:
     def __len__(self) -> int:
         return self.t_s.size
 
+    def from_time(self, t0_s: float, ref_origin_m: float = 0.0) -> AccelerationSeries:
+        """The rows at or after t0_s (e.g. a sensor's settling at power-up left out), the
+        reference position measured from ref_origin_m (where the estimate begins)."""
+        keep = self.t_s >= t0_s
+        reference = {k: v[keep] for k, v in self.reference.items()}
+        if "ref_pos_m" in reference:
+            reference["ref_pos_m"] = reference["ref_pos_m"] - ref_origin_m
+
+        def cut(x):
+            return None if x is None else x[keep]
+
+        return AccelerationSeries(self.t_s[keep], self.acc_mps2[keep], self.valid[keep], self.lost_before[keep],
+                                  cut(self.other_axis_mps2), reference, cut(self.temp_c), cut(self.t_host_s),
+                                  self.axis, self.report, cut(self.standstill_hint))
+
 
 def _error(path, line, column, what) -> RecordingError:
     where = f"{path}:{line}" + (f": column {column!r}" if column else "")
