@@ -1,0 +1,82 @@
+"""The diagnosis against board temperatures of other shapes than the benchmark's 6 s swing,
+on the simulator: the design ground behind docs/diagnosis.md §4's cross-validation rule.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/temperature_swing_sweep.py [--seeds 15] [--checkout DIR]
+
+1. temperature_offset hidden, the swing's period set to 3, 6, 12 and 20 s (±4 °C, the
+   record 7.6 s): per period, what was named over the seeds.
+2. a temperature column that moves (a warm-up, or a 6–30 s swing; once-a-second reports
+   as a board gives them) while the offset does not follow it, in clean, tilt, scale and
+   vibration cases: anything named beside the hidden effect is false.
+
+`--checkout DIR` runs another commit's diagnosis and simulator (a worktree) with this
+script; the periods are set by wrapping that checkout's `draw_terms`.
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import datetime
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=15)
+    ap.add_argument("--checkout", type=Path, default=Path(__file__).resolve().parents[1])
+    args = ap.parse_args()
+    sys.path.insert(0, str(args.checkout.resolve()))
+    import tests.diagnosis_cases as dc
+    from benchmarks.machine_info import machine
+
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/temperature_swing_sweep.py --seeds {args.seeds} "
+          f"--checkout {args.checkout}")
+    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    drawn = dc.draw_terms
+
+    def with_period(cycle_s):
+        def draw(names, seed):
+            return tuple(dataclasses.replace(t, cycle_s=cycle_s) if t.name == "temperature_offset" else t
+                         for t in drawn(names, seed))
+        return draw
+
+    print("1. temperature_offset hidden, swing ±4 °C of period P over a 7.6 s record:")
+    for cycle_s in (3.0, 6.0, 12.0, 20.0):
+        dc.draw_terms = with_period(cycle_s)
+        named = collections.Counter()
+        for seed in range(args.seeds):
+            _, data = dc.make_case(("temperature_offset",), seed)
+            named[tuple(e.name for e in dc.run_diagnosis(data).effects)] += 1
+        alone = named[("temperature_offset",)]
+        print(f"   P = {cycle_s:4.0f} s: named alone {alone} of {args.seeds}; "
+              + ", ".join(f"{' + '.join(k) or 'nothing'} ×{v}" for k, v in sorted(named.items()) if k != ("temperature_offset",)))
+    dc.draw_terms = drawn
+
+    print("2. a moving temperature column the offset does not follow (anything named beside the hidden effect is false):")
+    false = cases = 0
+    for hidden in ((), ("tilt",), ("scale_factor",), ("vibration",)):
+        for kind in ("warm-up", "slow swing"):
+            for seed in range(12):
+                rng = np.random.default_rng(seed + 777)
+                _, data = dc.make_case(hidden, seed)
+                t = data.t_s - data.t_s[0]
+                phase = rng.uniform(0.0, 1.0)
+                at = np.floor(t - phase) + phase  # once-a-second reports
+                if kind == "warm-up":
+                    temp = 25.0 + rng.uniform(1.0, 4.0) * (1.0 - np.exp(-at / rng.uniform(5.0, 30.0)))
+                else:
+                    temp = 25.0 + 4.0 * np.sin(2.0 * np.pi * at / rng.uniform(6.0, 30.0) + rng.uniform(0.0, 6.3))
+                data.temp_c = np.round(temp, 2)
+                extra = {e.name for e in dc.run_diagnosis(data).effects} - set(hidden)
+                false += bool(extra)
+                cases += 1
+    print(f"   {cases} cases (clean, tilt, scale_factor, vibration × warm-up, slow swing × 12 seeds): "
+          f"{false} with a false name")
+
+
+if __name__ == "__main__":
+    main()
