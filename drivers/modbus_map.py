@@ -448,11 +448,14 @@ class ServerRowEncoder:
                 last[i] = value
 
 
+_NO_DIAGNOSTICS = ServerDiagnostics()  # (VALUE_ROWS read none of it)
+
+
 def write_value_rows(words: list[int], values: PublishedValues, word_order: WordOrder = WordOrder.ABCD) -> None:
     """A new snapshot into an input image in place: its rows (VALUE_ROWS), SCALED_CLAMPED
     in STATUS when a value was clamped; the server's own rows are left as they are (the
     server keeps them with a ServerRowEncoder)."""
-    if encode_rows(VALUE_ROWS, words, values, ServerDiagnostics(), word_order):
+    if encode_rows(VALUE_ROWS, words, values, _NO_DIAGNOSTICS, word_order):
         words[BY_NAME["STATUS"].address] |= int(StatusBits.SCALED_CLAMPED)
 
 

@@ -11,6 +11,7 @@ encodes them (NaN in float32 registers, a sentinel in scaled integers).
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -182,3 +183,11 @@ ValuesSource = PublishedValues | Callable[[], PublishedValues]
 def current(values: ValuesSource) -> PublishedValues:
     """The snapshot a `ValuesSource` stands for."""
     return values if isinstance(values, PublishedValues) else values()
+
+
+@functools.cache
+def flag_word(kind: type[enum.IntFlag], bits: int) -> enum.IntFlag:
+    """kind(bits), made once per value: an IntFlag built from an int is two Python calls
+    (enum's __call__ and __new__), and the daemon builds its status words per snapshot;
+    the words a gateway shows are few (at most 2**16 per kind)."""
+    return kind(bits)

@@ -108,11 +108,15 @@ class Skip:
         return series.from_time(self.until_s, self.ref_origin_m)
 
 
+# a rest that ends this soon after the first sample may be a sensor settling at power-up
+SETTLING_S = 0.1
+
+
 def _no_rest(args: argparse.Namespace, err: NoRestError) -> InputError:
     """The one-line refusal; where the motion seems to begin at the very first samples, the
     way out for a sensor that settles there."""
     hint = ""
-    if args.skip_s == 0.0 and "moves after 0.0" in str(err):
+    if args.skip_s == 0.0 and err.moves_after_s is not None and err.moves_after_s < SETTLING_S:
         hint = ("; if the first samples are the sensor settling at power-up (not motion), --skip-s "
                 "SECONDS leaves them out")
     return InputError(f"{args.recording}: cannot estimate ({args.method}): {err}{hint}")

@@ -249,7 +249,8 @@ def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
     try:
         rest = find_initial_rest(acc, valid, period)
     except NoRestError as err:
-        raise NoRestError(f"reference-point compensation needs an initial standstill: {err}") from None
+        raise NoRestError(f"reference-point compensation needs an initial standstill: {err}",
+                          moves_after_s=err.moves_after_s) from None
     compensated = acc - rest.offset_mps2
     states, pos_var = run_paper_filter(t, compensated, valid, jerk_density, max(rest.sample_std_mps2, 1e-9) ** 2)
     n = t.size

@@ -17,7 +17,12 @@ MAD_TO_SIGMA = 1.4826  # σ of a normal distribution from its median absolute de
 
 
 class NoRestError(ValueError):
-    """The recording does not begin with a standstill long enough to measure the offset."""
+    """The recording does not begin with a standstill long enough to measure the offset.
+    `moves_after_s`: where the motion that ended the rest began (None: another reason)."""
+
+    def __init__(self, message: str, moves_after_s: float | None = None):
+        super().__init__(message)
+        self.moves_after_s = moves_after_s
 
 
 @dataclass(frozen=True)
@@ -75,7 +80,6 @@ def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
     if stop - start < n_min:
         raise NoRestError(
             f"the recording moves after {(end - start) * period_s:.3f} s; a rest of at least "
-            f"{min_rest_s:g} s is needed at its start"
-        )
+            f"{min_rest_s:g} s is needed at its start", moves_after_s=(end - start) * period_s)
     rest = a[start:stop][ok[start:stop]]
     return Rest(start=start, stop=stop, offset_mps2=float(np.mean(rest)), sample_std_mps2=float(np.std(rest)))

@@ -11,7 +11,7 @@ import logging
 import math
 from dataclasses import dataclass
 
-from drivers.published_values import PublishedValues, StatusExtBits
+from drivers.published_values import PublishedValues, StatusExtBits, flag_word
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import HOLDING_FLAGS, Estimate
 from gateway.daemon.sample_pipeline import ChunkResult, SamplePipeline
@@ -34,7 +34,6 @@ _HINT_MOVING = int(StatusExtBits.HINT_MOVING)
 _HINT_CONFLICT = int(StatusExtBits.HINT_CONFLICT)
 _OFFSET_STEP = int(StatusExtBits.OFFSET_STEP)
 _STOP_BY_HINT = int(StatusExtBits.STOP_BY_HINT)
-_EXT_WORDS: dict[int, StatusExtBits] = {}  # each word made once (enum calls cost per snapshot)
 
 
 @dataclass(slots=True)
@@ -196,10 +195,7 @@ class BoardIntake:
                 bits |= _OFFSET_STEP
             if flags & K.F_STANDSTILL and self.pipeline.stop_by_hint:
                 bits |= _STOP_BY_HINT
-        word = _EXT_WORDS.get(bits)
-        if word is None:
-            word = _EXT_WORDS[bits] = StatusExtBits(bits)
-        return word
+        return flag_word(StatusExtBits, bits)
 
     def _build(self, health: LinkHealth) -> PublishedValues:
         now = self._published_at

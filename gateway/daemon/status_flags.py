@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.published_values import NOT_USABLE_BITS, StatusBits
+from drivers.published_values import NOT_USABLE_BITS, StatusBits, flag_word
 
 # Events (a board reset, lost samples, a config reload) stay visible this long, so a
 # PLC polling once a second cannot miss them.
@@ -34,10 +34,6 @@ class GatewayCondition:
     bias_estimating: bool = False
     untrusted: bool = False  # the estimator cannot tell a cruise from a stop now
 
-
-# StatusBits(int) is two Python calls (enum's __call__ and __new__) per snapshot; the
-# words a gateway shows are few, so each is made once (at most 2**16 entries)
-_STATUS_WORDS: dict[int, StatusBits] = {}
 
 
 _VALID = int(StatusBits.VALID)
@@ -93,7 +89,4 @@ def status_bits(c: GatewayCondition) -> StatusBits:
         bits |= _UNTRUSTED
     if c.have_estimate and not bits & _UNUSABLE:
         bits |= _VALID
-    word = _STATUS_WORDS.get(bits)
-    if word is None:
-        word = _STATUS_WORDS[bits] = StatusBits(bits)
-    return word
+    return flag_word(StatusBits, bits)
