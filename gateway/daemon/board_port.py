@@ -33,17 +33,9 @@ class BoardPort:
         self._reopen = asyncio.Event()
 
     @property
-    def is_open(self) -> bool:
-        return self.source is not None and self.source.is_open
-
-    @property
     def batches(self) -> bool:
         """The kernel wakes the reader per batch of frames (termios VMIN), not per byte."""
         return self.source is not None and self.source.wake_min_bytes > 1
-
-    @property
-    def last_data_monotonic_s(self) -> float | None:
-        return None if self.source is None else self.source.last_data_monotonic_s
 
     def read_pending(self) -> bytes:
         """The bytes waiting in the port now (never blocks; b"" when none or not open)."""
