@@ -118,13 +118,17 @@ def draw_terms(effect_names: tuple[str, ...], seed: int) -> tuple[ErrorTerm, ...
 
 
 def make_case(effect_names: tuple[str, ...], seed: int,
-              adjust: Callable[[ErrorTerm], ErrorTerm] | None = None) -> tuple[tuple[ErrorTerm, ...], DiagnosisInput]:
+              adjust: Callable[[ErrorTerm], ErrorTerm] | None = None,
+              strokes: StrokeSettings | None = None) -> tuple[tuple[ErrorTerm, ...], DiagnosisInput]:
     """A simulated recording with these effects hidden in it: (the terms, what diagnose gets).
-    `adjust` changes each drawn term before the simulation (e.g. a slower temperature swing)."""
+    `adjust` changes each drawn term before the simulation (e.g. a slower temperature swing);
+    `strokes` replaces the paper's strokes (e.g. a gentler machine)."""
     terms = draw_terms(tuple(effect_names), seed)
     if adjust is not None:
         terms = tuple(adjust(t) for t in terms)
-    run = simulate(_profile(scenario_for(tuple(effect_names))), SENSOR, seed=seed, error_terms=terms)
+    profile = (_profile(scenario_for(tuple(effect_names))) if strokes is None
+               else build_profile(ScenarioSettings(strokes=strokes)))
+    run = simulate(profile, SENSOR, seed=seed, error_terms=terms)
     rec = Recording(f"<simulated seed {seed}>", {"tick_hz": str(run.tick_hz)},
                     {k: np.asarray(v, dtype=float) for k, v in run.recording_columns().items()}, "raw")
     s = to_acceleration(rec)

@@ -129,17 +129,24 @@ def residual_share(rms_before: float, rms_after: float) -> float:
     return 1.0 - (rms_after / rms_before) ** 2
 
 
-def matters(share: float | None, distance_mm: float | None) -> tuple[bool, str]:
-    """(named, why) from the residual share and the distance improvement (None: unknown)."""
+def matters(share: float | None, distance_mm: float | None,
+            position_mm: float | None = None) -> tuple[bool, str]:
+    """(named, why) from the residual share, the distance improvement and, for an effect
+    a user meets elsewhere than in the distance (host timestamps: position_mm, see
+    side_effects.host_time_position_mm), the position error it makes there (None: unknown)."""
     if distance_mm is not None and distance_mm < -MAX_DISTANCE_LOSS_MM:
         return False, f"makes the distance error worse by {-distance_mm:.2f} mm"
     if share is not None and share >= MIN_RESIDUAL_SHARE:
         return True, ""
     if distance_mm is not None and distance_mm >= MIN_DISTANCE_GAIN_MM:
         return True, ""
+    if position_mm is not None and position_mm >= MIN_DISTANCE_GAIN_MM:
+        return True, ""
     size = []
     if share is not None:
         size.append(f"explains {100 * share:.2f} % of the residual variance")
     if distance_mm is not None:
         size.append(f"distance {distance_mm:+.2f} mm")
+    if position_mm is not None:
+        size.append(f"a host-timed position off by {position_mm:.2f} mm at top speed")
     return False, "; ".join(size) or "no measurable gain"

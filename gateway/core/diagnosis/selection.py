@@ -308,6 +308,8 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                     "distance": distance_gain(prep, without, step_plan)}
             if test.rms_unit is not None:  # the same key shape as a signal effect's residual_rms_mps2
                 gain[f"residual_rms_{test.rms_unit}"] = [test.rms_before, test.rms_after]
+            if test.position_mm is not None:
+                gain["position_mm"] = test.position_mm
             result = EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail)
             hold = test.params.get("hold_back_ms", (math.inf, 0.0))[0] * 1e-3
             in_setup = setup_range(s.name, prep, np.array([hold])) if s.name == "timing" else None
@@ -360,8 +362,13 @@ def _classify(result: EffectResult, setup_why: str | None, effects: list, setup:
     dist = gain.get("distance", {})
     distance_mm = float(dist["improvement_mm"]) if dist.get("available") else None
     rms = next((gain[k] for k in gain if k.startswith("residual_rms")), None)
-    share = residual_share(*rms) if rms is not None else None
+    position_mm = gain.get("position_mm")
+    # an effect sized by the position it makes elsewhere (host timestamps) has a residual
+    # whose share says nothing (side_effects.host_time_position_mm): judged by that instead
+    share = residual_share(*rms) if rms is not None and position_mm is None else None
     size = {"residual_share": share, "distance_improvement_mm": distance_mm}
+    if position_mm is not None:
+        size["position_mm"] = position_mm
     if setup_why:
         setup.append({"name": result.name, "params": result.params, "what": setup_why, **size})
         candidates[result.name].status = "setup"
@@ -370,7 +377,7 @@ def _classify(result: EffectResult, setup_why: str | None, effects: list, setup:
     if result.name == "sample_loss":  # counted, not fitted: a gap is a fact
         effects.append(result)
         return True
-    named, why = matters(share, distance_mm)
+    named, why = matters(share, distance_mm, position_mm)
     if named:
         effects.append(result)
         return True

@@ -49,6 +49,9 @@ class SideTest:
     rms_unit: str | None = "mps2"
     compensation: Compensation | None = None
     values: dict = field(default_factory=dict)  # for the gain computation
+    #: what the effect does to a position where a user meets it (mm), when the residual
+    #: share cannot say (judgement.matters); None: judged by the share and the distance
+    position_mm: float | None = None
 
     def significant(self, alpha: float) -> bool:
         return self.p_value < alpha and self.loglik_after > self.loglik_before
@@ -138,6 +141,24 @@ def binned_loglik(counts: np.ndarray, edges: np.ndarray, hold_s: float, mean_s: 
     return float(np.sum(counts * np.log(np.maximum(p, 1e-300))))
 
 
+def host_time_position_mm(delay_s: np.ndarray, speed_mps: np.ndarray) -> float:
+    """How far a position stamped with the host's arrival time lies from where the axis
+    was, at the record's top speed: top speed × the delay's scatter beyond what the
+    baseline link gives (Exp(μ) has σ = μ), in mm rms.
+
+    Why not the residual share: the baseline and the extension are both distributions of
+    the same delays around their own means, so the spread left "unexplained" is the same
+    under both (a latency timer's U(0, L) has σ = L/√12 either way) and the share is ~0
+    for any L. What a latency timer costs a user is the scatter itself: a gateway stamping
+    (or a logger timing) samples on arrival misplaces each by v·δt. The top speed is the
+    99th percentile of |v| (one spike of a differentiated reference does not set it)."""
+    if delay_s.size < 2 or speed_mps.size == 0:
+        return 0.0
+    excess_var = float(np.var(delay_s)) - BASELINE_LATENCY_MEAN_S**2
+    top_speed = float(np.quantile(speed_mps[np.isfinite(speed_mps)], 0.99)) if np.isfinite(speed_mps).any() else 0.0
+    return top_speed * math.sqrt(max(excess_var, 0.0)) * 1e3
+
+
 class Timing(SideEffect):
     """Host delays are compared as a histogram of TIMING_RESOLUTION_S bins.
 
@@ -206,17 +227,20 @@ class Timing(SideEffect):
         spread = float(np.std(np.diff(d.t_host_s[ok])))
         excess0 = delay - delay.min() - mu_base
         excess1 = x1 - x1.min() - (hold / 2 + mu)
+        position_mm = host_time_position_mm(x1, np.abs(d.ref_vel_mps[ok][keep]))
         return SideTest(
             params={"clock_rate_error_ppm": (rate * 1e6, float("nan")),
                     "hold_back_ms": (hold * 1e3, float("nan")),
                     "latency_mean_ms": (mu * 1e3, float("nan")),
-                    "arrival_interval_std_ms": (spread * 1e3, float("nan"))},
+                    "arrival_interval_std_ms": (spread * 1e3, float("nan")),
+                    "position_at_top_speed_mm": (position_mm, float("nan"))},
             loglik_before=ll0, loglik_after=ll1, extra_params=3, p_value=_lr_p(ll0, ll1, 3),
             rms_before=float(np.sqrt(np.mean(excess0**2))), rms_after=float(np.sqrt(np.mean(excess1**2))),
             rms_unit="s",
             detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
                     f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
             values={"host_time": True},
+            position_mm=position_mm,
         )
 
 
