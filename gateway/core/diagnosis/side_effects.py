@@ -267,16 +267,17 @@ class SampleLoss(SideEffect):
         )
 
 
-def local_level_loglik(y: np.ndarray, dt_s: float, k: float, sigma: float) -> float:
+def local_level_loglik(y: np.ndarray, dt_s, k: float, sigma: float) -> float:
     """Exact log-likelihood of y = level + white(σ), level a random walk with Var step K²·dt.
 
+    dt_s: one spacing, or each step's (len(y) − 1: blocks with motion between them).
     Kalman filter with a diffuse start (the first block fixes the level)."""
-    q = k * k * dt_s
+    q = k * k * np.broadcast_to(np.asarray(dt_s, dtype=float), (max(len(y) - 1, 0),))
     r = sigma * sigma
     level, p = float(y[0]), r
     ll = 0.0
-    for v in y[1:]:
-        p += q
+    for v, qi in zip(y[1:], q):
+        p += qi
         s = p + r
         e = v - level
         ll += -0.5 * (math.log(2.0 * math.pi * s) + e * e / s)
@@ -287,27 +288,50 @@ def local_level_loglik(y: np.ndarray, dt_s: float, k: float, sigma: float) -> fl
 
 
 class BiasRandomWalk(SideEffect):
+    """Block means of the residual where the axis is at rest, as white noise against white
+    noise plus a random walk of the level.
+
+    Only rest blocks: a random walk is a property of the bias, and at rest the reading is
+    the bias and noise alone. In motion the residual also carries whatever the motion's
+    model lacks (a tilt or a temperature term of a slightly other shape, the reading's
+    timing), and block means of that wander too: a walk fitted there names the leftover
+    of another effect (seen as `bias_random_walk` beside tilt and temperature on the
+    independent generator). Between rest blocks the walk's variance grows with the time
+    between them. A record with fewer than MIN_BLOCKS rest blocks cannot show a walk (a
+    stroke record's rests are a few seconds: docs/diagnosis.md, sensor_effects.SCENARIO_FOR).
+    """
+
     name = "bias_random_walk"
     summary = "the bias wanders as a random walk beyond the exponential drift (Allan slope +1/2)"
     block_s = 0.25
+    MIN_BLOCKS = 20
+
+    def unusable(self, prep):
+        if not prep.rest.any():
+            return "needs the axis at rest (a walk of the bias is read where nothing else moves the reading)"
+        return None
 
     def test(self, prep, residual):
         d = prep.data
-        ok = np.isfinite(residual)
+        ok = np.isfinite(residual) & prep.rest
         idx = np.floor((d.t_s - d.t_s[0]) / self.block_s).astype(np.int64)
         cnt = np.bincount(idx[ok], minlength=idx[-1] + 1)
         tot = np.bincount(idx[ok], weights=residual[ok], minlength=idx[-1] + 1)
-        full = cnt >= max(3, int(0.5 * self.block_s / d.period_s))
+        # a block counts when at least half of it is at rest and usable
+        full = np.flatnonzero(cnt >= max(3, int(0.5 * self.block_s / d.period_s)))
         y = tot[full] / cnt[full]
-        if y.size < 20:
-            return SideTest({}, 0.0, 0.0, 1, 1.0, 0.0, 0.0, detail="record too short for block means")
+        if y.size < self.MIN_BLOCKS:
+            return SideTest({}, 0.0, 0.0, 1, 1.0, 0.0, 0.0,
+                            detail=f"{y.size} blocks of {self.block_s:g} s at rest: too few to see a walk "
+                                   f"(needs {self.MIN_BLOCKS})")
         sigma0 = float(np.std(y))
+        dt = np.diff(full) * self.block_s
 
         def nll(p):
-            return -local_level_loglik(y, self.block_s, math.exp(p[0]), math.exp(p[1]))
+            return -local_level_loglik(y, dt, math.exp(p[0]), math.exp(p[1]))
 
         # the null on the same footing (same diffuse start, same terms): K = 0, σ free
-        null = minimize_scalar(lambda ls: -local_level_loglik(y, self.block_s, 0.0, math.exp(ls)),
+        null = minimize_scalar(lambda ls: -local_level_loglik(y, dt, 0.0, math.exp(ls)),
                                bounds=(math.log(sigma0) - 3, math.log(sigma0) + 3), method="bounded")
         ll0 = -float(null.fun)
 
@@ -328,7 +352,7 @@ class BiasRandomWalk(SideEffect):
             loglik_before=ll0, loglik_after=ll1, extra_params=1,
             p_value=_lr_p(ll0, ll1, 1, boundary=True),
             rms_before=sigma0, rms_after=sigma,
-            detail=f"block means of {self.block_s:g} s of the residual",
+            detail=f"means of {y.size} blocks of {self.block_s:g} s of the residual at rest",
             compensation=Compensation(settings={"bias_random_walk_mps2_per_rts": k}),
             values={"k_mps2_per_rts": k},
         )
