@@ -42,6 +42,8 @@ def test_a_stroke_record_with_short_rests_says_it_cannot_see_a_walk():
     prep = prepare(data)
     out = BiasRandomWalk().test(prep, np.zeros(data.t_s.size))
     assert "too few to see a walk" in out.detail and not out.significant(1e-3)
+    (walk,) = [c for c in run_diagnosis(data).candidates if c.name == "bias_random_walk"]
+    assert walk.status == "rejected" and "too few to see a walk" in walk.reason
 
 
 @pytest.mark.slow

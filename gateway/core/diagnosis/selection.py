@@ -293,8 +293,9 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         test = s.test(prep, current.residual)
         dbic = -2.0 * (test.loglik_after - test.loglik_before) + test.extra_params * math.log(max(current.n, 2))
         ok = test.significant(ALPHA / len(SIDE_EFFECTS)) and dbic <= -BIC_MARGIN
+        # a test that could not be made (no parameters fitted) says why in its detail
         candidates[s.name] = Candidate(s.name, "accepted" if ok else "rejected", dbic, test.p_value,
-                                       "" if ok else "ΔBIC or p not enough")
+                                       "" if ok else (test.detail if not test.params else "ΔBIC or p not enough"))
         if ok:
             progress(f"gain of {s.name}: distance estimate before and after")
             if test.values.get("host_time"):
