@@ -34,8 +34,10 @@ from gateway.offline.recording import (
 # Memory of the smoothed estimate per sample, bytes: the recording's columns and the
 # series, the forward pass's states kept for the backward pass (~90), the output columns
 # and what writing them takes. Measured: 266 (peak RSS 5.75 GB for 21.6 M samples,
-# benchmarks/offline_scale.py, docs/estimation.md), rounded up.
-SMOOTHED_BYTES_PER_SAMPLE = 300
+# benchmarks/offline_scale.py, docs/estimation.md), rounded up; plus ~42 when the stops
+# are decided from both ends (estimator.stops_seen_from_the_end: the one-pass answer
+# kept beside the second pass, the derived hint) — not measured at 12 h, counted.
+SMOOTHED_BYTES_PER_SAMPLE = 340
 # the estimate's columns written as integers
 TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 

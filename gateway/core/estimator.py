@@ -13,7 +13,7 @@ estimate_series(method="realtime").
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -261,16 +261,10 @@ def _paper(t, acc, valid, lost, period, jerk_density, notes) -> EstimateTrack:
                   zeros, zeros, zeros, zeros, flags, notes)
 
 
-def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
-    prm = settings.kernel_params()
+def _forward(prm, t, z, ok, lost, hint, cols, flags, smooth: bool):
+    """One forward run of the kernel into cols/flags; with smooth, the stores the backward
+    pass needs: (st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data, n_zupt)."""
     n = t.size
-    state = K.new_state(prm)
-    cols = {name: np.empty(n) for name in ("pos", "vel", "acc", "bias", "pos_var", "vel_var", "bias_var",
-                                           "innov", "nis", "zupt")}
-    flags = np.empty(n, dtype=np.int32)
-    z = np.where(valid, acc, 0.0)
-    ok = np.asarray(valid, dtype=np.bool_)
-    lost = np.asarray(lost, dtype=np.int64)
     if smooth:
         st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
         st_trans, st_zaru = np.empty(n, dtype=np.int8), np.empty((n, 2))
@@ -279,6 +273,7 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
         st_x, st_p = np.empty((1, 3)), np.empty((1, 6))
         st_trans, st_zaru = np.empty(1, dtype=np.int8), np.empty((1, 2))
         capacity = 1
+    state = K.new_state(prm)
     for _attempt in range(2):
         zupt_index, zupt_data = np.empty(capacity, dtype=np.int64), np.empty((capacity, 5))
         n_zupt = K.run_forward(prm, t, z, ok, lost, hint, state,
@@ -289,27 +284,155 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
             break
         capacity = n_zupt  # rare: more stops than expected; run again with room for all
         state = K.new_state(prm)
-    method = "realtime"
-    if smooth:
-        method = "smoothed"
-        run_backward(t, st_trans, st_x, st_p, st_zaru, prm[K.P_R], zupt_index, zupt_data, n_zupt,
-                     cols["pos_var"], cols["vel_var"], cols["bias_var"])
-        init = (flags & K.F_INITIALISED) != 0
-        still = (flags & K.F_STANDSTILL) != 0
-        cols["pos"] = np.where(init, st_x[:, 0], 0.0)
-        cols["vel"] = np.where(init, st_x[:, 1], 0.0)
-        cols["bias"] = np.where(init, st_x[:, 2], 0.0)
-        held = hold_invalid(acc, valid)
-        cols["acc"] = np.where(init & ~still, held - cols["bias"], 0.0)
-        # undo the sensor filter's lag as the kernel does (estimator_kernel, step 5)
-        lag = prm[K.P_LAG]
-        moving = init & ~still
-        y_edge = np.zeros(n)
-        y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
-        cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
-        del st_x, st_p, st_zaru
-    return _track(method, t, cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"], cols["vel_var"],
-                  cols["innov"], cols["nis"], cols["zupt"], flags, notes)
+    return st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data, n_zupt
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True."""
+    edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
+
+
+def lost_before_reversed(lost_before) -> np.ndarray:
+    """The samples lost before each sample of the record read backward: the gap before
+    reversed sample j is the one after original sample n−1−j."""
+    lost = np.asarray(lost_before, dtype=np.int64)
+    return np.concatenate((np.zeros(min(1, lost.size), dtype=np.int64), lost[:0:-1]))
+
+
+def backward_may_decide(flags) -> bool:
+    """The forward pass lost its velocity somewhere (flag 256) and does not know, at the
+    end, that the axis moves (it ends in a standstill, or in a quiet stretch it cannot
+    decide): a backward run from the end may recognise stops it could not."""
+    if not flags.size:
+        return False
+    init = (flags & K.F_INITIALISED) != 0
+    last = int(flags[-1])
+    return bool(np.any(init & ((flags & K.F_UNTRUSTED) != 0))
+                and (last & K.F_STANDSTILL or last & K.F_UNTRUSTED))
+
+
+def stops_seen_from_the_end(t, z, ok, lost, hint, settings: EstimatorSettings, forward_flags,
+                            cols) -> np.ndarray | None:
+    """Stops the forward pass could not decide that the same filter, run backward in time
+    from the recording's final rest, recognises: True on their samples (None: none).
+
+    Why: after a long cruise, a gap, or an offset step in the motion, the forward filter
+    no longer knows its velocity (or its bias) well enough to call a quiet stretch a stop
+    (flag 256). Seen from the other side — from the rest the recording ends in, with the
+    bias measured there — the same stretch may be a few seconds from a known standstill,
+    and the velocity test decides. The backward run is the realtime filter on the reversed
+    record (a body's acceleration is the same read backward in time; its velocity changes
+    sign, and the test is on |v|), so its stops carry the same evidence as the forward
+    ones. Run only when the forward pass lost its velocity somewhere and does not know
+    that the axis moves at the end (backward_may_decide). The backward run starts as the
+    forward one does: the recording's end must be a rest of at least 0.2 s
+    (find_initial_rest on the reversed record) — the smoothed estimate assumes a
+    recording ends at rest as every method assumes it starts at rest (a quiet end that
+    is really a cruise would be taken for a rest: documented). The deterministic drift is
+    removed first (its model counts time from power-on, forward). cols are scratch space
+    here (overwritten by the caller's run).
+    """
+    fl = np.asarray(forward_flags)
+    if not backward_may_decide(fl):
+        return None
+    prm = settings.kernel_params()
+    drift = prm[K.P_DRIFT_C1] * -np.expm1(-(t + prm[K.P_DRIFT_T0]) / prm[K.P_DRIFT_T])
+    back_prm = replace(settings, drift_c1_mps2=0.0, sensor_lag_s=0.0).kernel_params()
+    n = t.size
+    ok_back = np.ascontiguousarray(ok[::-1])
+    try:
+        # on the readings as they are: a quantised logger's rest is one value with a
+        # flicker (find_initial_rest reads its step), which the drift's removal would blur
+        find_initial_rest(z[::-1], ok_back, float(np.median(np.diff(t))))
+    except NoRestError:
+        return None  # the recording does not end at rest
+    z_back = np.ascontiguousarray((z - drift)[::-1])
+    flags = np.empty(n, dtype=np.int32)
+    _forward(back_prm, np.ascontiguousarray(t[-1] - t[::-1]), z_back, ok_back, lost_before_reversed(lost),
+             np.ascontiguousarray(hint[::-1]), cols, flags, False)
+    back_still = ((flags & K.F_STANDSTILL) != 0)[::-1]
+    forward_still = (fl & K.F_STANDSTILL) != 0
+    new = np.zeros(n, dtype=bool)
+    for a, b in _runs(back_still):
+        if not forward_still[a:b].any():  # only the stops the forward pass did not see
+            new[a:b] = True
+    return new if new.any() else None
+
+
+def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
+    """The backward pass over a forward run's stores: cols become the smoothed estimate."""
+    st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data, n_zupt = stores
+    n = t.size
+    run_backward(t, st_trans, st_x, st_p, st_zaru, prm[K.P_R], zupt_index, zupt_data, n_zupt,
+                 cols["pos_var"], cols["vel_var"], cols["bias_var"])
+    init = (flags & K.F_INITIALISED) != 0
+    still = (flags & K.F_STANDSTILL) != 0
+    cols["pos"] = np.where(init, st_x[:, 0], 0.0)
+    cols["vel"] = np.where(init, st_x[:, 1], 0.0)
+    cols["bias"] = np.where(init, st_x[:, 2], 0.0)
+    held = hold_invalid(acc, valid)
+    cols["acc"] = np.where(init & ~still, held - cols["bias"], 0.0)
+    # undo the sensor filter's lag as the kernel does (estimator_kernel, step 5)
+    lag = prm[K.P_LAG]
+    moving = init & ~still
+    y_edge = np.zeros(n)
+    y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
+    cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
+
+
+def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:
+    prm = settings.kernel_params()
+    n = t.size
+    cols = {name: np.empty(n) for name in ("pos", "vel", "acc", "bias", "pos_var", "vel_var", "bias_var",
+                                           "innov", "nis", "zupt")}
+    flags = np.empty(n, dtype=np.int32)
+    z = np.where(valid, acc, 0.0)
+    ok = np.asarray(valid, dtype=np.bool_)
+    lost = np.asarray(lost, dtype=np.int64)
+    stores = _forward(prm, t, z, ok, lost, hint, cols, flags, smooth)
+    if not smooth:
+        return _track("realtime", t, cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
+                      cols["vel_var"], cols["innov"], cols["nis"], cols["zupt"], flags, notes)
+    one_pass = None  # the one-pass answer where the forward pass could not decide, if the end is only assumed a rest
+    if backward_may_decide(flags):
+        if not flags[-1] & K.F_STANDSTILL:
+            _smooth_pass(prm, t, acc, valid, flags, cols, stores)
+            one_pass = ((flags & K.F_UNTRUSTED) != 0, cols["pos"].copy(), cols["pos_var"].copy(),
+                        cols["vel"].copy(), cols["vel_var"].copy())
+        # the forward stores go first: the backward run's reversed copies then fit in
+        # their room (commands/estimate.SMOOTHED_BYTES_PER_SAMPLE)
+        del stores
+        seen = stops_seen_from_the_end(t, z, ok, lost, hint, settings, flags, cols)
+        # the backward run's stops enter the forward pass as a rest hint where the machine
+        # gave none: evidence the forward pass still checks (estimator_kernel step 2), not
+        # an order; the hint's own flags there are not the machine's
+        derived = np.zeros(n, dtype=bool) if seen is None else seen & ~np.isfinite(hint)
+        stores = _forward(prm, t, z, ok, lost, np.where(derived, 1.0, hint), cols, flags, smooth)
+        flags[derived] &= ~np.int32(K.F_HINT_REST | K.F_HINT_CONFLICT)
+        if not derived.any():
+            one_pass = None
+        else:
+            notes.append(f"{len(_runs(derived))} stop(s) the forward pass could not decide were recognised "
+                         f"running backward from the final rest ({int(np.count_nonzero(derived))} samples): "
+                         "the smoothed estimate uses them" + (
+                             "; the recording's end was taken for a rest, which the forward pass could not "
+                             "confirm: where it could not decide, the position stays flagged (256) and its "
+                             "uncertainty covers the estimate without those stops" if one_pass is not None else ""))
+    _smooth_pass(prm, t, acc, valid, flags, cols, stores)
+    del stores
+    if one_pass is not None:
+        # two answers — the end a rest (the stops seen from it), or not (the one-pass
+        # smoother) — and no evidence to choose: the first is given, flagged, with an
+        # uncertainty that covers both (the larger variance plus their squared difference)
+        untrusted, pos1, pos_var1, vel1, vel_var1 = one_pass
+        flags[untrusted] |= np.int32(K.F_UNTRUSTED)
+        cols["pos_var"] = np.where(untrusted, np.maximum(cols["pos_var"], pos_var1) + (cols["pos"] - pos1) ** 2,
+                                   cols["pos_var"])
+        cols["vel_var"] = np.where(untrusted, np.maximum(cols["vel_var"], vel_var1) + (cols["vel"] - vel1) ** 2,
+                                   cols["vel_var"])
+    return _track("smoothed", t, cols["pos"], cols["vel"], cols["acc"], cols["bias"], cols["pos_var"],
+                  cols["vel_var"], cols["innov"], cols["nis"], cols["zupt"], flags, notes)
 
 
 @dataclass
