@@ -247,11 +247,12 @@ def main() -> int:
             st = ind_stats[e]
             if e == "clean":
                 rate = 1.0 - st["correct"]
-                ok = rate <= FALSE_POSITIVE_GOAL
+                # counted, not compared as floats: 1 of 50 is 2 % (1 − 0.98 is 0.020000000000000018)
+                ok = round(rate * st["cases"]) <= FALSE_POSITIVE_GOAL * st["cases"] + 1e-9
                 print(f"  {'clean':<19} any name {_pct(rate)}  {'met' if ok else 'NOT MET'}")
             else:
                 ok = st["correct"] >= DETECTION_GOAL if e in independent.IN_VOCABULARY else \
-                    sum(not o.named for o in ind_outs if o.effect == e) / st["cases"] >= 1 - FALSE_POSITIVE_GOAL
+                    sum(bool(o.named) for o in ind_outs if o.effect == e) <= FALSE_POSITIVE_GOAL * st["cases"] + 1e-9
                 print(f"  {e:<19} correct {_pct(st['correct'])}  {'met' if ok else 'NOT MET'}"
                       + (f"  (seeds {st['incorrect_seeds'][:8]})" if st["incorrect_seeds"] else ""))
             ind_ok &= ok

@@ -94,6 +94,10 @@ def test_setup_range_holds_the_calibration_tolerance_and_the_timing_convention()
     prep = _prep()
     assert setup_range("scale_factor", prep, np.array([0.99 * SENSITIVITY_TOLERANCE_FRAC]))
     assert setup_range("scale_factor", prep, np.array([1.01 * SENSITIVITY_TOLERANCE_FRAC])) is None
+    # a part at the edge of its tolerance reads either side of it: outside only by 2σ
+    edge = np.array([1.03 * SENSITIVITY_TOLERANCE_FRAC])
+    assert "at 2σ" in setup_range("scale_factor", prep, edge, np.array([0.02 * SENSITIVITY_TOLERANCE_FRAC]))
+    assert setup_range("scale_factor", prep, edge, np.array([0.01 * SENSITIVITY_TOLERANCE_FRAC])) is None
     assert setup_range("reference_delay", prep, np.array([1.5e-3]))
     assert setup_range("reference_delay", prep, np.array([4e-3])) is None
     assert setup_range("bandwidth", prep, np.array([183.0]))  # 0.87 ms of extra lag

@@ -29,6 +29,9 @@ from gateway.core.diagnosis.context import G, Prepared
 # a calibrated part's sensitivity is known to about 1 % (data sheet: 10–15 %/g before
 # calibration; a two-point calibration leaves the reference's own uncertainty)
 SENSITIVITY_TOLERANCE_FRAC = 0.01
+# a fitted value is outside the setup's range only when it is so by this many of its
+# standard errors (2σ: one-sided 2 %)
+SETUP_SIGMAS = 2.0
 # the output filter's capacitor: ±20 % (X7R ceramics are sold at ±10–20 %)
 CAPACITOR_TOLERANCE_FRAC = 0.20
 # where inside its period a sample reads: a period-mean convention against an edge or
@@ -62,12 +65,16 @@ def period_s(prep: Prepared) -> float:
     return prep.data.period_s
 
 
-def setup_range(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
+def setup_range(name: str, prep: Prepared, theta: np.ndarray, std: np.ndarray | None = None) -> str | None:
     """If the fitted value lies inside what the setup itself allows: its description.
-    theta: the effect's fitted parameters (timing: the hold-back in seconds)."""
-    if name == "scale_factor" and abs(theta[0]) <= SENSITIVITY_TOLERANCE_FRAC:
+    theta: the effect's fitted parameters (timing: the hold-back in seconds); std their
+    standard errors, where known — a value within SETUP_SIGMAS of the range is not shown
+    to lie outside it (a part at the edge of its tolerance reads either side of it)."""
+    margin = SETUP_SIGMAS * float(std[0]) if std is not None and np.isfinite(std[0]) else 0.0
+    if name == "scale_factor" and abs(theta[0]) - margin <= SENSITIVITY_TOLERANCE_FRAC:
         return (f"sensitivity {100 * theta[0]:+.2f} %: within the calibration's "
-                f"±{100 * SENSITIVITY_TOLERANCE_FRAC:g} %")
+                f"±{100 * SENSITIVITY_TOLERANCE_FRAC:g} %" + (" (at 2σ of its estimate)" if
+                                                             abs(theta[0]) > SENSITIVITY_TOLERANCE_FRAC else ""))
     # a coarse reference interpolated between its own samples is also off by up to half its interval
     allowed_delay = (TIME_CONVENTION_PERIODS + 0.5 * (prep.block - 1) / REFERENCE_INTERVALS_PER_BLOCK) * period_s(prep)
     if name == "reference_delay" and abs(theta[0]) <= allowed_delay:

@@ -282,7 +282,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         before_plan = step_plan
         result = EffectResult(e.name, "signal", e.report(theta, std), candidates[e.name].p_value,
                               candidates[e.name].delta_bic, gain)
-        _classify(result, setup_range(e.name, prep, theta), effects, setup, negligible, candidates)
+        _classify(result, setup_range(e.name, prep, theta, std), effects, setup, negligible, candidates)
 
     for s in SIDE_EFFECTS:
         why = s.unusable(prep)
