@@ -30,7 +30,7 @@ import os
 import sys
 import tempfile
 import time
-from multiprocessing import Pool
+import multiprocessing
 from pathlib import Path
 
 import numpy as np
@@ -434,7 +434,9 @@ def main() -> int:
     if args.robot_only:
         return 0
     start = time.perf_counter()
-    with Pool(min(2, args.seeds)) as pool:
+    # spawned, not forked: the robot part above wrote CSV through polars, whose thread pool a
+    # forked child inherits dead (its first write_csv hung forever, 2026-11-26)
+    with multiprocessing.get_context("spawn").Pool(min(2, args.seeds)) as pool:
         results = pool.map(run_seed, range(args.seeds))
     print(f"paper experiment: adxlgw simulate --scenario paper --strokes 10, seeds 0–{args.seeds - 1}, "
           f"data-sheet noise; {results[0]['raw']['travelled']:.2f} m travelled; medians over the seeds "
