@@ -117,6 +117,10 @@ def test_physical_ranges_name_what_no_part_can_do():
     assert physical("scale_factor", prep, np.array([-0.44]))
     assert physical("nonlinearity", prep, np.array([0.5]))
     assert physical("nonlinearity", prep, np.array([0.01])) is None
+    # a start-up backlog fitted as host timing (the held-out robot file): 1.4 s, −45 %
+    assert "backlog" in physical("timing", prep, np.array([1.44, -0.455]))
+    assert "backlog" in physical("timing", prep, np.array([0.004, 0.05]))
+    assert physical("timing", prep, np.array([0.016, 20e-6])) is None
 
 
 def test_matters_needs_a_residual_share_or_a_distance_gain_and_no_loss():

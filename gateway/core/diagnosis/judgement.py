@@ -59,6 +59,11 @@ MAX_DELAY_S = 0.25  # a reference logged more than ¼ s off is a clock problem, 
 MAX_TILT_RAD_PER_M = 0.5  # 29°/m: a rail or an arm turning the sensor that much
 MAX_OFFSET_MG_PER_C = 10.0  # data sheet: order of mg/°C
 MAX_CROSS_GAIN = 0.15  # ±2 % cross-axis sensitivity + a few degrees of misalignment
+# host timing: a USB adapter's latency timer is at most 255 ms; a clock, even an RC
+# oscillator (±2 %), is not tens of per cent off. Beyond: a logger's backlog or a host
+# that fell behind — host times that are wrong, but not by a clock or a latency timer
+MAX_HOLD_BACK_S = 0.255
+MAX_CLOCK_RATE_ERROR = 0.02
 
 
 def period_s(prep: Prepared) -> float:
@@ -118,6 +123,13 @@ def physical(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
         return f"a tilt gradient of {math.degrees(theta[0]):.0f}°/m"
     if name == "temperature_offset" and abs(theta[0] / G * 1e3) > MAX_OFFSET_MG_PER_C:
         return f"{theta[0] / G * 1e3:.1f} mg/°C (data sheet: order of 1 mg/°C)"
+    if name == "timing":  # theta: (hold-back s, clock rate error as a fraction)
+        hold, rate = theta
+        if hold > MAX_HOLD_BACK_S or abs(rate) > MAX_CLOCK_RATE_ERROR:
+            return (f"host times held back up to {1e3 * hold:.0f} ms with a clock {1e6 * rate:+.0f} ppm off "
+                    f"(a latency timer is at most {1e3 * MAX_HOLD_BACK_S:g} ms, a clock within "
+                    f"±{100 * MAX_CLOCK_RATE_ERROR:g} %): a logger's backlog or a host that fell behind, "
+                    "not a clock or a latency timer")
     return None
 
 

@@ -314,6 +314,12 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             result = EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail)
             hold = test.params.get("hold_back_ms", (math.inf, 0.0))[0] * 1e-3
             in_setup = setup_range(s.name, prep, np.array([hold])) if s.name == "timing" else None
+            why = physical(s.name, prep, np.array([hold, test.params["clock_rate_error_ppm"][0] * 1e-6])) \
+                if s.name == "timing" else None
+            if why and not in_setup:
+                candidates[s.name] = Candidate(s.name, "not physical", dbic, test.p_value, why)
+                not_physical.append({"shape": s.name, "why": why, "delta_bic": dbic, "params": test.params})
+                continue
             if _classify(result, in_setup, effects, setup, negligible, candidates):
                 before_plan = step_plan
 
