@@ -8,6 +8,7 @@ from gateway.core import estimator_kernel as K
 from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
 from gateway.core.estimator import RealtimeEstimator, estimate_series
 from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.reference_point import NoRestError
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
@@ -179,3 +180,35 @@ def test_a_restart_at_rest_with_the_hint_is_trusted_at_once():
     for k in range(200):
         e = est.step(k * dt, 0.1 + rng.normal(0, SETTINGS.sample_noise_std_mps2))
     assert e.standstill and not e.untrusted
+
+
+def _moving_early(resting: np.ndarray, t: np.ndarray, lead_s: float) -> np.ndarray:
+    """The machine's word as a controller gives it: "moving" lead_s before the motion the
+    sensor sees (it drops "in position" when it commands the move)."""
+    hint = resting.astype(float)
+    for k in np.flatnonzero(np.diff(resting.astype(int)) == -1) + 1:  # motion starts at k
+        hint[(t >= t[k] - lead_s) & (t < t[k])] = 0.0
+    return hint
+
+
+def test_a_moving_hint_ahead_of_the_motion_does_not_end_the_stop_early(strokes):
+    """The controller's "moving" comes 60 ms before the sensor moves: for hint_latency_s
+    after "at rest" it forbids no stop; told it may not lead at all (latency 0), the
+    stop ends at the hint — 60 ms of rest the filter then integrates as motion."""
+    from dataclasses import replace
+    run, t, z, resting = strokes
+    hint = _moving_early(resting, t, 0.06)
+    ends = np.flatnonzero(np.diff(resting.astype(int)) == -1)  # last rest sample before each move
+    ends = ends[ends > 0]
+    tolerant = estimate_series(t, z, method="realtime", settings=SETTINGS, standstill_hint=hint)
+    strict = estimate_series(t, z, method="realtime", settings=replace(SETTINGS, hint_latency_s=0.0),
+                             standstill_hint=hint)
+    early = np.zeros(t.size, dtype=bool)
+    for k in ends:
+        early[(t > t[k] - 0.05) & (t <= t[k] - 0.01)] = True  # inside the hint's lead, the axis still
+    assert tolerant.standstill[early].mean() > 0.9
+    assert not strict.standstill[early].any()
+    # with no "at rest" before it the word is a veto from the first sample: not even the
+    # initial rest is taken
+    with pytest.raises(NoRestError):
+        estimate_series(t, z, method="realtime", settings=SETTINGS, standstill_hint=np.zeros(t.size))

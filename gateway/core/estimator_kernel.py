@@ -51,7 +51,8 @@ P_QUIET_STOP_S = 15  # a quiet stretch this long is a stop even when the velocit
 P_VIBRATION = 16  # a window whose velocity swing stays below this (m/s) is vibration, not motion
 P_STEP_MAX = 17  # the largest offset step (m/s²) a rest hint may explain; beyond it the axis moves
 P_RESTART_VEL_VAR = 18  # velocity variance (m/s)² after a restart with the axis possibly moving
-N_PARAMS = 19
+P_HINT_LATENCY = 19  # how long a machine's "moving" may lead the sensor's motion (s): unknown for that long
+N_PARAMS = 20
 
 # ---- misc state layout ----------------------------------------------------------------
 M_T_PREV = 0
@@ -78,7 +79,8 @@ M_PERIOD = 18  # the latest sample period (s), for the window's velocity swing
 M_HAVE_U = 19  # M_U_PREV holds a valid sample (not only the 0 it starts with)
 M_VEL_UNKNOWN = 20  # restarted with the axis possibly moving: the first quiet window is no rest
 M_BIAS_REQUESTED = 21  # 1: a re-estimation of the bias was asked for; the next standstill does it
-N_MISC = 22
+M_LAST_REST_HINT_T = 22  # time of the latest sample hinted "at rest" (−inf: none)
+N_MISC = 23
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -433,8 +435,14 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     hint = m[M_HINT]
     if hint > 0.0:
         m[M_HINT_RUN] += 1.0
+        m[M_LAST_REST_HINT_T] = t_s
     else:
         m[M_HINT_RUN] = 0.0
+        if hint < 0.0 and t_s - m[M_LAST_REST_HINT_T] < prm[P_HINT_LATENCY]:
+            # the machine says "moving" as it commands the move; the axis (and the sensor,
+            # on its own clock) follows a PLC cycle, a fieldbus and a servo later: for that
+            # long after "at rest" the word is no veto on a stop the accelerometer shows
+            hint = 0.0
     floor = prm[P_SPEED_FLOOR]
     if regime_prev == MOTION:
         m[M_PEAK_SPEED] = max(m[M_PEAK_SPEED], abs(x[1]))
@@ -737,6 +745,7 @@ def new_state(prm: np.ndarray) -> KernelState:
     m = np.zeros(N_MISC)
     m[M_REGIME] = UNINITIALISED
     m[M_QUIET_T0] = math.nan
+    m[M_LAST_REST_HINT_T] = -math.inf
     return KernelState(x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT))
 
 

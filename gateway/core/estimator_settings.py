@@ -90,6 +90,12 @@ class EstimatorSettings:
     # the velocity is unknown within the machine's speed. 2 m/s: twice the paper's cruise
     # and the robot's fastest programmed speed.
     restart_speed_std_mps: float = 2.0
+    # How long the machine's "moving" may lead the motion the sensor sees: the controller
+    # drops "in position" when it commands the move, the axis follows after a PLC cycle
+    # (10–20 ms), a fieldbus and a servo's lag, and the hint and the sensor are on two
+    # clocks. For this long after "at rest" a "moving" hint forbids no stop (it is
+    # unknown there); after it, it does. 0.1 s: the same order as the detector's window.
+    hint_latency_s: float = 0.1
     # A body at rest has v = 0 exactly; this only keeps the update regular.
     zupt_velocity_std_mps: float = 1e-5
     # Time constant of the sensor's own low-pass filter, 1/(2π f−3dB): the outputs undo
@@ -109,7 +115,7 @@ class EstimatorSettings:
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         for name in ("bias_random_walk_mps2_per_rts", "bias_initial_std_mps2", "missing_acc_std_mps2",
                      "standstill_speed_floor_mps", "sensor_lag_s", "standstill_vibration_mps",
-                     "offset_step_max_mps2", "restart_speed_std_mps"):
+                     "offset_step_max_mps2", "restart_speed_std_mps", "hint_latency_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be ≥ 0 and finite, got {value!r}")
@@ -172,6 +178,7 @@ class EstimatorSettings:
         p[k.P_VIBRATION] = self.standstill_vibration_mps
         p[k.P_STEP_MAX] = self.offset_step_max_mps2
         p[k.P_RESTART_VEL_VAR] = self.restart_speed_std_mps**2
+        p[k.P_HINT_LATENCY] = self.hint_latency_s
         return p
 
     def with_known_bias(self) -> "EstimatorSettings":
