@@ -5,7 +5,9 @@ Methods (estimate_series):
     paper     reference-point compensation + the paper's 3-state Kalman filter (fig. 7)
     realtime  the gateway's filter (estimator_kernel): bias state driven by the drift model,
               standstill detector, ZUPT/ZARU, position held at rest — causal
-    smoothed  the same filter plus the backward pass (smoother) — for recordings
+    smoothed  the same filter plus the backward pass (smoother) — for recordings; where the
+              forward pass lost its velocity, its stops are also sought from the
+              recording's end (stops_seen_from_the_end)
 
 The daemon uses RealtimeEstimator one sample at a time; it runs the very same step as
 estimate_series(method="realtime").
