@@ -9,32 +9,9 @@ measured there, recognises them, and the forward pass takes them as a rest hint
 import numpy as np
 import pytest
 
-from benchmarks.robot_like_sweep import AxisCalibration, G, SPEED_MPS, acceleration_mps2, robot_path, \
-    sample_times_s, sensor_for
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import estimate_series, lost_before_reversed, lost_from_times
-from gateway.core.estimator_settings import from_sensor_model
-from gateway.core.evaluation import move_errors
-from gateway.core.simulator import simulate
-
-
-def robot_case(seed: int, step_mg: float, rate_hz: float = 100.0, noise_mps2: float = 0.005):
-    sensor = sensor_for(rate_hz, noise_mps2)
-    run = simulate(robot_path(), sensor, seed=seed)
-    t = sample_times_s(run.t2, run.tick_hz)
-    z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
-    if step_mg:  # the offset steps in the first move's cruise
-        cruise = np.flatnonzero((np.abs(run.ref_vel_mps) == SPEED_MPS) & (run.ref_pos_m > -0.634 + 0.3))
-        z[cruise[0]:] += step_mg * 1e-3 * G
-    resting = (run.ref_vel_mps == 0.0) & (run.ref_acc_mps2 == 0.0)
-    return t, z, run.ref_pos_m, resting, from_sensor_model(sensor)
-
-
-def worst_move_and_inside(track, ref, resting):
-    moves = move_errors(track.pos_m, ref, resting)
-    ends = np.array([m.end for m in moves])
-    inside = np.abs(track.pos_m[ends] - ref[ends]) <= 3 * track.pos_std_m[ends] + 1e-4
-    return max(m.percent for m in moves), bool(inside.all())
+from tests.robot_like_cases import robot_case, worst_move_and_inside
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -80,7 +80,9 @@ M_HAVE_U = 19  # M_U_PREV holds a valid sample (not only the 0 it starts with)
 M_VEL_UNKNOWN = 20  # restarted with the axis possibly moving: the first quiet window is no rest
 M_BIAS_REQUESTED = 21  # 1: a re-estimation of the bias was asked for; the next standstill does it
 M_LAST_REST_HINT_T = 22  # time of the latest sample hinted "at rest" (−inf: none)
-N_MISC = 23
+M_QUIET_FROM_V = 23  # velocity where the current quiet stretch in motion began above the floor (NaN: none)
+M_QUIET_FROM_T = 24  # and its time
+N_MISC = 25
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -483,6 +485,35 @@ def step(state, prm, t_s, z, z_valid, lost_before):
                 prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
             still = var_ok and mean_ok and vel_ok
             trusted_entry = still
+        # A stop needs a deceleration the sensor sees. A quiet stretch (variance and mean
+        # tests passing) that began with the filter above the speed floor is a cruise at
+        # constant speed; if the filter's velocity falls to a "stop" inside it, no
+        # deceleration brought it there — the bias it integrates is off (an offset step
+        # too small for one window's mean, e.g. 5 mg under 10 mg of per-sample noise). Not
+        # a stop: the step hypothesis opens with the drift's size, Δv over the stretch's
+        # time, so the velocity becomes undecidable instead of zeroed (flag 256). Only the
+        # machine's rest hint may still call it a stop (its own checks follow).
+        if regime_prev == MOTION:
+            if not (var_ok and mean_ok):
+                m[M_QUIET_FROM_V] = math.nan
+            elif math.isnan(m[M_QUIET_FROM_V]):
+                if abs(x[1]) > floor:
+                    m[M_QUIET_FROM_V] = x[1]
+                    m[M_QUIET_FROM_T] = t_s
+            elif still:
+                if m[M_STEP_OPEN] == 0.0:
+                    span = max(t_s - m[M_QUIET_FROM_T], w * m[M_PERIOD])
+                    open_offset_step(P, (m[M_QUIET_FROM_V] - x[1]) / span, t_s - m[M_LAST_STILL_T])
+                    m[M_STEP_OPEN] = 1.0
+                    flags |= F_OFFSET_STEP
+                    var_ok, mean_ok, vel_ok, decidable = standstill_tests(
+                        initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
+                        prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
+                m[M_UNTRUSTED] = 1.0
+                still = False
+                trusted_entry = False
+        else:
+            m[M_QUIET_FROM_V] = math.nan
         # A rest hint is contradicted by a window that moves, or whose mean is off the bias
         # (beyond the offset step just opened, if any: the axis is still decelerating), or
         # while the filter knows, decisively, that it moves (a cruise above the floor).
@@ -746,6 +777,7 @@ def new_state(prm: np.ndarray) -> KernelState:
     m[M_REGIME] = UNINITIALISED
     m[M_QUIET_T0] = math.nan
     m[M_LAST_REST_HINT_T] = -math.inf
+    m[M_QUIET_FROM_V] = math.nan
     return KernelState(x, P, m, np.zeros(w), np.zeros(w), np.zeros((w, N_SNAP)), np.zeros(3), np.zeros(N_OUT))
 
 
