@@ -24,6 +24,7 @@ from gateway.core.estimator_settings import EstimatorSettings
 from gateway.core.integration import double_integrate, hold_invalid
 from gateway.core.kalman_paper import DEFAULT_JERK_DENSITY, run_paper_filter
 from gateway.core.reference_point import NoRestError, find_initial_rest
+from gateway.core.runs import true_runs
 from gateway.core.smoother import run_backward
 
 METHODS = ("raw", "paper", "realtime", "smoothed")
@@ -289,12 +290,6 @@ def _forward(prm, t, z, ok, lost, hint, cols, flags, smooth: bool):
     return st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data, n_zupt
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """[start, stop) of each run of True."""
-    edges = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
-    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
-
-
 def lost_before_reversed(lost_before) -> np.ndarray:
     """The samples lost before each sample of the record read backward: the gap before
     reversed sample j is the one after original sample n−1−j."""
@@ -326,8 +321,8 @@ def stops_seen_from_the_end(t, z, ok, lost, hint, settings: EstimatorSettings, f
     and the velocity test decides. The backward run is the realtime filter on the reversed
     record (a body's acceleration is the same read backward in time; its velocity changes
     sign, and the test is on |v|), so its stops carry the same evidence as the forward
-    ones. Run only when the forward pass lost its velocity somewhere and does not know
-    that the axis moves at the end (backward_may_decide). The backward run starts as the
+    ones. For when the forward pass lost its velocity somewhere and does not know that
+    the axis moves at the end (the caller checks backward_may_decide). It starts as the
     forward one does: the recording's end must be a rest of at least 0.2 s
     (find_initial_rest on the reversed record) — the smoothed estimate assumes a
     recording ends at rest as every method assumes it starts at rest (a quiet end that
@@ -336,8 +331,6 @@ def stops_seen_from_the_end(t, z, ok, lost, hint, settings: EstimatorSettings, f
     here (overwritten by the caller's run).
     """
     fl = np.asarray(forward_flags)
-    if not backward_may_decide(fl):
-        return None
     prm = settings.kernel_params()
     drift = prm[K.P_DRIFT_C1] * -np.expm1(-(t + prm[K.P_DRIFT_T0]) / prm[K.P_DRIFT_T])
     back_prm = replace(settings, drift_c1_mps2=0.0, sensor_lag_s=0.0).kernel_params()
@@ -356,7 +349,7 @@ def stops_seen_from_the_end(t, z, ok, lost, hint, settings: EstimatorSettings, f
     back_still = ((flags & K.F_STANDSTILL) != 0)[::-1]
     forward_still = (fl & K.F_STANDSTILL) != 0
     new = np.zeros(n, dtype=bool)
-    for a, b in _runs(back_still):
+    for a, b in true_runs(back_still):
         if not forward_still[a:b].any():  # only the stops the forward pass did not see
             new[a:b] = True
     return new if new.any() else None
@@ -415,7 +408,7 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
         if not derived.any():
             one_pass = None
         else:
-            notes.append(f"{len(_runs(derived))} stop(s) the forward pass could not decide were recognised "
+            notes.append(f"{len(true_runs(derived))} stop(s) the forward pass could not decide were recognised "
                          f"running backward from the final rest ({int(np.count_nonzero(derived))} samples): "
                          "the smoothed estimate uses them" + (
                              "; the recording's end was taken for a rest, which the forward pass could not "

@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gateway.core.runs import true_runs
+
 
 @dataclass(frozen=True)
 class StopError:
@@ -38,9 +40,7 @@ def rest_intervals(t_s, ref_vel_mps, ref_acc_mps2=None, min_s: float = 0.2, tol_
     still = np.abs(np.asarray(ref_vel_mps, dtype=float)) <= tol_mps
     if ref_acc_mps2 is not None:
         still &= np.abs(np.asarray(ref_acc_mps2, dtype=float)) <= 1e-9
-    edges = np.diff(np.concatenate([[0], still.astype(np.int8), [0]]))
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return [(int(a), int(b)) for a, b in zip(starts, stops) if t[b - 1] - t[a] >= min_s]
+    return [(a, b) for a, b in true_runs(still) if t[b - 1] - t[a] >= min_s]
 
 
 def summarise_errors(t_s, pos_m, ref_pos_m, ref_vel_mps, ref_acc_mps2=None, vel_mps=None) -> ErrorSummary:

@@ -37,6 +37,8 @@ import numpy as np
 from scipy.ndimage import minimum_filter1d
 from scipy.stats import theilslopes
 
+from gateway.core.runs import true_runs
+
 
 @dataclass(frozen=True)
 class RetimingSettings:
@@ -171,7 +173,7 @@ def _new_gaps(r: np.ndarray, T: float, window: int, min_periods: float) -> np.nd
     step = after - before  # for the boundary between row i and row i + 1
     lost = np.zeros(n, dtype=np.int64)
     candidate = (step >= min_periods * T) & (np.arange(n) < n - window)  # the floor after must be seen
-    for first, stop in _runs(candidate):
+    for first, stop in true_runs(candidate):
         # m from the largest step; the gap goes at the first boundary after which every row is
         # at least m − ½ periods above the floor before it: the latest sample times the arrivals
         # allow (where between two floor contacts the sample was really lost, they cannot tell)
@@ -203,18 +205,12 @@ def _first_period(a: np.ndarray, min_rows: int, late_s: float, period_range_s, c
     return float(np.median(slopes[on_time])) if np.count_nonzero(on_time) >= 3 else T
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """(start, stop) of the runs of True."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist()))
-
-
 def _late(delay: np.ndarray, late_s: float) -> np.ndarray:
     """Rows in late episodes: a run delayed more than late_s, until the delay is back to typical
     (the median), so a draining backlog's tail is not taken for the sensor's timing."""
     typical = np.median(delay)
     mask = delay > late_s
-    for start, stop in _runs(delay > late_s):
+    for start, stop in true_runs(delay > late_s):
         back = np.flatnonzero(delay[stop:] <= typical)
         mask[start:stop + (int(back[0]) if back.size else delay.size - stop)] = True
     return mask
@@ -304,12 +300,12 @@ def retime(arrival_s, settings: RetimingSettings = RetimingSettings()) -> Retimi
     late = tuple(
         LateEpisode(s, e, float(delay[s:e].max()),
                     float(np.median(d_a[s:e - 1])) if e - s >= 2 else float("nan"))
-        for s, e in _runs(late_mask)
+        for s, e in true_runs(late_mask)
     )
     # bursts: runs of arrival intervals shorter than half a period, outside late episodes
     on_time = ~late_mask
     quick = (d_a < 0.5 * T) & on_time[1:] & on_time[:-1]
-    runs = _runs(quick)
+    runs = true_runs(quick)
     burst_rows = np.array([e - s + 1 for s, e in runs], dtype=float)
     inside = d_a[quick]
     outside = d_a[~quick & on_time[1:] & on_time[:-1]]

@@ -312,10 +312,9 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             if test.position_mm is not None:
                 gain["position_mm"] = test.position_mm
             result = EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail)
-            hold = test.params.get("hold_back_ms", (math.inf, 0.0))[0] * 1e-3
-            in_setup = setup_range(s.name, prep, np.array([hold])) if s.name == "timing" else None
-            why = physical(s.name, prep, np.array([hold, test.params["clock_rate_error_ppm"][0] * 1e-6])) \
-                if s.name == "timing" else None
+            # judged like a signal effect's parameters, where the test gives them
+            in_setup = setup_range(s.name, prep, test.theta) if test.theta is not None else None
+            why = physical(s.name, prep, test.theta) if test.theta is not None else None
             if why and not in_setup:
                 candidates[s.name] = Candidate(s.name, "not physical", dbic, test.p_value, why)
                 not_physical.append({"shape": s.name, "why": why, "delta_bic": dbic, "params": test.params})

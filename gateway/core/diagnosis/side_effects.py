@@ -52,6 +52,9 @@ class SideTest:
     #: what the effect does to a position where a user meets it (mm), when the residual
     #: share cannot say (judgement.matters); None: judged by the share and the distance
     position_mm: float | None = None
+    #: the parameters the setup's and the physical ranges judge (judgement.setup_range,
+    #: judgement.physical), in their units; None: none to judge
+    theta: np.ndarray | None = None
 
     def significant(self, alpha: float) -> bool:
         return self.p_value < alpha and self.loglik_after > self.loglik_before
@@ -241,6 +244,7 @@ class Timing(SideEffect):
                     f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
             values={"host_time": True},
             position_mm=position_mm,
+            theta=np.array([hold, rate]),  # the hold-back (s), the clock's rate error (fraction)
         )
 
 
