@@ -1,0 +1,113 @@
+"""The design checks of 2026-11-26 (fourth session) that docs/diagnosis.md and
+docs/estimation.md quote, on the simulator and the design robot file:
+
+    PYTHONPATH=. .venv/bin/python benchmarks/design_checks.py
+
+1. timing, the simulator's own cases (paper strokes, seeds 0–19): the delay residual's RMS
+   before and after the extension (its "share" is ~0 for any latency timer), and the
+   distance gains; gentle strokes (0.5 m/s, 2 m/s², seed 0): the distance gain and the
+   position a host-stamped sample carries at top speed;
+2. a bias random walk hidden in strokes with 4 s rests (seeds 1–5): named from the rests;
+3. the robot-like path at 100 Hz, 0.1 m/s², a 5 mg step (seeds 0–2): realtime error at the
+   rest ends against 3σ;
+4. the design robot file (eV50p) with the robot's hint: realtime error at the rest ends,
+   the machine's "moving" with its latency (0.1 s) and as a veto from its first sample (0).
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime
+import io
+import os
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.machine_info import machine  # noqa: E402
+from gateway.cli import main as adxlgw  # noqa: E402
+from gateway.commands.estimate import settings_for  # noqa: E402
+from gateway.core.estimator import estimate_series  # noqa: E402
+from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
+from gateway.core.runs import true_runs  # noqa: E402
+from gateway.offline.recording import read_recording, to_acceleration  # noqa: E402
+from tests.diagnosis_cases import STROKES, make_case, run_diagnosis  # noqa: E402
+from tests.robot_like_cases import robot_case  # noqa: E402
+from tests.test_diagnosis_walk_at_rest import LONG_DWELLS  # noqa: E402
+
+
+def timing() -> None:
+    rms, gains = [], []
+    for seed in range(20):
+        _, data = make_case(("timing",), seed)
+        (e,) = [x for x in run_diagnosis(data).effects if x.name == "timing"]
+        rms.append(e.gain["residual_rms_s"])
+        gains.append(e.gain["distance"]["improvement_mm"])
+    ratio = [after / before for before, after in rms]
+    print(f"1. timing, paper strokes, seeds 0–19: delay residual RMS after/before {min(ratio):.5f}–{max(ratio):.5f} "
+          f"(seed 0: {rms[0][0] * 1e3:.4f} → {rms[0][1] * 1e3:.4f} ms); distance gains {min(gains):.1f}–{max(gains):.1f} mm")
+    gentle = StrokeSettings(strokes=STROKES, max_speed_mps=0.5, max_acc_mps2=2.0)
+    terms, data = make_case(("timing",), 0, strokes=gentle)
+    result = run_diagnosis(data)
+    (e,) = [x for x in result.effects if x.name == "timing"]
+    print(f"   gentle strokes, seed 0 (a {terms[0].hold_s * 1e3:.2f} ms timer): distance gain "
+          f"{e.gain['distance']['improvement_mm']:+.2f} mm, position at top speed {e.gain['position_mm']:.2f} mm")
+
+
+def walk() -> None:
+    named = []
+    for seed in range(1, 6):
+        terms, data = make_case(("bias_random_walk",), seed, strokes=LONG_DWELLS)
+        names = [x.name for x in run_diagnosis(data).effects]
+        named.append(f"{seed}: {'named' if names == ['bias_random_walk'] else names or 'nothing'}")
+    print("2. a walk hidden in strokes with 4 s rests, seeds 1–5: " + "; ".join(named))
+
+
+def robot_like() -> None:
+    ratios = []
+    for seed in range(3):
+        t, z, ref, resting, settings = robot_case(seed, 5.0, rate_hz=100.0, noise_mps2=0.1)
+        tr = estimate_series(t, z, method="realtime", settings=settings)
+        ends = [b - 1 for a, b in true_runs(resting) if a > 0]
+        ratios += [abs(tr.pos_m[i] - ref[i]) / (3 * tr.pos_std_m[i]) for i in ends]
+    print(f"3. robot-like 100 Hz, 0.1 m/s², 5 mg, seeds 0–2: |error| / 3σ at the rest ends "
+          + ", ".join(f"{r:.2f}" for r in ratios))
+
+
+def robot_hint() -> None:
+    source = ROOT / "datasets" / "leiria-robot" / "eV50p_MPU6050RM3100.csv"
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "imported.csv")
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            adxlgw(["import", str(source), "--time-col", "sensor_time_s", "--acc-col", "acc_z_g", "--acc-unit", "g",
+                    "--out", path])
+        series = to_acceleration(read_recording(path))
+    raw = np.genfromtxt(source, delimiter=",", names=True)
+    ref, hint = raw["ref_z_m"], raw["robot_at_rest"]
+    settings = settings_for(series, "acceleration", "auto", None)
+    ends = [b - 1 for a, b in true_runs(hint > 0.5)]
+    for label, s, h in (("no hint", settings, None), ("hint, latency 0.1 s", settings, hint),
+                        ("hint, latency 0 (a veto)", replace(settings, hint_latency_s=0.0), hint)):
+        tr = estimate_series(series.t_s, series.acc_mps2, series.valid, method="realtime", settings=s,
+                             standstill_hint=h)
+        print(f"4. eV50p realtime, {label}: error at the rest ends (mm) "
+              + ", ".join(f"{(tr.pos_m[i] - ref[i]) * 1e3:+.1f}" for i in ends))
+
+
+def main() -> None:
+    print("command: PYTHONPATH=. .venv/bin/python benchmarks/design_checks.py")
+    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
+    print(f"machine: {machine()}")
+    timing()
+    walk()
+    robot_like()
+    robot_hint()
+
+
+if __name__ == "__main__":
+    main()
