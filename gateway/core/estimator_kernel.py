@@ -52,7 +52,8 @@ P_VIBRATION = 16  # a window whose velocity swing stays below this (m/s) is vibr
 P_STEP_MAX = 17  # the largest offset step (m/s²) a rest hint may explain; beyond it the axis moves
 P_RESTART_VEL_VAR = 18  # velocity variance (m/s)² after a restart with the axis possibly moving
 P_HINT_LATENCY = 19  # how long a machine's "moving" may lead the sensor's motion (s): unknown for that long
-N_PARAMS = 20
+P_SCALE_VAR = 20  # the sensitivity's variance (fraction²): the reported σ carries s·p and s·v
+N_PARAMS = 21
 
 # ---- misc state layout ----------------------------------------------------------------
 M_T_PREV = 0
@@ -159,6 +160,14 @@ def undo_sensor_lag(pos, vel, y_edge, lag):
     smoother) alike.
     """
     return pos + lag * vel, vel + lag * y_edge
+
+
+@jit
+def with_scale_error(var, value, prm):
+    """A variance from the filter with the sensitivity's share added: a reading (1 + s)·a
+    makes the velocity off by s·v and the position by s·p (p since the tare), a systematic
+    error the filter's model does not contain (scalars or arrays)."""
+    return var + prm[P_SCALE_VAR] * value * value
 
 
 @jit
@@ -741,8 +750,8 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
         out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, lag)
         out[O_BIAS] = x[2]
-        out[O_POS_VAR] = P[0, 0]
-        out[O_VEL_VAR] = P[1, 1]
+        out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm)
+        out[O_VEL_VAR] = with_scale_error(P[1, 1], out[O_VEL], prm)
         out[O_BIAS_VAR] = P[2, 2]
     if regime == UNINITIALISED or m[M_BIAS_REQUESTED] > 0.0:
         flags |= F_BIAS_ESTIMATING

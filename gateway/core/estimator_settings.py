@@ -104,6 +104,14 @@ class EstimatorSettings:
     sensor_lag_s: float = 0.0
     # an invalid or lost sample in motion: its acceleration is unknown within the range
     missing_acc_std_mps2: float = 2.0 * G / math.sqrt(3.0)
+    # How well the sensitivity is known (1σ, a fraction). A sensitivity off by s reads every
+    # acceleration (1 + s)·a; the bias is measured at rest, so the velocity is off by s·v and
+    # the position by s·(p − p_tare) — at any stop, whatever the stops' updates did (they
+    # see v = 0 either way). The filter cannot see it; the reported σ must carry it. 0.5 %:
+    # a calibrated part known to ±1 % (gateway/core/diagnosis/judgement.py), read as 2σ.
+    # A part within that tolerance left 29 % of the simulator's stop errors outside ±3σ
+    # without it (benchmarks/sigma_coverage.py).
+    sensitivity_std_frac: float = 0.005
     source: str = "defaults"
 
     def __post_init__(self) -> None:
@@ -115,7 +123,8 @@ class EstimatorSettings:
                 raise ValueError(f"{name} must be positive and finite, got {value!r}")
         for name in ("bias_random_walk_mps2_per_rts", "bias_initial_std_mps2", "missing_acc_std_mps2",
                      "standstill_speed_floor_mps", "sensor_lag_s", "standstill_vibration_mps",
-                     "offset_step_max_mps2", "restart_speed_std_mps", "hint_latency_s"):
+                     "offset_step_max_mps2", "restart_speed_std_mps", "hint_latency_s",
+                     "sensitivity_std_frac"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be ≥ 0 and finite, got {value!r}")
@@ -179,6 +188,7 @@ class EstimatorSettings:
         p[k.P_STEP_MAX] = self.offset_step_max_mps2
         p[k.P_RESTART_VEL_VAR] = self.restart_speed_std_mps**2
         p[k.P_HINT_LATENCY] = self.hint_latency_s
+        p[k.P_SCALE_VAR] = self.sensitivity_std_frac**2
         return p
 
     def with_known_bias(self) -> "EstimatorSettings":
@@ -199,6 +209,7 @@ class EstimatorSettings:
             f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), |v| ≤ {self.standstill_speed_floor_mps:g} m/s "
             f"known to {self.standstill_velocity_sigmas:g} σ_v ≤ {self.standstill_speed_floor_mps:g} m/s (else "
             f"undecidable: flag 256; a stop after {self.quiet_stop_s:g} s of quiet)",
+            f"sensitivity known to {self.sensitivity_std_frac * 100:.3g} % (1σ): carried in the reported σ",
         ]
 
 
@@ -275,6 +286,8 @@ def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: FittedDr
 
 
 MIN_REST_SAMPLES = 8
+# a sensor without a model: its sensitivity as its data sheet gives it, ±3 % (MPU-6050)
+FOREIGN_SENSITIVITY_STD_FRAC = 0.015
 
 
 def from_rest(acc_rest_mps2, period_s: float, **overrides) -> EstimatorSettings:
@@ -293,7 +306,9 @@ def from_rest(acc_rest_mps2, period_s: float, **overrides) -> EstimatorSettings:
       as a stop. The bias is taken as stable instead, and what breaks that assumption —
       an offset that steps between stops — is caught by the mean test and flagged
       (estimator_kernel F_OFFSET_STEP, F_UNTRUSTED);
-    - no drift model (a short record cannot identify one).
+    - no drift model (a short record cannot identify one);
+    - the sensitivity known to 1.5 % (1σ): a consumer MEMS part's initial tolerance
+      (MPU-6050 data sheet: ±3 %), read as 2σ, as the ADXL's calibration's ±1 % is.
     Raises ValueError for fewer than MIN_REST_SAMPLES finite samples.
     """
     rest = np.asarray(acc_rest_mps2, dtype=float)
@@ -324,6 +339,7 @@ def from_rest(acc_rest_mps2, period_s: float, **overrides) -> EstimatorSettings:
         sample_noise_std_mps2=sample_std,
         noise_autocorrelation=tuple(float(v) for v in acf),
         bias_random_walk_mps2_per_rts=default_bias_random_walk(density),
+        sensitivity_std_frac=FOREIGN_SENSITIVITY_STD_FRAC,
         source=how,
     )
     values.update(overrides)

@@ -1,0 +1,84 @@
+"""Is the estimator's σ at the stops honest for a part whose sensitivity is off within its
+calibration? On the simulator (the design data), the paper's 10 strokes:
+
+    PYTHONPATH=. .venv/bin/python benchmarks/sigma_coverage.py [--seeds 10]
+
+Per seed a part whose X sensitivity is off by s, drawn uniformly within the calibration's
+±1 % (seeded), and a nominal part (s = 0). The filter's settings from the sensor model, once
+with the sensitivity's uncertainty in the reported σ (the default, `sensitivity_std_frac`)
+and once without it (0): the share of the stop errors inside ±3σ, the largest |error|/3σ,
+and the median σ at the stops (what the wider band costs).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.machine_info import machine  # noqa: E402
+from benchmarks.robot_like_sweep import AxisCalibration, acceleration_mps2, sample_times_s  # noqa: E402
+from gateway.core.estimator import estimate_series  # noqa: E402
+from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
+from gateway.core.evaluation import summarise_errors  # noqa: E402
+from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
+from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
+from gateway.core.sensor_model import SensorParams  # noqa: E402
+from gateway.core.simulator import simulate  # noqa: E402
+
+CALIBRATION_TOLERANCE_FRAC = 0.01
+METHODS = ("realtime", "smoothed")
+
+
+def stop_ratios(seed: int, sensitivity_error_frac: float) -> dict[tuple[str, bool], tuple[list, list]]:
+    """Per (method, σ with the sensitivity's share): the stops' |error|/3σ and σ (m)."""
+    nominal = SensorParams()
+    sensor = replace(nominal, x=replace(nominal.x, sensitivity_error_frac=sensitivity_error_frac))
+    run = simulate(build_profile(ScenarioSettings(strokes=StrokeSettings(strokes=10))), sensor, seed=seed)
+    t = sample_times_s(run.t2, run.tick_hz)
+    z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
+    out = {}
+    for with_scale in (False, True):
+        # the filter is told the part's model, never its error
+        settings = from_sensor_model(nominal) if with_scale else from_sensor_model(nominal, sensitivity_std_frac=0.0)
+        for method in METHODS:
+            track = estimate_series(t, z, np.ones(t.size, dtype=bool), method=method, settings=settings)
+            stops = summarise_errors(t, track.pos_m, run.ref_pos_m, run.ref_vel_mps, run.ref_acc_mps2).stops
+            sigma = [float(track.pos_std_m[s.index]) for s in stops]
+            out[(method, with_scale)] = ([abs(s.error_m) / (3 * sd) if sd > 0 else np.inf
+                                          for s, sd in zip(stops, sigma)], sigma)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10)
+    args = ap.parse_args()
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/sigma_coverage.py --seeds {args.seeds}")
+    print(f"date: {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}; machine: {machine()}")
+    rng = np.random.default_rng(20261126)
+    errors = rng.uniform(-CALIBRATION_TOLERANCE_FRAC, CALIBRATION_TOLERANCE_FRAC, args.seeds)
+    print(f"parts' sensitivity errors: {', '.join(f'{100 * e:+.2f} %' for e in errors)}")
+    print("| part | method | σ carries the sensitivity | stops inside ±3σ | largest error / 3σ | median σ at the stops |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for label, parts in (("within ±1 %", errors), ("nominal (s = 0)", np.zeros(args.seeds))):
+        pooled: dict[tuple[str, bool], tuple[list, list]] = {}
+        for seed, s in enumerate(parts):
+            for key, (ratios, sigma) in stop_ratios(seed, float(s)).items():
+                pooled.setdefault(key, ([], []))
+                pooled[key][0].extend(ratios)
+                pooled[key][1].extend(sigma)
+        for (method, with_scale), (ratios, sigma) in sorted(pooled.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+            r = np.asarray(ratios)
+            print(f"| {label} | {method} | {'yes' if with_scale else 'no'} | {100 * np.mean(r <= 1):.1f} % of {r.size} "
+                  f"| {r.max():.2f} | {1e3 * float(np.median(sigma)):.3f} mm |")
+
+
+if __name__ == "__main__":
+    main()
