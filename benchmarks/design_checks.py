@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.cli import main as adxlgw  # noqa: E402
 from gateway.commands.estimate import settings_for  # noqa: E402
+from gateway.core import estimator_kernel as K  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
 from gateway.core.runs import true_runs  # noqa: E402
@@ -77,6 +78,20 @@ def robot_like() -> None:
         ratios += [abs(tr.pos_m[i] - ref[i]) / (3 * tr.pos_std_m[i]) for i in ends]
     print(f"3. robot-like 100 Hz, 0.1 m/s², 5 mg, seeds 0–2: |error| / 3σ at the rest ends "
           + ", ".join(f"{r:.2f}" for r in ratios))
+    # why: the filter's bias against the final rest's mean (the offset after the step), in
+    # its own σ, and the smallest offset error one window's mean test can see
+    for seed in range(3):
+        t, z, ref, resting, settings = robot_case(seed, 5.0, rate_hz=100.0, noise_mps2=0.1)
+        prm = settings.kernel_params()
+        state = K.new_state(prm)
+        for k in range(t.size):
+            K.step(state, prm, t[k], z[k], True, 0)
+        final_rest = true_runs(resting)[-1]
+        truth = float(np.mean(z[final_rest[0]:final_rest[1]]))
+        bias, bias_std = state.out[K.O_BIAS], float(np.sqrt(state.out[K.O_BIAS_VAR]))
+        seen = prm[K.P_MEAN_SIGMAS] * np.sqrt(prm[K.P_R] / settings.window_samples + bias_std**2)
+        print(f"   seed {seed}: bias at the end {bias:.4f} m/s², the final rest's mean {truth:.4f}: off by "
+              f"{(truth - bias) / bias_std:.1f} σ_b (σ_b {bias_std:.4f}); the mean test sees an offset error beyond {seen:.3f} m/s² (the step: {5e-3 * 9.80665:.3f})")
 
 
 def robot_hint() -> None:
