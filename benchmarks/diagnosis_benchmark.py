@@ -1,6 +1,6 @@
 """How well `adxlgw diagnose` names hidden effects, estimates them, and keeps quiet on clean data.
 
-    PYTHONPATH=. python benchmarks/diagnosis_benchmark.py [--cases 100] [--effects a,b] [--jobs 2] [--json OUT]
+    PYTHONPATH=. python benchmarks/diagnosis_benchmark.py [--cases 100] [--effects a,b] [--parts nominal|tolerance] [--jobs 2] [--json OUT]
 
 Per effect of gateway.core.sensor_effects (EFFECT_SIZES, the documented sizes): N
 seeded cases (seeds 0…N−1; the tests use 9000+), each a simulated 4-stroke recording
@@ -49,8 +49,8 @@ def _work(task: tuple):
     if task[0] == "independent":
         _, effect, seed = task
         return independent.run_case(effect, seed, estimator_settings())
-    hidden, seed = task
-    return run_case(hidden, seed)
+    hidden, seed, parts_within_tolerance = task
+    return run_case(hidden, seed, parts_within_tolerance)
 
 
 # the independent generator's seeds: far from the own simulator's 0…N−1, the tests' 9000+
@@ -172,6 +172,10 @@ def main() -> int:
     parser.add_argument("--generator", choices=("own", "independent", "both"), default="both",
                         help="the project's simulator, the independent generator (tests/independent_generator), "
                              "or both (default)")
+    parser.add_argument("--parts", choices=("nominal", "tolerance"), default="nominal",
+                        help="the own simulator's part: nominal, or as built — sensitivity within ±1 %%, filter "
+                             "capacitor within ±10 %% per case (tests/diagnosis_cases.part_within_tolerance); "
+                             "the diagnosis is told the nominal part either way")
     parser.add_argument("--independent-cases", type=int, default=50,
                         help="cases per hidden effect (and clean, and hum) of the independent generator "
                              f"(seeds {INDEPENDENT_SEED0}…)")
@@ -195,16 +199,18 @@ def main() -> int:
     print(f"machine: {machine()}")
     if args.generator in ("own", "both"):
         print(f"cases:   paper scenario, {STROKES} strokes (bias_random_walk: a 60 s standstill); {args.cases} seeded "
-              f"cases per effect (seeds 0–{args.cases - 1}), documented effect sizes; {args.jobs} worker(s)")
+              f"cases per effect (seeds 0–{args.cases - 1}), documented effect sizes; parts {args.parts}; "
+              f"{args.jobs} worker(s)")
     else:
         print(f"cases:   the independent generator only, {args.independent_cases} per row from seed "
               f"{args.independent_seed0}; {args.jobs} worker(s)")
     print(flush=True)
 
     own = args.generator in ("own", "both")
-    tasks = [((name,), seed) for name in effects for seed in range(args.cases)] if own else []
+    tolerance = args.parts == "tolerance"
+    tasks = [((name,), seed, tolerance) for name in effects for seed in range(args.cases)] if own else []
     if own and not args.no_clean:
-        tasks += [((), seed) for seed in range(args.cases)]
+        tasks += [((), seed, tolerance) for seed in range(args.cases)]
     if args.generator in ("independent", "both"):
         seeds = range(args.independent_seed0, args.independent_seed0 + args.independent_cases)
         tasks += [("independent", e, seed) for e in independent_rows(args.independent_effects) for seed in seeds]

@@ -66,7 +66,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Callable
 
@@ -117,18 +117,35 @@ def draw_terms(effect_names: tuple[str, ...], seed: int) -> tuple[ErrorTerm, ...
     return tuple(draw_effect(name, rng) for name in effect_names)
 
 
+# A part as built: the sensitivity within its calibration's ±1 %, the filter capacitor
+# within ±10 % (what a real board has; the diagnosis is told the nominal part, as a user
+# is). Drawn from default_rng([seed, PART_STREAM]).
+PART_STREAM = 8
+PART_SENSITIVITY_FRAC = 0.01
+PART_CAPACITOR_FRAC = 0.10
+
+
+def part_within_tolerance(seed: int) -> SensorParams:
+    rng = np.random.default_rng([seed, PART_STREAM])
+    s = float(rng.uniform(-PART_SENSITIVITY_FRAC, PART_SENSITIVITY_FRAC))
+    c = float(rng.uniform(1.0 - PART_CAPACITOR_FRAC, 1.0 + PART_CAPACITOR_FRAC))
+    return replace(SENSOR, x=replace(SENSOR.x, sensitivity_error_frac=s), filter_capacitor_f=SENSOR.filter_capacitor_f * c)
+
+
 def make_case(effect_names: tuple[str, ...], seed: int,
               adjust: Callable[[ErrorTerm], ErrorTerm] | None = None,
-              strokes: StrokeSettings | None = None) -> tuple[tuple[ErrorTerm, ...], DiagnosisInput]:
+              strokes: StrokeSettings | None = None,
+              part: SensorParams | None = None) -> tuple[tuple[ErrorTerm, ...], DiagnosisInput]:
     """A simulated recording with these effects hidden in it: (the terms, what diagnose gets).
     `adjust` changes each drawn term before the simulation (e.g. a slower temperature swing);
-    `strokes` replaces the paper's strokes (e.g. a gentler machine)."""
+    `strokes` replaces the paper's strokes (e.g. a gentler machine); `part` the sensor as
+    built (default: the nominal part) — the diagnosis is always told the nominal one."""
     terms = draw_terms(tuple(effect_names), seed)
     if adjust is not None:
         terms = tuple(adjust(t) for t in terms)
     profile = (_profile(scenario_for(tuple(effect_names))) if strokes is None
                else build_profile(ScenarioSettings(strokes=strokes)))
-    run = simulate(profile, SENSOR, seed=seed, error_terms=terms)
+    run = simulate(profile, SENSOR if part is None else part, seed=seed, error_terms=terms)
     rec = Recording(f"<simulated seed {seed}>", {"tick_hz": str(run.tick_hz)},
                     {k: np.asarray(v, dtype=float) for k, v in run.recording_columns().items()}, "raw")
     s = to_acceleration(rec)
@@ -280,9 +297,10 @@ def judge(hidden: tuple[str, ...], terms: tuple[ErrorTerm, ...], data: Diagnosis
                        result.residual_white, seconds)
 
 
-def run_case(hidden: tuple[str, ...], seed: int) -> CaseOutcome:
-    """Build, diagnose and judge one case (also what a benchmark worker runs)."""
+def run_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = False) -> CaseOutcome:
+    """Build, diagnose and judge one case (also what a benchmark worker runs); optionally
+    on a part as built (part_within_tolerance) instead of the nominal one."""
     t0 = time.perf_counter()
-    terms, data = make_case(hidden, seed)
+    terms, data = make_case(hidden, seed, part=part_within_tolerance(seed) if parts_within_tolerance else None)
     result = run_diagnosis(data)
     return judge(tuple(hidden), terms, data, result, seed, time.perf_counter() - t0)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from gateway.cli import main
+from gateway.core.diagnosis import SETUP_PROPERTIES
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_effects import ScaleFactorTerm
@@ -70,7 +71,9 @@ def test_clean_recording_finds_nothing_and_writes_strict_json(clean_run):
     assert doc["effects"] == []
     assert doc["reference"] == "recorded"
     assert doc["residual_white"] is True and doc["unexplained"] is False
-    assert sorted(c["name"] for c in doc["candidates"]) == sorted(EFFECTS)
+    # every effect, and the setup's own properties fitted beside them (never named)
+    assert sorted(c["name"] for c in doc["candidates"]) == sorted([*EFFECTS, *SETUP_PROPERTIES])
+    assert SETUP_PROPERTIES == ("output_filter",)
 
 
 def test_report_writes_markdown_and_png_plots(clean_run):

@@ -18,6 +18,18 @@ def one_pole_lowpass(u: np.ndarray, period_s: float, bandwidth_hz: float) -> np.
     return y
 
 
+def moved_pole(y: np.ndarray, period_s: float, from_hz: float, to_hz: float) -> np.ndarray:
+    """What one_pole_lowpass at to_hz would have given, from its output at from_hz: that
+    pole undone and the other applied — the lead-lag (1 − a₀z⁻¹)(1 − a₁) / ((1 − a₀)(1 − a₁z⁻¹)),
+    DC gain 1, started settled at y_0."""
+    a0 = math.exp(-2.0 * math.pi * from_hz * period_s)
+    a1 = math.exp(-2.0 * math.pi * to_hz * period_s)
+    gain = (1.0 - a1) / (1.0 - a0)
+    b, a = [gain, -gain * a0], [1.0, -a1]
+    out, _ = lfilter(b, a, y, zi=lfilter_zi(b, a) * y[0] if y.size else [0.0])
+    return out
+
+
 def mount_resonance(x: np.ndarray, period_s: float, f0_hz: float, damping: float) -> np.ndarray:
     """A sensor on a flexible mount follows its base through (2ζωs + ω²)/(s² + 2ζωs + ω²).
 

@@ -85,6 +85,10 @@ def setup_range(name: str, prep: Prepared, theta: np.ndarray, std: np.ndarray | 
     if name == "reference_delay" and abs(theta[0]) <= allowed_delay:
         return (f"reference timing {1e3 * theta[0]:+.2f} ms: within {1e3 * allowed_delay:.1f} ms (where in its "
                 "period a sample reads" + (", half the reference's own interval" if prep.block > 1 else "") + ")")
+    if name == "output_filter":  # fitted only inside the capacitor's tolerance (signal_effects.OutputFilter)
+        bw = prep.data.sensor_bandwidth_hz
+        return (f"output filter at {theta[0]:.1f} Hz: the nominal {bw:.1f} Hz within its capacitor's "
+                f"±{100 * CAPACITOR_TOLERANCE_FRAC:g} %")
     if name == "timing" and theta[0] < ORDINARY_HOLD_BACK_S:
         return (f"host arrival jitter fitted as a hold-back of {1e3 * theta[0]:.2f} ms: an ordinary link's "
                 f"jitter (below {1e3 * ORDINARY_HOLD_BACK_S:g} ms)")

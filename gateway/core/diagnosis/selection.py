@@ -52,8 +52,13 @@ WHITE_ALPHA = 1e-3  # a 60 s record has 6000 blocks: a small misfit of the noise
 ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
 
 
+# fitted like the effects, never named: measured properties of the setup
+SETUP_PROPERTIES: tuple[str, ...] = tuple(e.name for e in ALL_EFFECTS if getattr(e, "setup_only", False))
+
+
 def list_effects() -> list[tuple[str, str]]:
-    return [(e.name, e.summary) for e in ALL_EFFECTS]
+    """The effects a diagnosis may name (the setup's own properties are not among them)."""
+    return [(e.name, e.summary) for e in ALL_EFFECTS if e.name not in SETUP_PROPERTIES]
 
 
 @dataclass
