@@ -11,7 +11,9 @@ docs/estimation.md quote, on the simulator and the design robot file:
 3. the robot-like path at 100 Hz, 0.1 m/s², a 5 mg step (seeds 0–2): realtime error at the
    rest ends against 3σ;
 4. the design robot file (eV50p) with the robot's hint: realtime error at the rest ends,
-   the machine's "moving" with its latency (0.1 s) and as a veto from its first sample (0).
+   the machine's "moving" with its latency (0.1 s) and as a veto from its first sample (0);
+5. (fifth session) clean cases on parts as built (tests/diagnosis_cases.part_within_tolerance,
+   seeds 0–19): the output filter and sensitivity the diagnosis measures, against the part.
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
 from gateway.core.runs import true_runs  # noqa: E402
 from gateway.offline.recording import read_recording, to_acceleration  # noqa: E402
-from tests.diagnosis_cases import STROKES, make_case, run_diagnosis  # noqa: E402
+from tests.diagnosis_cases import SENSOR, STROKES, make_case, part_within_tolerance, run_diagnosis  # noqa: E402
 from tests.robot_like_cases import robot_case  # noqa: E402
 from tests.test_diagnosis_walk_at_rest import LONG_DWELLS  # noqa: E402
 
@@ -114,6 +116,26 @@ def robot_hint() -> None:
               + ", ".join(f"{(tr.pos_m[i] - ref[i]) * 1e3:+.1f}" for i in ends))
 
 
+def setup_properties() -> None:
+    """Clean cases on parts as built: what the diagnosis measures of the setup against the part."""
+    bw_err, scale_err, named = [], [], []
+    for seed in range(20):
+        part = part_within_tolerance(seed)
+        _, data = make_case((), seed, part=part)
+        result = run_diagnosis(data)
+        props = {x["name"]: x["params"] for x in result.setup}
+        bw = props.get("output_filter", {}).get("bandwidth_hz", (SENSOR.bandwidth_hz, 0.0))[0]
+        s = props.get("scale_factor", {}).get("scale_error_frac", (0.0, 0.0))[0]
+        s = next((e.params["scale_error_frac"][0] for e in result.effects if e.name == "scale_factor"), s)
+        bw_err.append(bw - part.bandwidth_hz)
+        scale_err.append(s - part.x.sensitivity_error_frac)
+        named += [f"seed {seed}: {e.name}" for e in result.effects]
+    print(f"5. clean cases on parts as built (sensitivity ±1 %, CX ±10 %), seeds 0–19: output filter − the part's "
+          f"{min(bw_err):+.2f} … {max(bw_err):+.2f} Hz; sensitivity − the part's {100 * min(scale_err):+.3f} … "
+          f"{100 * max(scale_err):+.3f} % (within 0.03 %: {sum(abs(e) <= 3e-4 for e in scale_err)} of 20); named: "
+          + (", ".join(named) or "nothing"))
+
+
 def main() -> None:
     print("command: PYTHONPATH=. .venv/bin/python benchmarks/design_checks.py")
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
@@ -122,6 +144,7 @@ def main() -> None:
     walk()
     robot_like()
     robot_hint()
+    setup_properties()
 
 
 if __name__ == "__main__":
