@@ -374,8 +374,8 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     y_edge = np.zeros(n)
     y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
     cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
-    cols["pos_var"] = K.with_scale_error(cols["pos_var"], cols["pos"], prm)
-    cols["vel_var"] = K.with_scale_error(cols["vel_var"], cols["vel"], prm)
+    K.add_scale_error(cols["pos_var"], cols["pos"], prm)
+    K.add_scale_error(cols["vel_var"], cols["vel"], prm)
 
 
 def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:

@@ -166,8 +166,16 @@ def undo_sensor_lag(pos, vel, y_edge, lag):
 def with_scale_error(var, value, prm):
     """A variance from the filter with the sensitivity's share added: a reading (1 + s)·a
     makes the velocity off by s·v and the position by s·p (p since the tare), a systematic
-    error the filter's model does not contain (scalars or arrays)."""
+    error the filter's model does not contain."""
     return var + prm[P_SCALE_VAR] * value * value
+
+
+@jit
+def add_scale_error(var, value, prm):
+    """with_scale_error over arrays, in place: no new array (the smoothed estimate's memory
+    budget, commands/estimate.SMOOTHED_BYTES_PER_SAMPLE)."""
+    for k in range(var.size):
+        var[k] = with_scale_error(var[k], value[k], prm)
 
 
 @jit
