@@ -23,16 +23,16 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.machine_info import machine  # noqa: E402
-from benchmarks.robot_like_sweep import AxisCalibration, acceleration_mps2, sample_times_s  # noqa: E402
+from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
 from gateway.core.evaluation import summarise_errors  # noqa: E402
 from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
 from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
-from gateway.core.sensor_model import SensorParams  # noqa: E402
+from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, SensorParams  # noqa: E402
 from gateway.core.simulator import simulate  # noqa: E402
 
-CALIBRATION_TOLERANCE_FRAC = 0.01
+CALIBRATION_TOLERANCE_FRAC = CALIBRATED_SENSITIVITY_TOLERANCE_FRAC
 METHODS = ("realtime", "smoothed")
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation, noise_terms
-from gateway.core.sensor_model import SensorParams
+from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 G = STANDARD_GRAVITY_MPS2
@@ -108,10 +108,10 @@ class EstimatorSettings:
     # acceleration (1 + s)·a; the bias is measured at rest, so the velocity is off by s·v and
     # the position by s·(p − p_tare) — at any stop, whatever the stops' updates did (they
     # see v = 0 either way). The filter cannot see it; the reported σ must carry it. 0.5 %:
-    # a calibrated part known to ±1 % (gateway/core/diagnosis/judgement.py), read as 2σ.
-    # A part within that tolerance left 29 % of the simulator's stop errors outside ±3σ
-    # without it (benchmarks/sigma_coverage.py).
-    sensitivity_std_frac: float = 0.005
+    # a calibrated part known to ±1 % (sensor_model.CALIBRATED_SENSITIVITY_TOLERANCE_FRAC),
+    # read as 2σ. A part within that tolerance left 25 % of the simulator's stop errors
+    # outside ±3σ without it (benchmarks/sigma_coverage.py).
+    sensitivity_std_frac: float = CALIBRATED_SENSITIVITY_TOLERANCE_FRAC / 2.0
     source: str = "defaults"
 
     def __post_init__(self) -> None:

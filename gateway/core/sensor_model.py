@@ -11,6 +11,10 @@ from dataclasses import dataclass, field
 from gateway.core.drift_model import DriftModel
 from gateway.core.units import DEFAULT_TICK_HZ
 
+# A calibrated part's sensitivity is known to about ±1 % (data sheet: 10–15 %/g before
+# calibration; a two-point calibration leaves the reference's own uncertainty). The
+# diagnosis calls a scale error within it the setup's own; the estimator's σ carries it.
+CALIBRATED_SENSITIVITY_TOLERANCE_FRAC = 0.01
 # ADXL202 data sheet: f−3dB = 1 / (2π · 32 kΩ · C)
 INTERNAL_FILTER_RESISTOR_OHM = 32e3
 # ADXL202 data sheet: T2 = RSET / 125 MΩ

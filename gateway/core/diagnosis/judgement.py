@@ -25,10 +25,9 @@ import math
 import numpy as np
 
 from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC
 
-# a calibrated part's sensitivity is known to about 1 % (data sheet: 10–15 %/g before
-# calibration; a two-point calibration leaves the reference's own uncertainty)
-SENSITIVITY_TOLERANCE_FRAC = 0.01
+SENSITIVITY_TOLERANCE_FRAC = CALIBRATED_SENSITIVITY_TOLERANCE_FRAC
 # a fitted value is outside the setup's range only when it is so by this many of its
 # standard errors (2σ: one-sided 2 %)
 SETUP_SIGMAS = 2.0
