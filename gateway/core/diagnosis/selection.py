@@ -276,7 +276,11 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     negligible: list[dict] = []
     before_plan = plan.baseline(data)
     for e, before, after in history:
-        theta, std = after.effect_theta(e)
+        # the parameters as the final model has them, every accepted effect in (what the
+        # backward pass judged): an effect accepted early, fitted before a later one (the
+        # part's own output filter, say), reads part of it as its own — a part at −0.96 %
+        # read as −1.04 % before the filter was in, and was named outside its tolerance
+        theta, std = current.effect_theta(e)
         step_plan = before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1])
         progress(f"gain of {e.name}: distance estimate before and after")
         gain = {
