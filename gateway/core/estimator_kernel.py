@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gateway.core.jit import jit
-from gateway.core.standstill import standstill_tests, velocity_swing, window_statistics
+from gateway.core.standstill import standstill_tests, velocity_decidable, velocity_swing, window_statistics
 
 # ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
 P_QV = 0  # velocity process noise density N²/2
@@ -266,6 +266,17 @@ def scalar_update(x, P, i, y, R, gain):
 
 
 @jit
+def rest_velocity_update(x, P, z, ok, lag, R, gain):
+    """v = 0 (noise R): the axis is at rest. Returns (innovation, its variance S).
+
+    At rest the true velocity is zero; the state's v lags it by τ·y (the sensor's filter
+    still settling, y = z − b): a stop while the last of a stroke's acceleration is in the
+    sample must not take that for a velocity error."""
+    y = -(x[1] + lag * (z - x[2]) if ok else x[1])
+    return y, scalar_update(x, P, 1, y, R, gain)
+
+
+@jit
 def pack_cov(P, row, col):
     """The upper triangle of the symmetric P (00 01 02 11 12 22) into row[col:col + 6]:
     the layout of the rollback snapshots and of the smoother's records."""
@@ -437,12 +448,13 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     m[M_RING_POS] = (pos + 1) % w
     fill = min(int(m[M_RING_FILL]) + 1, w)
     m[M_RING_FILL] = fill
-    n_valid, mean, var = window_statistics(ring_z, ring_ok, fill)
+    # the window: slots 0 … fill − 1 (the ring fills from slot 0; once full, all of it)
+    n_valid, mean, var = window_statistics(ring_z, ring_ok, 0, fill)
     vibrating = False
     # (not worth its loop while the filter decisively moves above the floor: no stop follows)
     if regime_prev != UNINITIALISED and fill >= w and n_valid >= 2 and var > prm[P_VAR_MAX] and (
             regime_prev == STANDSTILL or abs(x[1]) <= prm[P_SPEED_FLOOR] or m[M_HINT] > 0.0
-            or prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)) > prm[P_SPEED_FLOOR]):
+            or not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])):
         # a vibrating mount is not motion: the velocity its acceleration (the bias removed)
         # would give swings by little over the window; a start of motion makes it grow
         swing = velocity_swing(ring_z, ring_ok, (pos + 1) % w, w, x[2], m[M_PERIOD])
@@ -589,7 +601,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             regime = MOTION
     else:
         flags |= F_UNDECIDED
-    if regime == MOTION and prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)) > floor:
+    if regime == MOTION and not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], floor):
         m[M_UNTRUSTED] = 1.0  # the velocity is no longer known well enough to recognise a stop
 
     # 3b. Leaving a standstill: the motion began somewhere in the window that just failed.
@@ -693,11 +705,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             P[2, 2] = prm[P_BIAS0_VAR]
             transition = T_RESET
         elif regime_prev == MOTION:
-            # At rest the true velocity is zero; the state's v lags it by τ·y (the sensor's
-            # filter still settling, y = z − b): entering while the last of a stroke's
-            # acceleration is in the sample must not take that for a velocity error.
-            zupt_y = -(x[1] + prm[P_LAG] * (z - x[2]) if ok else x[1])
-            zupt_s = scalar_update(x, P, 1, zupt_y, prm[P_R_ZUPT], gain)
+            zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], prm[P_R_ZUPT], gain)
             k0 = gain[0]
             k1 = gain[1]
             k2 = gain[2]

@@ -38,11 +38,14 @@ from gateway.core.jit import jit
 
 
 @jit
-def window_statistics(ring_z, ring_ok, count):
-    """(number of valid samples, their mean, their variance) over the ring (two passes)."""
+def window_statistics(ring_z, ring_ok, oldest, count):
+    """(number of valid samples, their mean, their variance) over `count` slots of the ring
+    from slot `oldest` on (wrapping around the ring; two passes)."""
+    size = ring_z.size
     n = 0
     total = 0.0
-    for j in range(count):
+    for i in range(count):
+        j = (oldest + i) % size
         if ring_ok[j] > 0.0:
             n += 1
             total += ring_z[j]
@@ -50,7 +53,8 @@ def window_statistics(ring_z, ring_ok, count):
         return n, 0.0, 0.0
     mean = total / n
     ss = 0.0
-    for j in range(count):
+    for i in range(count):
+        j = (oldest + i) % size
         if ring_ok[j] > 0.0:
             d = ring_z[j] - mean
             ss += d * d
@@ -59,18 +63,26 @@ def window_statistics(ring_z, ring_ok, count):
 
 @jit
 def velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s):
-    """Largest |Σ (z − bias)·Ts| along the window in time order (from ring slot `oldest`):
-    how far the window's acceleration moves the velocity. Vibration of a mount at rest
-    swings it by mm/s; the start of a motion by far more."""
+    """Largest |Σ (z − bias)·Ts| along `count` slots of the ring in time order (from slot
+    `oldest` on, wrapping around): how far their acceleration moves the velocity. Vibration
+    of a mount at rest swings it by mm/s; the start of a motion by far more."""
+    size = ring_z.size
     c = 0.0
     peak = 0.0
     for i in range(count):
-        j = (oldest + i) % count
+        j = (oldest + i) % size
         if ring_ok[j] > 0.0:
             c += (ring_z[j] - bias) * period_s
             if abs(c) > peak:
                 peak = abs(c)
     return peak
+
+
+@jit
+def velocity_decidable(vel_var, vel_sigmas, speed_floor):
+    """The filter knows its velocity well enough to tell a stop from a cruise at the floor
+    speed: vel_sigmas·σ_v ≤ v_floor (test 3)."""
+    return vel_sigmas * math.sqrt(max(vel_var, 0.0)) <= speed_floor
 
 
 @jit
@@ -87,6 +99,7 @@ def standstill_tests(initialised, n_valid, mean, var, vel, vel_var, bias, bias_v
     if not initialised:
         return var_ok, True, True, True
     mean_ok = abs(mean - bias) <= mean_sigmas * math.sqrt(sample_var_white / n_valid + bias_var)
-    decidable = vel_sigmas * math.sqrt(max(vel_var, 0.0)) <= speed_floor
+    decidable = velocity_decidable(vel_var, vel_sigmas, speed_floor)
     vel_ok = decidable and abs(vel) <= speed_floor
     return var_ok, mean_ok, vel_ok, decidable
+
