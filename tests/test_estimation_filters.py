@@ -76,10 +76,11 @@ def _van_loan(dt, qv, qb):
     return phi, phi @ E[:3, 3:]
 
 
-def _recording(seed, bad=True):
+def _recording(seed, bad=True, with_hint=False):
     """A gentle move (0.3 m/s²: found late, so the filter rolls back), a stop, a sharp
     stroke of the paper's kind, a stop; with an invalid sample in motion and at rest and a
-    gap of 7 samples in motion."""
+    gap of 7 samples in motion. with_hint: also the machine's "at rest" on the true rests
+    (NaN elsewhere): the soft hinted velocity updates before each stop is accepted."""
     sensor = SensorParams()
     profile = PiecewiseConstantAcceleration(
         [Segment(1.0, 0.0), Segment(0.5, 0.3), Segment(0.5, -0.3), Segment(0.6, 0.0)]
@@ -88,6 +89,7 @@ def _recording(seed, bad=True):
     run = simulate(profile, sensor, seed=seed)
     t = sample_times_s(run.t2, run.tick_hz)
     z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
+    hint = np.where((run.ref_vel_mps == 0.0) & (run.ref_acc_mps2 == 0.0), 1.0, np.nan)
     ok = np.ones(t.size, bool)
     lost = np.zeros(t.size, np.int64)
     if bad:
@@ -96,13 +98,15 @@ def _recording(seed, bad=True):
         gap = np.searchsorted(t, 2.75)
         keep = np.ones(t.size, bool)
         keep[gap:gap + 7] = False
-        t, z, ok = t[keep], z[keep], ok[keep]
+        t, z, ok, hint = t[keep], z[keep], ok[keep], hint[keep]
         lost = np.zeros(t.size, np.int64)
         lost[gap] = 7
+    if with_hint:
+        return sensor, t, z, ok, lost, hint
     return sensor, t, z, ok, lost
 
 
-def _forward_with_records(settings, t, z, ok, lost):
+def _forward_with_records(settings, t, z, ok, lost, hint):
     prm = settings.kernel_params()
     n = t.size
     state = K.new_state(prm)
@@ -111,7 +115,7 @@ def _forward_with_records(settings, t, z, ok, lost):
     st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
     st_trans, st_zaru = np.empty(n, np.int8), np.empty((n, 2))
     zi, zd = np.empty(n, np.int64), np.empty((n, 5))
-    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, np.full(n, np.nan), state, *cols, flags,
+    nz = K.run_forward(prm, t, np.where(ok, z, 0.0), ok, lost, hint, state, *cols, flags,
                        True, st_x, st_p, st_trans, st_zaru, zi, zd)
     return prm, st_x.copy(), st_p.copy(), st_trans, st_zaru, zi[:nz], zd[:nz], flags
 
@@ -120,8 +124,10 @@ def _unpack(p6):
     return np.array([[p6[0], p6[1], p6[2]], [p6[1], p6[3], p6[4]], [p6[2], p6[4], p6[5]]])
 
 
-def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data):
-    """filterpy's KalmanFilter, driven by the kernel's decisions (transition, updates) only."""
+def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags):
+    """filterpy's KalmanFilter, driven by the kernel's decisions (transition, updates) only
+    — and, for a soft hinted velocity update, its noise: the record's S less the prior's
+    velocity variance (the swing the kernel measured)."""
     kf = KalmanFilter(dim_x=3, dim_z=1)
     zupt = {int(i): row for i, row in zip(zupt_index, zupt_data)}
     xs, ps, priors, prior_ps, phis = [], [], [], [], []
@@ -157,7 +163,8 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data):
         if k in zupt:
             # zero true velocity; the state's v lags it by τ·(z − b) (the sensor's filter)
             lagged = -prm[K.P_LAG] * (z[k] - kf.x[2]) if ok[k] else 0.0
-            kf.update(np.array([lagged]), R=np.array([[prm[K.P_R_ZUPT]]]), H=np.array([[0.0, 1.0, 0.0]]))
+            r = zupt[k][1] - kf.P[1, 1] if flags[k] & K.F_HINT_SOFT else prm[K.P_R_ZUPT]
+            kf.update(np.array([lagged]), R=np.array([[r]]), H=np.array([[0.0, 1.0, 0.0]]))
         if st_zaru[k, 1] > 0:
             kf.update(np.array([z[k]]), R=np.array([[prm[K.P_R]]]), H=np.array([[0.0, 0.0, 1.0]]))
         xs.append(kf.x.copy())
@@ -169,20 +176,25 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data):
     return np.array(xs), np.array(ps), np.array(priors), np.array(prior_ps), np.array(phis)
 
 
-@pytest.fixture(scope="module")
-def filtered():
-    sensor, t, z, ok, lost = _recording(seed=103)
+@pytest.fixture(scope="module", params=["no hint", "rest hint"])
+def filtered(request):
+    sensor, t, z, ok, lost, hint = _recording(seed=103, with_hint=True)
+    if request.param == "no hint":
+        hint = np.full(t.size, np.nan)
     settings = from_sensor_model(sensor)
-    prm, st_x, st_p, st_trans, st_zaru, zi, zd, flags = _forward_with_records(settings, t, z, ok, lost)
-    oracle = _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zi, zd)
+    prm, st_x, st_p, st_trans, st_zaru, zi, zd, flags = _forward_with_records(settings, t, z, ok, lost, hint)
+    oracle = _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zi, zd, flags)
     return dict(t=t, z=z, ok=ok, lost=lost, settings=settings, prm=prm, st_x=st_x, st_p=st_p,
-                st_trans=st_trans, st_zaru=st_zaru, zi=zi, zd=zd, flags=flags, oracle=oracle)
+                st_trans=st_trans, st_zaru=st_zaru, zi=zi, zd=zd, flags=flags, oracle=oracle,
+                hinted=request.param == "rest hint")
 
 
 def test_the_run_exercises_every_kind_of_step(filtered):
     kinds = set(np.unique(filtered["st_trans"]).tolist())
     assert kinds == {K.T_NONE, K.T_MOTION, K.T_STANDSTILL, K.T_RESET}
-    assert filtered["zi"].size >= 2  # stops entered with a ZUPT
+    soft = np.count_nonzero(filtered["flags"] & K.F_HINT_SOFT)
+    assert soft > 0 if filtered["hinted"] else soft == 0  # soft hinted velocity updates (records too)
+    assert filtered["zi"].size - soft >= 2  # stops entered with a ZUPT
     assert np.any(filtered["flags"] & K.F_INPUT_INVALID) and np.any(filtered["flags"] & K.F_GAP)
     assert np.any(filtered["flags"] & K.F_ROLLBACK)
 
@@ -265,14 +277,17 @@ def test_realtime_class_reproduces_the_offline_track():
 
 @pytest.mark.skipif(not JIT_ENABLED, reason="numba not available (not installed, or ADXLGW_NO_JIT set): no compiled loop to compare")
 def test_compiled_loop_equals_the_plain_python_step():
-    sensor, t, z, ok, lost = _recording(seed=106)
+    sensor, t, z, ok, lost, hint = _recording(seed=106, with_hint=True)
     settings = from_sensor_model(sensor)
-    compiled = estimate_series(t, z, ok, method="realtime", settings=settings, lost_before=lost)
+    compiled = estimate_series(t, z, ok, method="realtime", settings=settings, lost_before=lost,
+                               standstill_hint=hint)
+    assert np.any(compiled.flags & K.F_HINT_SOFT)
     prm = settings.kernel_params()
     state = K.new_state(prm)
     py_step = K.step.py_func
     pos = np.empty(t.size)
     for k in range(t.size):
+        K.set_hint(state, hint[k])
         py_step(state, prm, t[k], z[k] if ok[k] else 0.0, bool(ok[k]), int(lost[k]))
         pos[k] = state.out[K.O_POS]
     np.testing.assert_allclose(pos, compiled.pos_m, rtol=0, atol=1e-12)

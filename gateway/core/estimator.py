@@ -271,7 +271,8 @@ def _forward(prm, t, z, ok, lost, hint, cols, flags, smooth: bool):
     if smooth:
         st_x, st_p = np.empty((n, 3)), np.empty((n, 6))
         st_trans, st_zaru = np.empty(n, dtype=np.int8), np.empty((n, 2))
-        capacity = n // max(1, int(prm[K.P_WINDOW])) * 4 + 16
+        w = max(1, int(prm[K.P_WINDOW]))
+        capacity = n // w * 4 + 16 + K.soft_update_bound(hint, w)
     else:
         st_x, st_p = np.empty((1, 3)), np.empty((1, 6))
         st_trans, st_zaru = np.empty(1, dtype=np.int8), np.empty((1, 2))
@@ -406,7 +407,7 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
         # an order; the hint's own flags there are not the machine's
         derived = np.zeros(n, dtype=bool) if seen is None else seen & ~np.isfinite(hint)
         stores = _forward(prm, t, z, ok, lost, np.where(derived, 1.0, hint), cols, flags, smooth)
-        flags[derived] &= ~np.int32(K.F_HINT_REST | K.F_HINT_CONFLICT)
+        flags[derived] &= ~np.int32(K.F_HINT_REST | K.F_HINT_CONFLICT | K.F_HINT_SOFT)
         if not derived.any():
             one_pass = None
         else:

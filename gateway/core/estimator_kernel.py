@@ -12,6 +12,9 @@ Model (continuous time, state x = [p, v, b]):
                 update z = b + n (ZARU, variance N²/(2·Ts)).
     Entering a standstill: a zero-velocity update v = 0 (ZUPT) — the velocity error the
                 motion piled up corrects position and bias through their correlations.
+    Hinted at rest, no standstill (a rest shorter than the window, a ringing mount): a
+                soft v = 0 to within the velocity swing of the hinted samples, in motion
+                (step 3c) — the same correction through the same correlations, weaker.
 
 Sample k's acceleration is its period's mean (the duty cycle measures the whole
 period), so it is integrated over [t_k, t_(k+1)]: step k first propagates the state from
@@ -29,7 +32,8 @@ from typing import NamedTuple
 import numpy as np
 
 from gateway.core.jit import jit
-from gateway.core.standstill import standstill_tests, velocity_decidable, velocity_swing, window_statistics
+from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_swing, standstill_tests, velocity_decidable, \
+    velocity_swing, window_statistics
 
 # ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
 P_QV = 0  # velocity process noise density N²/2
@@ -115,8 +119,10 @@ O_FLAGS = 11
 O_TRANSITION = 12
 O_ZARU_Y = 13
 O_ZARU_S = 14  # 0 when no ZARU at this sample
+# the velocity update at this sample — a standstill's ZUPT or a soft hinted one (step 3c),
+# never both — as the smoother needs it
 O_ZUPT_Y = 15
-O_ZUPT_S = 16  # 0 when no ZUPT at this sample
+O_ZUPT_S = 16  # 0 when no velocity update at this sample
 O_ZUPT_K0 = 17
 O_ZUPT_K1 = 18
 O_ZUPT_K2 = 19
@@ -139,6 +145,7 @@ F_OFFSET_STEP = 1024  # a quiet stretch after a move sits off the bias: the offs
 F_HINT_REST = 2048  # this sample's standstill was accepted on the machine's hint
 F_FAULT = 4096  # the state is not finite or has diverged: the numbers mean nothing (reset it)
 F_BIAS_ESTIMATING = 8192  # the bias is not measured yet (before the first standstill, or asked anew)
+F_HINT_SOFT = 16384  # in motion, hinted at rest: a soft v = 0 within the hinted samples' swing (step 3c)
 
 # a velocity beyond this is no motion of any machine the sensor rides on: the filter diverged
 DIVERGED_SPEED_MPS = 1000.0
@@ -725,6 +732,40 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         m[M_PEAK_SPEED] = 0.0
         m[M_STEP_OPEN] = 0.0
 
+    # 3c. Hinted at rest, yet no standstill: the rest is shorter than the window, or the
+    # mount rings after the stop (a swing above the vibration allowance fails the variance
+    # test). The machine's word still says the velocity is zero — to within what the
+    # accelerometer shows swinging over the hinted samples (bias removed): a soft v = 0
+    # with that swing as its σ (at least zupt_velocity_std_mps), through the same
+    # covariance as a ZUPT, so the position is corrected by its correlation with the
+    # velocity; the regime stays motion (the full-window hinted standstill is step 2's).
+    # - from MIN_WINDOW_SAMPLES hinted samples (a swing, and a mean judged against its
+    #   spread, need them; the first may still hold the end of a deceleration, which the
+    #   swing then carries) to a window of them: from there the detector judges the hinted
+    #   rest itself (the hinted standstill, or flag 512), and the looks stay bounded, in
+    #   information and in the smoother's records (at most a window's per hinted rest);
+    # - not when contradicted: the filter decisively knows it moves above the floor (a
+    #   cruise, as for the hinted standstill), or the hinted samples show an acceleration
+    #   of the machine (hinted_rest_swing: mean off the bias beyond an offset step and
+    #   their spread, or a swing beyond the floor);
+    # - the k-th look at the same rest shares its error with the others (one mount's
+    #   ringing, the samples correlated): it counts with k·swing², so the looks weigh
+    #   together as ~ln k + 0.6 measurements of that σ, not as k independent ones.
+    hint_run = int(m[M_HINT_RUN])
+    if regime == MOTION and hint > 0.0 and MIN_WINDOW_SAMPLES <= hint_run <= w and not (
+            velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], floor) and abs(x[1]) > floor):
+        n_hinted = min(hint_run, fill)
+        fits, swing = hinted_rest_swing(ring_z, ring_ok, (pos + 1 - n_hinted + w) % w, n_hinted, x[2], P[2, 2],
+                                        prm[P_R], prm[P_STEP_MAX], prm[P_MEAN_SIGMAS], floor, m[M_PERIOD])
+        if fits:
+            looks = hint_run - MIN_WINDOW_SAMPLES + 1
+            zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], looks * max(swing * swing, prm[P_R_ZUPT]),
+                                                  gain)
+            k0 = gain[0]
+            k1 = gain[1]
+            k2 = gain[2]
+            flags |= F_HINT_SOFT
+
     # the state after this sample, for a later rollback
     j = count % w
     pack_state(x, P, snap[j], 0)
@@ -821,13 +862,31 @@ def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:
 
 
 @jit
+def soft_update_bound(hint, w):
+    """The most soft hinted velocity updates (step 3c) a run over `hint` can make — one per
+    hinted sample from the MIN_WINDOW_SAMPLES-th to the w-th of its hinted run: room for
+    their records, so that the smoother's forward pass need not run twice."""
+    run = 0
+    total = 0
+    for k in range(hint.size):
+        if hint_code(hint[k]) > 0.0:
+            run += 1
+            if MIN_WINDOW_SAMPLES <= run <= w:
+                total += 1
+        else:
+            run = 0
+    return total
+
+
+@jit
 def run_forward(prm, t_s, z, z_ok, lost, hint, state,
                 pos, vel, acc, bias, pos_var, vel_var, bias_var, innov, nis, zupt_innov, flags,
                 store, st_x, st_p, st_trans, st_zaru, zupt_index, zupt_data):
     """The step over whole arrays (hint: the machine's standstill hint per sample, NaN unknown).
     With store, keeps what the smoother needs:
     filtered x (N×3) and P (N×6: 00 01 02 11 12 22), the transition into each sample,
-    ZARU (y, S) per sample, and the sparse ZUPT records (index; y, S, K0, K1, K2).
+    ZARU (y, S) per sample, and the sparse velocity-update records (index; y, S, K0, K1, K2):
+    the ZUPTs and the soft hinted updates (step 3c).
     After a rollback the records of the samples run again are rewritten (motion, no
     update), so the smoother sees the sequence the filter state now stands on.
     Returns the number of ZUPT records (more than zupt_index holds: run again with room)."""

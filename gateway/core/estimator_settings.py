@@ -144,7 +144,9 @@ class EstimatorSettings:
 
     @property
     def window_samples(self) -> int:
-        return max(4, int(round(self.standstill_window_s / self.sample_period_s)))
+        from gateway.core.standstill import MIN_WINDOW_SAMPLES
+
+        return max(MIN_WINDOW_SAMPLES, int(round(self.standstill_window_s / self.sample_period_s)))
 
     @property
     def window_dof(self) -> float:
