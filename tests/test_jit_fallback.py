@@ -82,3 +82,28 @@ def test_no_jit_by_choice_says_nothing():
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60,
                        env=numba_off_env(ADXLGW_NO_JIT="1"))
     assert r.stdout.strip() == "False None"
+
+
+def test_the_compiled_cache_is_keyed_by_every_source_of_the_project(tmp_path):
+    """numba invalidates a cached function only when its own file changes; ours inline code
+    of other files (the kernel, standstill.py's tests; the daemon's pipeline, the kernel):
+    any change to any source must lead to another cache directory."""
+    from gateway.core import jit
+
+    for tree, name in (("gateway", "core/standstill.py"), ("drivers", "board_protocol.py")):
+        (tmp_path / tree / Path(name).parent).mkdir(parents=True, exist_ok=True)
+    (tmp_path / "gateway/core/standstill.py").write_text("LIMIT = 4\n")
+    (tmp_path / "drivers/board_protocol.py").write_text("SYNC = 0xA5\n")
+    before = jit.sources_digest(str(tmp_path))
+    assert jit.sources_digest(str(tmp_path)) == before
+    (tmp_path / "gateway/core/standstill.py").write_text("LIMIT = 5\n")
+    after_core = jit.sources_digest(str(tmp_path))
+    (tmp_path / "drivers/board_protocol.py").write_text("SYNC = 0xA6\n")
+    after_driver = jit.sources_digest(str(tmp_path))
+    assert len({before, after_core, after_driver}) == 3
+    if jit.JIT_ENABLED:
+        import numba
+
+        repo = Path(__file__).resolve().parents[1]
+        assert jit.CACHE_DIR == numba.config.CACHE_DIR
+        assert Path(jit.CACHE_DIR).name == f"numba-{jit.sources_digest(str(repo))}"
