@@ -45,3 +45,16 @@ def test_a_part_at_the_edge_of_its_sensitivity_is_judged_with_its_filter_in():
     assert [e.name for e in result.effects] == []
     setup = {s["name"]: s["params"] for s in result.setup}
     assert setup["scale_factor"]["scale_error_frac"][0] == pytest.approx(part.x.sensitivity_error_frac, abs=3e-4)
+
+
+def test_a_candidate_that_failed_its_cross_validation_is_tried_again_once_the_model_changed():
+    """Parts as built, temperature seed 36 (sensitivity +0.36 %): the temperature swing was
+    the best candidate in the round after the filter, before the part's sensitivity was in;
+    fitted on one half without it, it did not predict the other, and it left the search for
+    good. Tried again once the sensitivity is in, it passes and is named."""
+    part = part_within_tolerance(36)
+    (term,), data = make_case(("temperature_offset",), 36, part=part)
+    result = run_diagnosis(data)
+    assert [e.name for e in result.effects] == ["temperature_offset"]
+    (e,) = result.effects
+    assert e.params["offset_mg_per_c"][0] == pytest.approx(term.offset_g_per_c * 1e3, rel=0.05)

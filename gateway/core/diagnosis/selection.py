@@ -180,6 +180,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     current, accepted = base, []
     start: dict[str, np.ndarray] = {}
     not_physical: list[dict] = []
+    failed_cv: list[SignalEffect] = []
     # whiteness does not end the search: a Ljung–Box test on lags is weak against an effect
     # tied to a regressor (a 1 % scale error leaves the residual almost white); the rounds
     # go on until nothing passes the BIC margin, the test and the cross-validation, and
@@ -221,6 +222,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                                                f"fitted on one half, it does not predict the other "
                                                f"(log-likelihood gain {folds})")
                 usable.remove(e)
+                failed_cv.append(e)
                 continue
             # said beside an accepted effect when no half could judge it (the report shows it)
             note = "" if decided else (f"cross-validation could not judge (gain {folds}; a half decides from "
@@ -232,6 +234,11 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         candidates[best.name] = Candidate(best.name, "accepted", dbic, p, note)
         accepted.append(best)
         usable.remove(best)
+        # a candidate whose cross-validation failed was judged against a model that lacked
+        # what has just been accepted (the part's own sensitivity, say, which a half fitted
+        # without it reads into the candidate): it is tried again against the new model
+        usable.extend(failed_cv)
+        failed_cv.clear()
         for e in accepted:
             start[e.name] = fit.effect_theta(e)[0]
         current = fit
