@@ -88,22 +88,27 @@ def test_the_compiled_cache_is_keyed_by_every_source_of_the_project(tmp_path):
     """numba invalidates a cached function only when its own file changes; ours inline code
     of other files (the kernel, standstill.py's tests; the daemon's pipeline, the kernel):
     any change to any source must lead to another cache directory."""
+    from gateway import compiled_cache
     from gateway.core import jit
 
-    for tree, name in (("gateway", "core/standstill.py"), ("drivers", "board_protocol.py")):
-        (tmp_path / tree / Path(name).parent).mkdir(parents=True, exist_ok=True)
+    (tmp_path / "gateway/core").mkdir(parents=True)
+    (tmp_path / "drivers").mkdir()
     (tmp_path / "gateway/core/standstill.py").write_text("LIMIT = 4\n")
     (tmp_path / "drivers/board_protocol.py").write_text("SYNC = 0xA5\n")
-    before = jit.sources_digest(str(tmp_path))
-    assert jit.sources_digest(str(tmp_path)) == before
+    before = compiled_cache.sources_digest(str(tmp_path))
+    assert compiled_cache.sources_digest(str(tmp_path)) == before
     (tmp_path / "gateway/core/standstill.py").write_text("LIMIT = 5\n")
-    after_core = jit.sources_digest(str(tmp_path))
+    after_core = compiled_cache.sources_digest(str(tmp_path))
     (tmp_path / "drivers/board_protocol.py").write_text("SYNC = 0xA6\n")
-    after_driver = jit.sources_digest(str(tmp_path))
-    assert len({before, after_core, after_driver}) == 3
+    assert len({before, after_core, compiled_cache.sources_digest(str(tmp_path))}) == 3
+    # under a base of its own (the service's), kept when a child process inherits it
+    keyed = compiled_cache.keyed_cache_dir("/var/cache/adxl-gateway", before)
+    assert keyed == f"/var/cache/adxl-gateway/numba-{before}"
+    assert compiled_cache.keyed_cache_dir(keyed, before) == keyed
+    # this process: keyed by this checkout's sources, and numba uses it
+    repo = Path(__file__).resolve().parents[1]
+    assert Path(os.environ["NUMBA_CACHE_DIR"]).name == f"numba-{compiled_cache.sources_digest(str(repo))}"
     if jit.JIT_ENABLED:
         import numba
 
-        repo = Path(__file__).resolve().parents[1]
-        assert jit.CACHE_DIR == numba.config.CACHE_DIR
-        assert Path(jit.CACHE_DIR).name == f"numba-{jit.sources_digest(str(repo))}"
+        assert numba.config.CACHE_DIR == os.environ["NUMBA_CACHE_DIR"]
