@@ -97,7 +97,7 @@ def test_gateway_daemon_on_real_socketcan():
     run = run_in_can_vm(
         pytest_argv("-q", "-rA", f"--junitxml={GUEST_OUT_DIR}/{report}", "tests/inside_vm/test_gateway_on_vcan.py"),
         cwd=REPO_ROOT,
-        timeout_s=420.0,
+        timeout_s=600.0,  # the inner waits: 240 s for a first valid frame, 60 s candump, 120 s the ack
     )
     assert run.returncode == 0, f"inner pytest failed in the VM:\n{run.output}"
     assert report in run.out_files and b'failures="0"' in run.out_files[report], run.output
