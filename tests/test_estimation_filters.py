@@ -126,8 +126,9 @@ def _unpack(p6):
 
 def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags):
     """filterpy's KalmanFilter, driven by the kernel's decisions (transition, updates) only
-    — and, for a soft hinted velocity update, its noise: the record's S less the prior's
-    velocity variance (the swing the kernel measured)."""
+    — and, for a soft hinted velocity update, its noise and target: the record's S less
+    the prior's velocity variance (half the velocity's range over the hinted samples), and
+    the record's innovation plus the prior's velocity."""
     kf = KalmanFilter(dim_x=3, dim_z=1)
     zupt = {int(i): row for i, row in zip(zupt_index, zupt_data)}
     xs, ps, priors, prior_ps, phis = [], [], [], [], []
@@ -164,7 +165,11 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags
             # zero true velocity; the state's v lags it by τ·(z − b) (the sensor's filter)
             lagged = -prm[K.P_LAG] * (z[k] - kf.x[2]) if ok[k] else 0.0
             r = zupt[k][1] - kf.P[1, 1] if flags[k] & K.F_HINT_SOFT else prm[K.P_R_ZUPT]
-            kf.update(np.array([lagged]), R=np.array([[r]]), H=np.array([[0.0, 1.0, 0.0]]))
+            # a soft hinted update's target is the velocity now against the hinted samples'
+            # mean (standstill.mean_velocity_offset, tested on its own): taken from the
+            # record's innovation, so that this checks the update's algebra
+            target = zupt[k][0] + kf.x[1] if flags[k] & K.F_HINT_SOFT else lagged
+            kf.update(np.array([target]), R=np.array([[r]]), H=np.array([[0.0, 1.0, 0.0]]))
         if st_zaru[k, 1] > 0:
             kf.update(np.array([z[k]]), R=np.array([[prm[K.P_R]]]), H=np.array([[0.0, 0.0, 1.0]]))
         xs.append(kf.x.copy())
@@ -291,3 +296,22 @@ def test_compiled_loop_equals_the_plain_python_step():
         py_step(state, prm, t[k], z[k] if ok[k] else 0.0, bool(ok[k]), int(lost[k]))
         pos[k] = state.out[K.O_POS]
     np.testing.assert_allclose(pos, compiled.pos_m, rtol=0, atol=1e-12)
+
+
+def test_the_velocity_now_against_the_hinted_samples_mean_is_what_their_acceleration_says():
+    """standstill.mean_velocity_offset: the velocity at each sample's start is known from
+    the acceleration before it, up to one constant; the soft hinted update takes the
+    mean to be zero, so v_now = v_now − mean v. Checked against a direct sum on a ring
+    that wraps, with an invalid slot."""
+    from gateway.core.standstill import mean_velocity_offset
+
+    rng = np.random.default_rng(11)
+    size, count, oldest, bias, period = 9, 6, 6, 0.02, 0.0115
+    ring_z, ring_ok = rng.normal(0.0, 0.3, size), np.ones(size)
+    ring_ok[(oldest + 2) % size] = 0.0
+    slots = [(oldest + i) % size for i in range(count)]
+    acc = np.array([(ring_z[j] - bias) * period if ring_ok[j] else 0.0 for j in slots])
+    v = np.concatenate([[0.0], np.cumsum(acc)])[:count]  # at each slot's start; the last is now
+    offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, count, bias, period)
+    assert offset == pytest.approx(v[-1] - v.mean(), abs=1e-15)
+    assert half_range == pytest.approx(0.5 * (v.max() - v.min()), abs=1e-15)

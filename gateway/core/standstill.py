@@ -32,10 +32,11 @@ regime is held and the health flags say so.
 
 A machine's "at rest" hint over a rest shorter than the window, or while the mount rings
 after the stop (the variance test failing on a swing above standstill_vibration_mps), is
-no standstill these tests can accept — yet it still says the axis's velocity is zero, to
-within what the accelerometer shows swinging. hinted_rest_swing measures that swing over
-the hinted samples and says whether they contradict the hint; the kernel then applies a
-soft velocity update (estimator_kernel, step 3c), not a standstill.
+no standstill these tests can accept — yet it still says the axis stands: its velocity
+swings about zero, its mean over the hinted samples is zero. hinted_rest_swing says
+whether the hinted samples contradict the hint; mean_velocity_offset gives the velocity
+now against their mean and its range; the kernel then applies a soft velocity update
+(estimator_kernel, step 3c), not a standstill.
 """
 from __future__ import annotations
 
@@ -125,7 +126,7 @@ def hinted_rest_swing(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var
     """(fits, swing) for the `count` hinted samples of the ring from slot `oldest` on.
 
     swing (m/s): the velocity swing of their acceleration, the bias removed — how far the
-    axis's velocity moved while the machine said it stood: what a soft "v = 0" is good to.
+    axis's velocity moved while the machine said it stood (the contradiction test below).
 
     fits: they do not contradict the hint —
     - at least MIN_WINDOW_SAMPLES valid ones;
@@ -145,3 +146,30 @@ def hinted_rest_swing(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var
         return False, 0.0
     swing = velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s)
     return swing <= speed_floor, swing
+
+
+@jit
+def mean_velocity_offset(ring_z, ring_ok, oldest, count, bias, period_s):
+    """(v_now − mean v, half the range of v) over the `count` ring slots from `oldest` on,
+    the velocity at each sample's start known up to one constant from the acceleration
+    before it (the bias removed); the last slot is the current sample, whose own
+    acceleration acts after now."""
+    size = ring_z.size
+    c = 0.0
+    total = 0.0
+    lo = 0.0
+    hi = 0.0
+    for i in range(count):
+        # velocity at the start of slot i, relative to the first's
+        total += c
+        if c < lo:
+            lo = c
+        if c > hi:
+            hi = c
+        j = (oldest + i) % size
+        if ring_ok[j] > 0.0:
+            c += (ring_z[j] - bias) * period_s
+    # c now includes the current sample; the velocity now is the one before it
+    j = (oldest + count - 1) % size
+    now = c - ((ring_z[j] - bias) * period_s if ring_ok[j] > 0.0 else 0.0)
+    return now - total / count, 0.5 * (hi - lo)
