@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from gateway.core.jit import jit
-from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_swing, mean_velocity_offset, standstill_tests, \
+from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_fits, mean_velocity_offset, standstill_tests, \
     velocity_decidable, velocity_swing, window_statistics
 
 # ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
@@ -273,13 +273,15 @@ def scalar_update(x, P, i, y, R, gain):
 
 
 @jit
-def rest_velocity_update(x, P, z, ok, lag, R, gain):
-    """v = 0 (noise R): the axis is at rest. Returns (innovation, its variance S).
+def rest_velocity_update(x, P, z, ok, lag, target, R, gain):
+    """The true velocity is `target` (noise R) — 0 for a stop's ZUPT; for a soft hinted
+    update, what the hinted samples' zero mean makes of it. Returns (innovation, its
+    variance S).
 
-    At rest the true velocity is zero; the state's v lags it by τ·y (the sensor's filter
-    still settling, y = z − b): a stop while the last of a stroke's acceleration is in the
-    sample must not take that for a velocity error."""
-    y = -(x[1] + lag * (z - x[2]) if ok else x[1])
+    The state's v lags the true velocity by τ·y (the sensor's filter still settling,
+    y = z − b): a stop while the last of a stroke's acceleration is in the sample must not
+    take that for a velocity error."""
+    y = target - (x[1] + lag * (z - x[2]) if ok else x[1])
     return y, scalar_update(x, P, 1, y, R, gain)
 
 
@@ -712,7 +714,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             P[2, 2] = prm[P_BIAS0_VAR]
             transition = T_RESET
         elif regime_prev == MOTION:
-            zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], prm[P_R_ZUPT], gain)
+            zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], 0.0, prm[P_R_ZUPT], gain)
             k0 = gain[0]
             k1 = gain[1]
             k2 = gain[2]
@@ -753,7 +755,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     #   information and in the smoother's records (at most a window's per hinted rest);
     # - not when contradicted: the filter decisively knows it moves above the floor (a
     #   cruise, as for the hinted standstill), or the hinted samples show an acceleration
-    #   of the machine (hinted_rest_swing: mean off the bias beyond an offset step and
+    #   of the machine (hinted_rest_fits: mean off the bias beyond an offset step and
     #   their spread, or a swing beyond the floor);
     # - the k-th look at the same rest shares its error with the others (one mount's
     #   ringing, the samples correlated): it counts with k·σ², so the looks weigh
@@ -762,14 +764,13 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     if regime == MOTION and hint > 0.0 and MIN_WINDOW_SAMPLES <= hint_run <= w and not (
             velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], floor) and abs(x[1]) > floor):
         n_hinted = min(hint_run, fill)
-        fits, swing = hinted_rest_swing(ring_z, ring_ok, (pos + 1 - n_hinted + w) % w, n_hinted, x[2], P[2, 2],
-                                        prm[P_R], prm[P_STEP_MAX], prm[P_MEAN_SIGMAS], floor, m[M_PERIOD])
-        if fits:
+        oldest = (pos + 1 - n_hinted + w) % w
+        if hinted_rest_fits(ring_z, ring_ok, oldest, n_hinted, x[2], P[2, 2], prm[P_R], prm[P_STEP_MAX],
+                            prm[P_MEAN_SIGMAS], floor, m[M_PERIOD]):
             looks = hint_run - MIN_WINDOW_SAMPLES + 1
-            offset, half_range = mean_velocity_offset(ring_z, ring_ok, (pos + 1 - n_hinted + w) % w, n_hinted,
-                                                      x[2], m[M_PERIOD])
-            zupt_y = offset - (x[1] + prm[P_LAG] * (z - x[2]) if ok else x[1])
-            zupt_s = scalar_update(x, P, 1, zupt_y, looks * max(half_range * half_range, prm[P_R_ZUPT]), gain)
+            offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD])
+            zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], offset,
+                                                  looks * max(half_range * half_range, prm[P_R_ZUPT]), gain)
             k0 = gain[0]
             k1 = gain[1]
             k2 = gain[2]

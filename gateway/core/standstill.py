@@ -33,7 +33,7 @@ regime is held and the health flags say so.
 A machine's "at rest" hint over a rest shorter than the window, or while the mount rings
 after the stop (the variance test failing on a swing above standstill_vibration_mps), is
 no standstill these tests can accept — yet it still says the axis stands: its velocity
-swings about zero, its mean over the hinted samples is zero. hinted_rest_swing says
+swings about zero, its mean over the hinted samples is zero. hinted_rest_fits says
 whether the hinted samples contradict the hint; mean_velocity_offset gives the velocity
 now against their mean and its range; the kernel then applies a soft velocity update
 (estimator_kernel, step 3c), not a standstill.
@@ -47,7 +47,7 @@ from gateway.core.jit import jit
 
 # The fewest samples any spread is judged on: the detector's window (the floor of
 # EstimatorSettings.window_samples) and the hinted samples of a soft hinted velocity update
-# (hinted_rest_swing). A mean judged against the spread of n samples has n − 1 degrees of
+# (hinted_rest_fits). A mean judged against the spread of n samples has n − 1 degrees of
 # freedom: at 3 a Student t beyond 5 comes by chance 1.5 % of the time, at 1 (two
 # samples) 13 % — fewer samples would call noise a deceleration.
 MIN_WINDOW_SAMPLES = 4
@@ -121,31 +121,26 @@ def standstill_tests(initialised, n_valid, mean, var, vel, vel_var, bias, bias_v
 
 
 @jit
-def hinted_rest_swing(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var_white, step_max,
-                      mean_sigmas, speed_floor, period_s):
-    """(fits, swing) for the `count` hinted samples of the ring from slot `oldest` on.
-
-    swing (m/s): the velocity swing of their acceleration, the bias removed — how far the
-    axis's velocity moved while the machine said it stood (the contradiction test below).
-
-    fits: they do not contradict the hint —
+def hinted_rest_fits(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var_white, step_max,
+                     mean_sigmas, speed_floor, period_s):
+    """The `count` hinted samples of the ring from slot `oldest` on do not contradict the
+    machine's "at rest":
     - at least MIN_WINDOW_SAMPLES valid ones;
     - no acceleration or deceleration of the machine: their mean is off the bias by no more
       than an offset step (step_max) plus mean_sigmas of its own uncertainty, taken from
       their own spread (at least the noise's). A steady deceleration sits off the bias by
       more than its spread; a ringing mount swings about the bias, its spread covering how
       far a partial period's mean strays;
-    - a swing no larger than the speed floor: a velocity change beyond the slowest cruise
-      the application must tell from a stop is a move, not a ringing mount (and "v = 0"
-      to within more than the floor says nothing the velocity test could use)."""
+    - a velocity swing of their acceleration (bias removed) no larger than the speed floor:
+      a velocity change beyond the slowest cruise the application must tell from a stop is
+      a move, not a ringing mount."""
     n, mean, var = window_statistics(ring_z, ring_ok, oldest, count)
     if n < MIN_WINDOW_SAMPLES:
-        return False, 0.0
+        return False
     spread = max(var, sample_var_white)
     if abs(mean - bias) > step_max + mean_sigmas * math.sqrt(spread / n + bias_var):
-        return False, 0.0
-    swing = velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s)
-    return swing <= speed_floor, swing
+        return False
+    return velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s) <= speed_floor
 
 
 @jit
