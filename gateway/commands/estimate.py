@@ -36,8 +36,11 @@ from gateway.offline.recording import (
 # and what writing them takes. Measured: 266 (peak RSS 5.75 GB for 21.6 M samples,
 # benchmarks/offline_scale.py, docs/estimation.md), rounded up; plus ~42 when the stops
 # are decided from both ends (estimator.stops_seen_from_the_end: the one-pass answer
-# kept beside the second pass, the derived hint) — not measured at 12 h, counted.
-SMOOTHED_BYTES_PER_SAMPLE = 340
+# kept beside the second pass, the derived hint) — not measured at 12 h, counted; plus
+# up to 48 (an index and 5 floats) for the soft hinted velocity updates' records
+# (estimator_kernel.soft_update_bound: at most one per hinted sample, reached only by a
+# hint that toggles once per window) — counted, the worst case, not measured.
+SMOOTHED_BYTES_PER_SAMPLE = 360
 # the estimate's columns written as integers
 TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 
