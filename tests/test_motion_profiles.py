@@ -2,7 +2,14 @@ import numpy as np
 import pytest
 from scipy.integrate import cumulative_trapezoid
 
-from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes, single_move, standstill
+from gateway.core.motion_profiles import (
+    JERK_RAMP_STEPS,
+    StrokeSettings,
+    jerk_limited,
+    reciprocating_strokes,
+    single_move,
+    standstill,
+)
 
 
 def test_paper_stroke_matches_its_numbers():
@@ -45,3 +52,33 @@ def test_standstill_intervals_of_strokes():
 def test_standstill_is_at_rest():
     pos, vel, acc = standstill(10.0).evaluate(np.linspace(0, 10, 11))
     assert not pos.any() and not vel.any() and not acc.any()
+
+
+def test_jerk_limited_strokes_keep_their_moves_and_rests():
+    """An S-curve drive: the same strokes and peak acceleration, ramps of a_max/jerk in
+    place of steps, the rests kept (each shortened by less than a ramp)."""
+    steps = reciprocating_strokes(StrokeSettings(strokes=4))
+    s = reciprocating_strokes(StrokeSettings(strokes=4, jerk_mps3=400.0))
+    ramp_s = 10.0 / 400.0
+    t = np.linspace(0, s.duration_s, 400001)
+    pos, vel, acc = s.evaluate(t)
+    assert np.abs(acc).max() == pytest.approx(10.0)
+    assert pos.max() == pytest.approx(0.30, abs=1e-9)
+    assert pos[-1] == pytest.approx(0.0, abs=1e-12) and vel[-1] == 0.0
+    # no step larger than a ramp's staircase step: a_max / JERK_RAMP_STEPS
+    assert np.max(np.abs(np.diff([seg.acc_mps2 for seg in s.segments]))) <= 10.0 / JERK_RAMP_STEPS + 1e-9
+    # the ramp takes a_max / jerk: from rest to full acceleration
+    first_move = np.flatnonzero(acc != 0)[0]
+    full = np.flatnonzero(np.abs(acc) >= 10.0 - 1e-9)[0]
+    assert t[full] - t[first_move] == pytest.approx(ramp_s * (JERK_RAMP_STEPS - 1) / JERK_RAMP_STEPS, abs=1e-4)
+    before, after = steps.standstill_intervals(), s.standstill_intervals()
+    assert len(after) == len(before)
+    for (a0, b0), (a1, b1) in zip(before, after):
+        assert b1 - a1 >= b0 - a0 - ramp_s and a1 >= a0
+    assert s.duration_s == pytest.approx(steps.duration_s + ramp_s * (JERK_RAMP_STEPS - 1) / JERK_RAMP_STEPS)
+
+
+def test_no_jerk_limit_is_the_paper_drive():
+    a = reciprocating_strokes(StrokeSettings(strokes=3))
+    assert jerk_limited(a, 0.0) is a
+    assert reciprocating_strokes(StrokeSettings(strokes=3, jerk_mps3=0.0)).segments == a.segments

@@ -86,6 +86,22 @@ def test_cli_simulate_writes_the_paper_scenario(tmp_path):
 def test_cli_rejects_bad_arguments_with_exit_2(tmp_path):
     r = adxlgw("simulate", "--strokes", "0", "--out", tmp_path / "x.csv")
     assert r.returncode == 2 and "must be at least 1" in r.stderr
+    r = adxlgw("simulate", "--jerk-mps3", "-400", "--out", tmp_path / "x.csv")
+    assert r.returncode == 2 and "--jerk-mps3" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_cli_simulate_an_s_curve_drive(tmp_path):
+    """--jerk-mps3: the same strokes with the acceleration ramped, said in the metadata."""
+    out = tmp_path / "s.csv"
+    r = adxlgw("simulate", "--strokes", "2", "--jerk-mps3", "400", "--out", out)
+    assert r.returncode == 0, r.stderr
+    rec = read_recording(out)
+    assert rec.metadata["jerk_mps3"] == "400"
+    acc = rec.columns["ref_acc_mps2"]
+    assert np.abs(acc).max() == pytest.approx(10.0)
+    # levels between 0 and the full acceleration: the ramps (the paper's drive has none)
+    assert np.count_nonzero((np.abs(acc) > 0.5) & (np.abs(acc) < 9.5)) > 0
+    assert rec.columns["ref_pos_m"].max() == pytest.approx(0.3)
 
 
 def test_import_real_airbrakes_recording(tmp_path):

@@ -48,6 +48,9 @@ def add_scenario_options(p: argparse.ArgumentParser, default_strokes: int = 10) 
     g.add_argument("--acc-mps2", type=positive_float, default=d.max_acc_mps2, help=f"acceleration, m/s² (default: {d.max_acc_mps2})")
     g.add_argument("--dwell-s", type=non_negative_float, default=d.dwell_s, help=f"stop at each end, s (default: {d.dwell_s})")
     g.add_argument("--rest-s", type=non_negative_float, default=d.rest_start_s, help=f"rest before the first stroke, s (default: {d.rest_start_s})")
+    g.add_argument("--jerk-mps3", type=non_negative_float, default=d.jerk_mps3,
+                   help="jerk limit of the drive, m/s³: each acceleration step becomes a ramp (an S-curve drive, "
+                        "as servo drives and robots move; e.g. 400); 0: steps, the paper's drive (default: 0)")
     g.add_argument("--duration", type=positive_float, default=60.0, dest="standstill_s",
                    help="length of the standstill scenario, s (default: 60)")
     g.add_argument("--seed", type=seed_int, default=0, help="random seed (default: 0)")
@@ -61,6 +64,7 @@ def scenario_from_args(args: argparse.Namespace) -> ScenarioSettings:
         strokes=args.strokes,
         dwell_s=args.dwell_s,
         rest_start_s=args.rest_s,
+        jerk_mps3=args.jerk_mps3,
     )
     return ScenarioSettings(name=args.scenario, strokes=strokes, standstill_s=args.standstill_s)
 

@@ -34,6 +34,8 @@ def run(args: argparse.Namespace) -> int:
     }
     if scenario.name == "paper":
         metadata["strokes"] = str(scenario.strokes.strokes)
+    if scenario.name in ("paper", "move") and scenario.strokes.jerk_mps3 > 0:
+        metadata["jerk_mps3"] = f"{scenario.strokes.jerk_mps3:g}"
     with progress_bar(len(sim), f"writing {args.out}", " rows") as bar:
         write_recording(args.out, metadata, sim.recording_columns(), progress=bar)
     print(f"wrote {args.out}: {len(sim)} samples, {sim.t_s[-1]:.2f} s, scenario {scenario.name}, seed {args.seed}",

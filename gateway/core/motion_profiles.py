@@ -92,6 +92,9 @@ class StrokeSettings:
     dwell_s: float = 1.0
     rest_start_s: float = 2.0
     rest_end_s: float = 1.0
+    # 0: acceleration steps (the paper's drive); > 0: a jerk-limited (S-curve) drive,
+    # as servo drives and robot controllers move (jerk_limited)
+    jerk_mps3: float = 0.0
 
 
 def reciprocating_strokes(s: StrokeSettings = StrokeSettings()) -> PiecewiseConstantAcceleration:
@@ -104,6 +107,54 @@ def reciprocating_strokes(s: StrokeSettings = StrokeSettings()) -> PiecewiseCons
         segments += _move(direction * s.stroke_m, s.max_speed_mps, s.max_acc_mps2)
         dwell = s.dwell_s if k < s.strokes - 1 else s.rest_end_s
         segments.append(Segment(dwell, 0.0))
+    return jerk_limited(PiecewiseConstantAcceleration(segments), s.jerk_mps3)
+
+
+# ramp steps of a jerk-limited profile: a ramp of 25 ms (10 m/s² at 400 m/s³) in steps of
+# ~3 ms, finer than a 500 Hz sample and than the sensor filter's 3.2 ms time constant
+JERK_RAMP_STEPS = 8
+
+
+def jerk_limited(profile: PiecewiseConstantAcceleration, jerk_mps3: float,
+                 steps: int = JERK_RAMP_STEPS) -> PiecewiseConstantAcceleration:
+    """The profile as a jerk-limited drive moves it: every acceleration step becomes a ramp
+    of t_j = a_max / jerk (a_max the profile's largest |acceleration|) — the acceleration
+    averaged over `steps` copies of the profile shifted evenly across t_j.
+
+    Why this form: the simulator's sensor filter is exact for constant pieces
+    (simulator.period_mean_lowpass), so a ramp is a staircase of `steps` steps of t_j/steps
+    (max jerk a_max/t_j on average). Averaging copies of a motion that starts and ends at
+    rest keeps what matters: each move's displacement and peak acceleration, the rests
+    between moves (shortened by t_j·(steps−1)/steps), the final position; the profile
+    grows by that much at its end. jerk_mps3 ≤ 0: the profile unchanged."""
+    if not jerk_mps3 > 0:
+        return profile
+    if steps < 1:
+        raise ValueError("a jerk-limited profile needs at least one step per ramp")
+    durations = np.array([seg.duration_s for seg in profile.segments])
+    acc = np.array([seg.acc_mps2 for seg in profile.segments])
+    starts = np.concatenate([[0.0], np.cumsum(durations)])
+    ramp_s = float(np.max(np.abs(acc))) / jerk_mps3
+    if ramp_s == 0.0:
+        return profile
+    shifts = np.arange(steps) * ramp_s / steps
+    edges = np.unique(np.concatenate([starts + d for d in shifts]))
+    mids = 0.5 * (edges[:-1] + edges[1:])
+    mean_acc = np.zeros(mids.size)
+    for d in shifts:
+        i = np.searchsorted(starts, mids - d, side="right") - 1
+        inside = (i >= 0) & (i < acc.size)
+        mean_acc[inside] += acc[i[inside]]
+    mean_acc /= steps
+    # exact zeros where every copy rests (standstill_intervals looks for them), and pieces
+    # of equal acceleration joined
+    mean_acc[np.abs(mean_acc) < 1e-9 * np.max(np.abs(acc))] = 0.0
+    segments: list[Segment] = []
+    for duration, a in zip(np.diff(edges), mean_acc):
+        if segments and segments[-1].acc_mps2 == a:
+            segments[-1] = Segment(segments[-1].duration_s + duration, a)
+        else:
+            segments.append(Segment(float(duration), float(a)))
     return PiecewiseConstantAcceleration(segments)
 
 
@@ -113,12 +164,13 @@ def single_move(
     max_acc_mps2: float = 10.0,
     rest_start_s: float = 2.0,
     rest_end_s: float = 2.0,
+    jerk_mps3: float = 0.0,
 ) -> PiecewiseConstantAcceleration:
-    return PiecewiseConstantAcceleration(
+    return jerk_limited(PiecewiseConstantAcceleration(
         [Segment(rest_start_s, 0.0)]
         + _move(distance_m, max_speed_mps, max_acc_mps2)
         + [Segment(rest_end_s, 0.0)]
-    )
+    ), jerk_mps3)
 
 
 def standstill(duration_s: float) -> PiecewiseConstantAcceleration:

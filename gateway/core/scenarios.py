@@ -26,7 +26,8 @@ def build_profile(s: ScenarioSettings) -> PiecewiseConstantAcceleration:
         return reciprocating_strokes(s.strokes)
     if s.name == "move":
         st = s.strokes
-        return single_move(st.stroke_m, st.max_speed_mps, st.max_acc_mps2, st.rest_start_s, st.rest_end_s)
+        return single_move(st.stroke_m, st.max_speed_mps, st.max_acc_mps2, st.rest_start_s, st.rest_end_s,
+                           st.jerk_mps3)
     if s.name == "standstill":
         if not s.standstill_s > 0:
             raise ValueError("a standstill needs a positive duration")
