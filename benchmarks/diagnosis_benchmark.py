@@ -52,8 +52,8 @@ def _work(task: tuple):
     if task[0] == "independent":
         _, effect, seed = task
         return independent.run_case(effect, seed, estimator_settings())
-    hidden, seed, parts_within_tolerance = task
-    return run_case(hidden, seed, parts_within_tolerance)
+    hidden, seed, parts_within_tolerance, jerk_mps3 = task
+    return run_case(hidden, seed, parts_within_tolerance, jerk_mps3)
 
 
 # the independent generator's seeds: far from the own simulator's 0…N−1, the tests' 9000+
@@ -183,6 +183,9 @@ def main() -> int:
                         help="the own simulator's part: nominal, or as built — sensitivity within ±1 %%, filter "
                              "capacitor within ±10 %% per case (tests/diagnosis_cases.part_within_tolerance); "
                              "the diagnosis is told the nominal part either way")
+    parser.add_argument("--jerk-mps3", type=float, default=0.0,
+                        help="the own simulator's strokes driven jerk-limited at this jerk, m/s³ (an S-curve "
+                             "drive, e.g. 400; motion_profiles.jerk_limited); 0: acceleration steps (default)")
     parser.add_argument("--independent-cases", type=int, default=50,
                         help="cases per hidden effect (and clean, and hum) of the independent generator "
                              f"(seeds {INDEPENDENT_SEED0}…)")
@@ -207,6 +210,7 @@ def main() -> int:
     if args.generator in ("own", "both"):
         print(f"cases:   paper scenario, {STROKES} strokes (bias_random_walk: a 60 s standstill); {args.cases} seeded "
               f"cases per effect (seeds 0–{args.cases - 1}), documented effect sizes; parts {args.parts}; "
+              + (f"strokes jerk-limited at {args.jerk_mps3:g} m/s³; " if args.jerk_mps3 > 0 else "") +
               f"{args.jobs} worker(s)")
     else:
         print(f"cases:   the independent generator only, {args.independent_cases} per row from seed "
@@ -215,9 +219,10 @@ def main() -> int:
 
     own = args.generator in ("own", "both")
     tolerance = args.parts == "tolerance"
-    tasks = [((name,), seed, tolerance) for name in effects for seed in range(args.cases)] if own else []
+    jerk = args.jerk_mps3
+    tasks = [((name,), seed, tolerance, jerk) for name in effects for seed in range(args.cases)] if own else []
     if own and not args.no_clean:
-        tasks += [((), seed, tolerance) for seed in range(args.cases)]
+        tasks += [((), seed, tolerance, jerk) for seed in range(args.cases)]
     if args.generator in ("independent", "both"):
         seeds = range(args.independent_seed0, args.independent_seed0 + args.independent_cases)
         tasks += [("independent", e, seed) for e in independent_rows(args.independent_effects) for seed in seeds]

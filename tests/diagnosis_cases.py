@@ -322,11 +322,16 @@ def judge(hidden: tuple[str, ...], terms: tuple[ErrorTerm, ...], data: Diagnosis
                        result.residual_white, seconds)
 
 
-def run_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = False) -> CaseOutcome:
+def run_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = False,
+             jerk_mps3: float = 0.0) -> CaseOutcome:
     """Build, diagnose and judge one case (also what a benchmark worker runs); optionally
-    on a part as built (part_within_tolerance) instead of the nominal one."""
+    on a part as built (part_within_tolerance) instead of the nominal one, and with the
+    strokes driven jerk-limited (an S-curve drive; a standstill case has no strokes)."""
     t0 = time.perf_counter()
     part = part_within_tolerance(seed) if parts_within_tolerance else None
-    terms, data = make_case(hidden, seed, part=part)
+    scenario = scenario_for(tuple(hidden))
+    strokes = (StrokeSettings(strokes=scenario[1], jerk_mps3=jerk_mps3)
+               if jerk_mps3 > 0 and scenario[0] == "paper" else None)
+    terms, data = make_case(hidden, seed, part=part, strokes=strokes)
     result = run_diagnosis(data)
     return judge(tuple(hidden), terms, data, result, seed, time.perf_counter() - t0, part)

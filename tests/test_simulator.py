@@ -121,3 +121,20 @@ def test_host_arrival_follows_the_period_and_keeps_order():
     end_of_period = run.t_s + run.t2 / run.tick_hz
     assert np.all(run.t_host_s > end_of_period)
     assert np.all(np.diff(run.t_host_s) >= 0)
+
+
+def test_a_temperature_swing_of_a_given_phase():
+    """TemperatureTerm.phase_rad fixes where the swing starts (an experiment that copies a
+    documented case); unset, the phase is drawn per recording — and the draw is made
+    either way, so the other random streams do not move."""
+    from gateway.core.sensor_effects import TemperatureTerm
+
+    at_peak = simulate(standstill(5.0), seed=3,
+                       error_terms=(TemperatureTerm(0.0, cycle_s=40.0, phase_rad=np.pi / 2),))
+    # the first reports: 25 + 4·cos(2π·t/40) for t within the first second
+    assert at_peak.temp_c[0] == pytest.approx(29.0, abs=0.05)
+    drawn = [simulate(standstill(5.0), seed=s, error_terms=(TemperatureTerm(0.0, cycle_s=40.0),)).temp_c[0]
+             for s in (3, 4)]
+    assert drawn[0] != drawn[1]
+    assert np.array_equal(at_peak.t1x, simulate(standstill(5.0), seed=3, error_terms=(
+        TemperatureTerm(0.0, cycle_s=40.0),)).t1x)

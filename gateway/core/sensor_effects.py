@@ -66,10 +66,13 @@ class TemperatureTerm(ErrorTerm):
     offset_g_per_c: float
     swing_c: float = 4.0
     cycle_s: float = 6.0
+    phase_rad: float | None = None  # the swing's phase at t = 0; None: drawn per recording
     name = "temperature_offset"
 
     def _temp(self, ctx, t):
         phase = float(ctx.rng("temperature").uniform(0.0, 2.0 * math.pi))
+        if self.phase_rad is not None:
+            phase = self.phase_rad
         return 25.0 + self.swing_c * np.sin(2.0 * math.pi * t / self.cycle_s + phase)
 
     def acceleration_g(self, ctx, ax, ay):
