@@ -30,7 +30,7 @@ from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_t
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
 from gateway.core.evaluation import move_errors  # noqa: E402
-from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment  # noqa: E402
+from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment, jerk_limited  # noqa: E402
 from gateway.core.sensor_model import INTERNAL_FILTER_RESISTOR_OHM, SensorParams  # noqa: E402
 from gateway.core.simulator import simulate  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
@@ -42,7 +42,8 @@ STOPS_S = (0.5, 0.1)
 REST_S = 3.0
 
 
-def robot_path() -> PiecewiseConstantAcceleration:
+def robot_path(jerk_mps3: float = 0.0) -> PiecewiseConstantAcceleration:
+    """The path; jerk_mps3 > 0: driven jerk-limited (an S-curve, as a robot controller moves)."""
     ramp = SPEED_MPS / ACC_MPS2
     segments = [Segment(REST_S, 0.0)]
     for i, d in enumerate(MOVES_M):
@@ -50,7 +51,7 @@ def robot_path() -> PiecewiseConstantAcceleration:
         cruise = (abs(d) - SPEED_MPS * ramp) / SPEED_MPS
         segments += [Segment(ramp, sign * ACC_MPS2), Segment(cruise, 0.0), Segment(ramp, -sign * ACC_MPS2)]
         segments.append(Segment(STOPS_S[i] if i < len(STOPS_S) else REST_S, 0.0))
-    return PiecewiseConstantAcceleration(segments)
+    return jerk_limited(PiecewiseConstantAcceleration(segments), jerk_mps3)
 
 
 def sensor_for(rate_hz: float, sample_noise_mps2: float) -> SensorParams:
@@ -64,15 +65,16 @@ def sensor_for(rate_hz: float, sample_noise_mps2: float) -> SensorParams:
     return SensorParams(rset_ohm=rset, filter_capacitor_f=cx, noise_density_g_per_rthz=density)
 
 
-def one(rate_hz: float, noise: float, step_mg: float, seed: int) -> dict:
+def one(rate_hz: float, noise: float, step_mg: float, seed: int, jerk_mps3: float = 0.0) -> dict:
     sensor = sensor_for(rate_hz, noise)
-    run = simulate(robot_path(), sensor, seed=seed)
+    run = simulate(robot_path(jerk_mps3), sensor, seed=seed)
     t = sample_times_s(run.t2, run.tick_hz)
     z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
     if step_mg:
-        long_cruise = np.flatnonzero((np.abs(run.ref_vel_mps) == SPEED_MPS) & (run.ref_pos_m > -0.634 + 0.3))
+        long_cruise = np.flatnonzero(np.isclose(np.abs(run.ref_vel_mps), SPEED_MPS, rtol=0.0, atol=1e-12)
+                                     & (run.ref_pos_m > -0.634 + 0.3))
         z[long_cruise[0]:] += step_mg * 1e-3 * G
-    resting = (run.ref_vel_mps == 0.0) & (run.ref_acc_mps2 == 0.0)
+    resting = (np.abs(run.ref_vel_mps) < 1e-12) & (run.ref_acc_mps2 == 0.0)
     settings = from_sensor_model(sensor)
     out = {}
     for name, method, hint in (("paper", "paper", None), ("realtime", "realtime", None),
@@ -89,8 +91,11 @@ def one(rate_hz: float, noise: float, step_mg: float, seed: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--jerk-mps3", type=float, default=0.0,
+                    help="drive the path jerk-limited at this jerk, m/s³ (e.g. 10: 0.1 s ramps); 0: steps (default)")
     args = ap.parse_args()
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/robot_like_sweep.py --seeds {args.seeds}")
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/robot_like_sweep.py --seeds {args.seeds}"
+          + (f" --jerk-mps3 {args.jerk_mps3:g}" if args.jerk_mps3 else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")
     print("medians over the seeds: worst move (%) / rest ends outside ±3σ / time flagged (flag 256); "
@@ -101,7 +106,7 @@ def main() -> None:
     for rate in (100.0, 500.0):
         for noise in (0.005, 0.02, 0.1):
             for step in (0.0, 5.0):
-                res = [one(rate, noise, step, seed) for seed in range(args.seeds)]
+                res = [one(rate, noise, step, seed, args.jerk_mps3) for seed in range(args.seeds)]
                 cells = []
                 for n in names:
                     worst = np.median([r[n][0] for r in res])

@@ -4,6 +4,8 @@ from scipy.integrate import cumulative_trapezoid
 
 from gateway.core.motion_profiles import (
     JERK_RAMP_STEPS,
+    PiecewiseConstantAcceleration,
+    Segment,
     StrokeSettings,
     jerk_limited,
     reciprocating_strokes,
@@ -56,26 +58,37 @@ def test_standstill_is_at_rest():
 
 def test_jerk_limited_strokes_keep_their_moves_and_rests():
     """An S-curve drive: the same strokes and peak acceleration, ramps of a_max/jerk in
-    place of steps, the rests kept (each shortened by less than a ramp)."""
+    place of steps, the rests of their lengths (each move a ramp longer)."""
     steps = reciprocating_strokes(StrokeSettings(strokes=4))
     s = reciprocating_strokes(StrokeSettings(strokes=4, jerk_mps3=400.0))
     ramp_s = 10.0 / 400.0
+    longer_s = ramp_s * (JERK_RAMP_STEPS - 1) / JERK_RAMP_STEPS
     t = np.linspace(0, s.duration_s, 400001)
     pos, vel, acc = s.evaluate(t)
     assert np.abs(acc).max() == pytest.approx(10.0)
     assert pos.max() == pytest.approx(0.30, abs=1e-9)
-    assert pos[-1] == pytest.approx(0.0, abs=1e-12) and vel[-1] == 0.0
+    assert pos[-1] == pytest.approx(0.0, abs=1e-12) and vel[-1] == pytest.approx(0.0, abs=1e-12)
     # no step larger than a ramp's staircase step: a_max / JERK_RAMP_STEPS
     assert np.max(np.abs(np.diff([seg.acc_mps2 for seg in s.segments]))) <= 10.0 / JERK_RAMP_STEPS + 1e-9
     # the ramp takes a_max / jerk: from rest to full acceleration
     first_move = np.flatnonzero(acc != 0)[0]
     full = np.flatnonzero(np.abs(acc) >= 10.0 - 1e-9)[0]
-    assert t[full] - t[first_move] == pytest.approx(ramp_s * (JERK_RAMP_STEPS - 1) / JERK_RAMP_STEPS, abs=1e-4)
+    assert t[full] - t[first_move] == pytest.approx(longer_s, abs=1e-4)
     before, after = steps.standstill_intervals(), s.standstill_intervals()
     assert len(after) == len(before)
-    for (a0, b0), (a1, b1) in zip(before, after):
-        assert b1 - a1 >= b0 - a0 - ramp_s and a1 >= a0
-    assert s.duration_s == pytest.approx(steps.duration_s + ramp_s * (JERK_RAMP_STEPS - 1) / JERK_RAMP_STEPS)
+    for k, ((a0, b0), (a1, b1)) in enumerate(zip(before, after)):
+        assert b1 - a1 == pytest.approx(b0 - a0, abs=1e-12)  # a rest keeps its length
+        assert a1 == pytest.approx(a0 + k * longer_s, abs=1e-12)  # after k moves each a ramp longer
+    assert s.duration_s == pytest.approx(steps.duration_s + 4 * longer_s)
+
+
+def test_a_short_stop_stays_as_long():
+    """A 0.1 s stop between two moves (the robot's path) keeps its 0.1 s."""
+    p = PiecewiseConstantAcceleration([Segment(1.0, 0.0), Segment(0.2, 1.0), Segment(0.2, -1.0), Segment(0.1, 0.0),
+                                       Segment(0.2, -1.0), Segment(0.2, 1.0), Segment(1.0, 0.0)])
+    q = jerk_limited(p, 10.0)
+    assert [round(b - a, 12) for a, b in q.standstill_intervals()] == [1.0, 0.1, 1.0]
+    assert q.evaluate(q.duration_s)[0] == pytest.approx(0.0, abs=1e-12)
 
 
 def test_no_jerk_limit_is_the_paper_drive():

@@ -117,27 +117,44 @@ JERK_RAMP_STEPS = 8
 
 def jerk_limited(profile: PiecewiseConstantAcceleration, jerk_mps3: float,
                  steps: int = JERK_RAMP_STEPS) -> PiecewiseConstantAcceleration:
-    """The profile as a jerk-limited drive moves it: every acceleration step becomes a ramp
-    of t_j = a_max / jerk (a_max the profile's largest |acceleration|) — the acceleration
-    averaged over `steps` copies of the profile shifted evenly across t_j.
+    """The profile as a jerk-limited drive moves it: in every move (the segments between two
+    rests) each acceleration step becomes a ramp of t_j = a_max / jerk (a_max the move's
+    largest |acceleration|) — the move's acceleration averaged over `steps` copies of it
+    shifted evenly across t_j.
 
     Why this form: the simulator's sensor filter is exact for constant pieces
     (simulator.period_mean_lowpass), so a ramp is a staircase of `steps` steps of t_j/steps
-    (max jerk a_max/t_j on average). Averaging copies of a motion that starts and ends at
-    rest keeps what matters: each move's displacement and peak acceleration, the rests
-    between moves (shortened by t_j·(steps−1)/steps), the final position; the profile
-    grows by that much at its end. jerk_mps3 ≤ 0: the profile unchanged."""
+    (max jerk a_max/t_j on average). Averaging copies of a move that starts and ends at
+    rest keeps its displacement and peak acceleration; each move lasts t_j·(steps−1)/steps
+    longer, and the rests keep their lengths (a 0.1 s stop stays 0.1 s). jerk_mps3 ≤ 0:
+    the profile unchanged."""
     if not jerk_mps3 > 0:
         return profile
     if steps < 1:
         raise ValueError("a jerk-limited profile needs at least one step per ramp")
-    durations = np.array([seg.duration_s for seg in profile.segments])
-    acc = np.array([seg.acc_mps2 for seg in profile.segments])
+    segments: list[Segment] = []
+    move: list[Segment] = []
+    for seg, v0 in zip(profile.segments, profile._v0):
+        if seg.acc_mps2 == 0.0 and abs(v0) < 1e-12:  # a rest: the move before it ends here
+            segments += _ramped_move(move, jerk_mps3, steps) + [seg]
+            move = []
+        else:
+            move.append(seg)
+    segments += _ramped_move(move, jerk_mps3, steps)
+    return PiecewiseConstantAcceleration(segments)
+
+
+def _ramped_move(move: list[Segment], jerk_mps3: float, steps: int) -> list[Segment]:
+    """One move's segments with its acceleration averaged over `steps` shifted copies."""
+    if not move:
+        return []
+    durations = np.array([seg.duration_s for seg in move])
+    acc = np.array([seg.acc_mps2 for seg in move])
+    peak = float(np.max(np.abs(acc)))
+    if peak == 0.0:
+        return list(move)
     starts = np.concatenate([[0.0], np.cumsum(durations)])
-    ramp_s = float(np.max(np.abs(acc))) / jerk_mps3
-    if ramp_s == 0.0:
-        return profile
-    shifts = np.arange(steps) * ramp_s / steps
+    shifts = np.arange(steps) * (peak / jerk_mps3) / steps
     edges = np.unique(np.concatenate([starts + d for d in shifts]))
     mids = 0.5 * (edges[:-1] + edges[1:])
     mean_acc = np.zeros(mids.size)
@@ -146,16 +163,14 @@ def jerk_limited(profile: PiecewiseConstantAcceleration, jerk_mps3: float,
         inside = (i >= 0) & (i < acc.size)
         mean_acc[inside] += acc[i[inside]]
     mean_acc /= steps
-    # exact zeros where every copy rests (standstill_intervals looks for them), and pieces
-    # of equal acceleration joined
-    mean_acc[np.abs(mean_acc) < 1e-9 * np.max(np.abs(acc))] = 0.0
-    segments: list[Segment] = []
+    mean_acc[np.abs(mean_acc) < 1e-9 * peak] = 0.0  # a cruise's exact zero
+    out: list[Segment] = []
     for duration, a in zip(np.diff(edges), mean_acc):
-        if segments and segments[-1].acc_mps2 == a:
-            segments[-1] = Segment(segments[-1].duration_s + duration, a)
+        if out and out[-1].acc_mps2 == a:  # pieces of equal acceleration joined
+            out[-1] = Segment(out[-1].duration_s + duration, a)
         else:
-            segments.append(Segment(float(duration), float(a)))
-    return PiecewiseConstantAcceleration(segments)
+            out.append(Segment(float(duration), float(a)))
+    return out
 
 
 def single_move(
