@@ -10,15 +10,17 @@ from gateway.core.evaluation import move_errors
 from gateway.core.simulator import simulate
 
 
-def robot_case(seed: int, step_mg: float, rate_hz: float = 100.0, noise_mps2: float = 0.005):
+def robot_case(seed: int, step_mg: float, rate_hz: float = 100.0, noise_mps2: float = 0.005,
+               jerk_mps3: float = 0.0):
     sensor = sensor_for(rate_hz, noise_mps2)
-    run = simulate(robot_path(), sensor, seed=seed)
+    run = simulate(robot_path(jerk_mps3), sensor, seed=seed)
     t = sample_times_s(run.t2, run.tick_hz)
     z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
     if step_mg:  # the offset steps in the first move's cruise
         cruise = np.flatnonzero((np.abs(run.ref_vel_mps) == SPEED_MPS) & (run.ref_pos_m > -0.634 + 0.3))
         z[cruise[0]:] += step_mg * 1e-3 * G
-    resting = (run.ref_vel_mps == 0.0) & (run.ref_acc_mps2 == 0.0)
+    # (an S-curve's profile is a sum of shifted copies: its rests are zero to rounding)
+    resting = (np.abs(run.ref_vel_mps) < 1e-12) & (np.abs(run.ref_acc_mps2) < 1e-9)
     return t, z, run.ref_pos_m, resting, from_sensor_model(sensor)
 
 

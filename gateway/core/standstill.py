@@ -121,6 +121,18 @@ def standstill_tests(initialised, n_valid, mean, var, vel, vel_var, bias, bias_v
 
 
 @jit
+def stopping_within_a_window(mean_off_bias, vel, window_s):
+    """The window's acceleration (its mean less the bias) opposes the filter's velocity
+    and, held, brings the axis to rest within about a window (|v| ≤ 2·|a|·window): the
+    last part of a deceleration into a stop. A steady deceleration is as quiet in
+    variance as a stretch whose offset stepped, and off the bias alike; told apart by
+    where the velocity goes. An offset step in motion leaves a velocity error that grows
+    with the time since it (seconds: far more than a window's worth of the step) and has
+    no reason to oppose it; an offset step at rest makes the velocity follow it."""
+    return mean_off_bias * vel < 0.0 and abs(vel) <= 2.0 * abs(mean_off_bias) * window_s
+
+
+@jit
 def hinted_rest_fits(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var_white, step_max,
                      mean_sigmas, speed_floor, period_s):
     """The `count` hinted samples of the ring from slot `oldest` on do not contradict the
