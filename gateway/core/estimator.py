@@ -377,6 +377,7 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
     K.add_scale_error(cols["pos_var"], cols["pos"], prm)
     K.add_scale_error(cols["vel_var"], cols["vel"], prm)
+    K.add_reading_instant_error(cols["pos_var"], cols["acc"], t, prm)
 
 
 def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:

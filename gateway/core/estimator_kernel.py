@@ -57,7 +57,8 @@ P_STEP_MAX = 17  # the largest offset step (m/s²) a rest hint may explain; beyo
 P_RESTART_VEL_VAR = 18  # velocity variance (m/s)² after a restart with the axis possibly moving
 P_HINT_LATENCY = 19  # how long a machine's "moving" may lead the sensor's motion (s): unknown for that long
 P_SCALE_VAR = 20  # the sensitivity's variance (fraction²): the reported σ carries s·p and s·v
-N_PARAMS = 21
+P_READING_INSTANT = 21  # S/2g (s²/m) for a duty-cycle part whose reading instant is not known, else 0
+N_PARAMS = 22
 
 # ---- misc state layout ----------------------------------------------------------------
 M_T_PREV = 0
@@ -87,7 +88,8 @@ M_BIAS_REQUESTED = 21  # 1: a re-estimation of the bias was asked for; the next 
 M_LAST_REST_HINT_T = 22  # time of the latest sample hinted "at rest" (−inf: none)
 M_QUIET_FROM_V = 23  # velocity where the current quiet stretch in motion began above the floor (NaN: none)
 M_QUIET_FROM_T = 24  # and its time
-N_MISC = 25
+M_READING_DRIFT = 25  # position a modulator reading at its edge would have added since the tare (m)
+N_MISC = 26
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -175,6 +177,32 @@ def with_scale_error(var, value, prm):
     makes the velocity off by s·v and the position by s·p (p since the tare), a systematic
     error the filter's model does not contain."""
     return var + prm[P_SCALE_VAR] * value * value
+
+
+@jit
+def reading_instant_var(drift_m):
+    """The reported position's variance share for a duty-cycle reading whose instant in its
+    period is not known (SensorParams.dcm_reading; the data sheet does not say): read at the
+    period's mean it adds nothing, read where the duty cycle ends it adds drift_m (the
+    position (S·T2/2g)·∫a² dt, of one sign) — so 0 … drift_m, taken as a 2σ bound (as the
+    sensitivity's ±1 % is) and not corrected."""
+    return 0.25 * drift_m * drift_m
+
+
+@jit
+def add_reading_instant_error(var, acc, t_s, prm):
+    """reading_instant_var over a track, in place (the smoothed estimate's memory budget: no
+    new array): the drift accumulated through its motion, acc the estimate's acceleration
+    (0 at standstill), each sample period its own T2."""
+    c = prm[P_READING_INSTANT]
+    if c <= 0.0:
+        return
+    drift = 0.0
+    for k in range(1, var.size):
+        dt = t_s[k] - t_s[k - 1]
+        if dt > 0.0:
+            drift += c * dt * acc[k - 1] * acc[k - 1] * dt
+        var[k] += reading_instant_var(drift)
 
 
 @jit
@@ -435,6 +463,9 @@ def step(state, prm, t_s, z, z_valid, lost_before):
                     u += half * missing_dt / dt
                     missing_var = half * half + prm[P_R]
                 propagate_motion(x, P, dt, u, ddrift, prm[P_QV], prm[P_QB], missing_var, missing_dt)
+                if prm[P_READING_INSTANT] > 0.0 and m[M_PERIOD] > 0.0:
+                    a = u - x[2]
+                    m[M_READING_DRIFT] += prm[P_READING_INSTANT] * m[M_PERIOD] * a * a * dt
                 transition = T_MOTION
             elif regime_prev == STANDSTILL:
                 propagate_standstill(x, P, dt, ddrift, prm[P_QB])
@@ -823,7 +854,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
         out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, lag)
         out[O_BIAS] = x[2]
-        out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm)
+        out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm) + reading_instant_var(m[M_READING_DRIFT])
         out[O_VEL_VAR] = with_scale_error(P[1, 1], out[O_VEL], prm)
         out[O_BIAS_VAR] = P[2, 2]
     if regime == UNINITIALISED or m[M_BIAS_REQUESTED] > 0.0:
@@ -868,6 +899,7 @@ def tare(state: KernelState) -> None:
     state.x[0] = 0.0
     state.P[0, :] = 0.0
     state.P[:, 0] = 0.0
+    state.misc[M_READING_DRIFT] = 0.0
 
 
 def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:

@@ -40,6 +40,9 @@ class AxisSensor:
     drift: DriftModel = DriftModel(c1_g=0.0025, c2_g=0.0, time_constant_s=1800.0)
 
 
+DCM_READINGS = ("mean", "edge")  # SensorParams.dcm_reading
+
+
 @dataclass(frozen=True)
 class SensorParams:
     x: AxisSensor = AxisSensor(zero_g_offset_g=0.010)
@@ -60,8 +63,18 @@ class SensorParams:
     tick_hz: float = DEFAULT_TICK_HZ
     # Board temperature (°C) reported in STATUS; constant in the baseline.
     temperature_c: float = 25.0
+    # Where in its period the duty-cycle modulator reads the filtered signal — the data
+    # sheet does not say. "mean": the period's mean (an integrating modulator, the
+    # simulator's convention until 2026-11-27); "edge": the value at the moment the duty
+    # cycle ends (natural sampling: the signal compared with a ramp), which reads each
+    # sample S·T2·a/g later than the period's middle for an acceleration a — a reading of
+    # a + (S·T2/2g)·d(a²)/dt, whose integral leaves (S·T2/2g)·∫a² dt of position per move,
+    # of one sign whichever way the axis moves (0.25 mm per 30 cm stroke of the paper's).
+    dcm_reading: str = "mean"
 
     def __post_init__(self) -> None:
+        if self.dcm_reading not in DCM_READINGS:
+            raise ValueError(f"dcm_reading must be one of {', '.join(DCM_READINGS)}")
         for name in ("noise_density_g_per_rthz",):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must not be negative")
