@@ -41,6 +41,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
+from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
 from tests.diagnosis_cases import CHECKS, EFFECTS, STROKES, CaseOutcome, estimator_settings, run_case  # noqa: E402
 from tests.independent_generator import cases as independent  # noqa: E402
 
@@ -52,8 +53,8 @@ def _work(task: tuple):
     if task[0] == "independent":
         _, effect, seed = task
         return independent.run_case(effect, seed, estimator_settings())
-    hidden, seed, parts_within_tolerance, jerk_mps3 = task
-    return run_case(hidden, seed, parts_within_tolerance, jerk_mps3)
+    hidden, seed, parts_within_tolerance, jerk_mps3, dcm_reading = task
+    return run_case(hidden, seed, parts_within_tolerance, jerk_mps3, dcm_reading)
 
 
 # the independent generator's seeds: far from the own simulator's 0…N−1, the tests' 9000+
@@ -186,6 +187,9 @@ def main() -> int:
     parser.add_argument("--jerk-mps3", type=float, default=0.0,
                         help="the own simulator's strokes driven jerk-limited at this jerk, m/s³ (an S-curve "
                              "drive, e.g. 400; motion_profiles.jerk_limited); 0: acceleration steps (default)")
+    parser.add_argument("--dcm-reading", choices=DCM_READINGS, default="mean",
+                        help="where the own simulator's modulator reads the signal: over the period (default) "
+                             "or where each duty cycle ends (SensorParams.dcm_reading)")
     parser.add_argument("--independent-cases", type=int, default=50,
                         help="cases per hidden effect (and clean, and hum) of the independent generator "
                              f"(seeds {INDEPENDENT_SEED0}…)")
@@ -210,7 +214,8 @@ def main() -> int:
     if args.generator in ("own", "both"):
         print(f"cases:   paper scenario, {STROKES} strokes (bias_random_walk: a 60 s standstill); {args.cases} seeded "
               f"cases per effect (seeds 0–{args.cases - 1}), documented effect sizes; parts {args.parts}; "
-              + (f"strokes jerk-limited at {args.jerk_mps3:g} m/s³; " if args.jerk_mps3 > 0 else "") +
+              + (f"strokes jerk-limited at {args.jerk_mps3:g} m/s³; " if args.jerk_mps3 > 0 else "")
+              + (f"readings at the duty cycle's {args.dcm_reading}; " if args.dcm_reading != "mean" else "") +
               f"{args.jobs} worker(s)")
     else:
         print(f"cases:   the independent generator only, {args.independent_cases} per row from seed "
@@ -220,9 +225,10 @@ def main() -> int:
     own = args.generator in ("own", "both")
     tolerance = args.parts == "tolerance"
     jerk = args.jerk_mps3
-    tasks = [((name,), seed, tolerance, jerk) for name in effects for seed in range(args.cases)] if own else []
+    reading = args.dcm_reading
+    tasks = [((name,), seed, tolerance, jerk, reading) for name in effects for seed in range(args.cases)] if own else []
     if own and not args.no_clean:
-        tasks += [((), seed, tolerance, jerk) for seed in range(args.cases)]
+        tasks += [((), seed, tolerance, jerk, reading) for seed in range(args.cases)]
     if args.generator in ("independent", "both"):
         seeds = range(args.independent_seed0, args.independent_seed0 + args.independent_cases)
         tasks += [("independent", e, seed) for e in independent_rows(args.independent_effects) for seed in seeds]

@@ -323,12 +323,15 @@ def judge(hidden: tuple[str, ...], terms: tuple[ErrorTerm, ...], data: Diagnosis
 
 
 def run_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = False,
-             jerk_mps3: float = 0.0) -> CaseOutcome:
+             jerk_mps3: float = 0.0, dcm_reading: str = "mean") -> CaseOutcome:
     """Build, diagnose and judge one case (also what a benchmark worker runs); optionally
-    on a part as built (part_within_tolerance) instead of the nominal one, and with the
-    strokes driven jerk-limited (an S-curve drive; a standstill case has no strokes)."""
+    on a part as built (part_within_tolerance) instead of the nominal one, with the
+    strokes driven jerk-limited (an S-curve drive; a standstill case has no strokes), and
+    with the modulator reading where each duty cycle ends (SensorParams.dcm_reading)."""
     t0 = time.perf_counter()
     part = part_within_tolerance(seed) if parts_within_tolerance else None
+    if dcm_reading != "mean":
+        part = replace(part or SENSOR, dcm_reading=dcm_reading)
     scenario = scenario_for(tuple(hidden))
     strokes = (StrokeSettings(strokes=scenario[1], jerk_mps3=jerk_mps3)
                if jerk_mps3 > 0 and scenario[0] == "paper" else None)
