@@ -38,6 +38,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=15)
     ap.add_argument("--checkout", type=Path, default=Path(__file__).resolve().parents[1])
     ap.add_argument("--parts", default="1,2,3", help="which of the parts above to run (default: 1,2,3)")
+    ap.add_argument("--dcm-reading", choices=("mean", "edge"), default="mean",
+                    help="part 3: where the simulated modulator reads the signal (SensorParams.dcm_reading; "
+                         "edge: where each duty cycle ends, as the generator's)")
     args = ap.parse_args()
     parts = {p.strip() for p in args.parts.split(",")}
     sys.path.insert(0, str(args.checkout.resolve()))
@@ -45,7 +48,7 @@ def main() -> None:
     from benchmarks.machine_info import machine
 
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/temperature_swing_sweep.py --seeds {args.seeds} "
-          f"--checkout {args.checkout} --parts {args.parts}")
+          f"--checkout {args.checkout} --parts {args.parts} --dcm-reading {args.dcm_reading}")
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
     drawn = dc.draw_terms
 
@@ -91,10 +94,10 @@ def main() -> None:
               f"{false} with a false name")
 
     if "3" in parts:
-        part_three(dc, args.seeds)
+        part_three(dc, args.seeds, args.dcm_reading)
 
 
-def part_three(dc, seeds: int) -> None:
+def part_three(dc, seeds: int, dcm_reading: str = "mean") -> None:
     from gateway.core.motion_profiles import StrokeSettings
     from gateway.core.sensor_effects import TemperatureTerm
     if not ("phase_rad" in {f.name for f in dataclasses.fields(TemperatureTerm)}
@@ -102,7 +105,7 @@ def part_three(dc, seeds: int) -> None:
         print("3. skipped: this checkout has no TemperatureTerm.phase_rad or StrokeSettings.jerk_mps3")
         return
     print("3. the independent generator's documented temperature case (one swing over the record, phase 0, "
-          "0.5 mg/°C), parts as built:")
+          f"0.5 mg/°C), parts as built, readings {'over the period' if dcm_reading == 'mean' else 'at the edge'}:")
     for jerk in (0.0, 400.0):
         # as the generator's recordings: 6 strokes of 30 cm, rests of 0.6–1 s
         strokes = StrokeSettings(strokes=6, dwell_s=0.8, jerk_mps3=jerk)
@@ -114,8 +117,10 @@ def part_three(dc, seeds: int) -> None:
                     if term.name == "temperature_offset" else term)
         named = collections.Counter()
         for seed in range(seeds):
-            _, data = dc.make_case(("temperature_offset",), seed, adjust=one_swing, strokes=strokes,
-                                   part=dc.part_within_tolerance(seed))
+            part = dc.part_within_tolerance(seed)
+            if dcm_reading != "mean":
+                part = dataclasses.replace(part, dcm_reading=dcm_reading)
+            _, data = dc.make_case(("temperature_offset",), seed, adjust=one_swing, strokes=strokes, part=part)
             named[tuple(e.name for e in dc.run_diagnosis(data).effects)] += 1
         alone = named[("temperature_offset",)]
         print(f"   strokes {'jerk-limited at 400 m/s³' if jerk else 'acceleration steps'}: named alone {alone} of "
