@@ -73,7 +73,7 @@ def test_clean_recording_finds_nothing_and_writes_strict_json(clean_run):
     assert doc["residual_white"] is True and doc["unexplained"] is False
     # every effect, and the setup's own properties fitted beside them (never named)
     assert sorted(c["name"] for c in doc["candidates"]) == sorted([*EFFECTS, *SETUP_PROPERTIES])
-    assert SETUP_PROPERTIES == ("output_filter",)
+    assert SETUP_PROPERTIES == ("output_filter", "reading_instant")
 
 
 def test_report_writes_markdown_and_png_plots(clean_run):

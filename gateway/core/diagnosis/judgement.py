@@ -88,6 +88,9 @@ def setup_range(name: str, prep: Prepared, theta: np.ndarray, std: np.ndarray | 
         bw = prep.data.sensor_bandwidth_hz
         return (f"output filter at {theta[0]:.1f} Hz: the nominal {bw:.1f} Hz within its capacitor's "
                 f"±{100 * CAPACITOR_TOLERANCE_FRAC:g} %")
+    if name == "reading_instant":  # fitted only between the two readings (signal_effects.ReadingInstant)
+        return (f"duty-cycle reading {theta[0]:.2f} of the way from the period's mean (0) to where the "
+                "duty cycle ends (1)")
     if name == "timing" and theta[0] < ORDINARY_HOLD_BACK_S:
         return (f"host arrival jitter fitted as a hold-back of {1e3 * theta[0]:.2f} ms: an ordinary link's "
                 f"jitter (below {1e3 * ORDINARY_HOLD_BACK_S:g} ms)")

@@ -293,6 +293,58 @@ class OutputFilter(SignalEffect):
         return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0]) - nominal})
 
 
+# the duty cycle per g (board protocol): an edge-read sample comes S·T2·a/g after the period's middle
+DUTY_PER_G = 0.125
+
+
+class ReadingInstant(SignalEffect):
+    """Not an effect: where in its period the part's modulator reads the signal — over the
+    period (its mean: the baseline's convention) or where the duty cycle ends (natural
+    sampling; the data sheet does not say which). Read at the edge, a sample comes S·T2·a/g
+    after the period's middle: the reading is a + (S·T2/2g)·d(a²)/dt, which leaves
+    (S·T2/2g)·∫a² dt of position per move (docs/estimation.md §Never confidently wrong).
+    Fitted as the fraction of the way from the mean (0) to the edge (1), only within that
+    range, so it is always a measured property of the setup (never named); told to the
+    estimator, it corrects the measurement."""
+
+    name = "reading_instant"
+    setup_only = True
+    stage = 2
+    summary = "where in its period the modulator reads the signal: mean (0) … edge (1) (a property of the setup)"
+    param_names = ("edge_fraction",)
+
+    def unusable(self, prep):
+        bw = prep.data.sensor_bandwidth_hz
+        if not bw or not np.isfinite(bw):
+            return "not a duty-cycle part (the sensor's own filter is not known)"
+        return super().unusable(prep)
+
+    @staticmethod
+    def _edge_term(prep, full):
+        """(S·T2/2g)·d(a²)/dt on the received samples, a the model's reading of the motion."""
+        period = prep.data.period_s
+        return (DUTY_PER_G * period / (2.0 * G)) * np.gradient(full * full, period)[prep.where]
+
+    def bounds(self, prep):
+        return [0.0], [1.0]
+
+    def initial(self, prep, residual, sig):
+        fraction = _ls_coefficient(residual, self._edge_term(prep, sig.full), prep.fit_mask)
+        return np.array([min(max(fraction, 0.0), 1.0)])
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * self._edge_term(prep, sig.full)
+
+    def compensate(self, prep, theta, acc, pos_est):
+        # the measured motion (its offset taken out: the offset's share is a constant
+        # delay, which moves no stop) read back to the period's middle
+        a = np.where(np.isfinite(acc), acc, np.nan)
+        motion = a - np.nanmedian(a)
+        term = (DUTY_PER_G * prep.data.period_s / (2.0 * G)) * np.gradient(np.nan_to_num(motion) ** 2,
+                                                                            prep.data.t_s)
+        return Compensation(acc_mps2=acc - theta[0] * term)
+
+
 CLIP_TOLERANCE_G = 0.003  # the timer's quantisation: clipped samples scatter by ~1 mg
 CLIP_MIN_SAMPLES = 10  # 20 ms of saturation at 500 samples/s
 
@@ -378,5 +430,5 @@ class ReferenceDelay(SignalEffect):
 
 SIGNAL_EFFECTS: tuple[SignalEffect, ...] = (
     ScaleFactor(), Tilt(), TemperatureOffset(), Vibration(), Bandwidth(), Nonlinearity(),
-    Clipping(), ReferenceDelay(), OutputFilter(),
+    Clipping(), ReferenceDelay(), OutputFilter(), ReadingInstant(),
 )
