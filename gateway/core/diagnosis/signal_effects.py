@@ -252,7 +252,21 @@ class Bandwidth(SignalEffect):
         return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0])})
 
 
-class OutputFilter(SignalEffect):
+class PartProperty(SignalEffect):
+    """A property of the known duty-cycle part that the data sheet leaves open: fitted only
+    inside its range, always a measured property of the setup, never named. A recording
+    of another sensor does not say what its own filter is: not fitted there."""
+
+    setup_only = True
+
+    def unusable(self, prep):
+        bw = prep.data.sensor_bandwidth_hz
+        if not bw or not np.isfinite(bw):
+            return "not the known duty-cycle part: its own filter is not known"
+        return super().unusable(prep)
+
+
+class OutputFilter(PartProperty):
     """Not an effect: the part's own output filter, f−3dB = 1/(2π·32 kΩ·CX), at the value
     its capacitor really has. The baseline takes the nominal CX; a board's capacitor is
     within a tolerance (judgement.CAPACITOR_TOLERANCE_FRAC), and a part at another value
@@ -264,16 +278,9 @@ class OutputFilter(SignalEffect):
     named); a slower filter than that is the `bandwidth` effect's."""
 
     name = "output_filter"
-    setup_only = True
     stage = 1
     summary = "the part's own output filter at its capacitor's real value (a property of the setup)"
     param_names = ("bandwidth_hz",)
-
-    def unusable(self, prep):
-        bw = prep.data.sensor_bandwidth_hz
-        if not bw or not np.isfinite(bw):
-            return "the sensor's own filter is not known"
-        return super().unusable(prep)
 
     def bounds(self, prep):
         bw = prep.data.sensor_bandwidth_hz
@@ -297,7 +304,7 @@ class OutputFilter(SignalEffect):
 DUTY_PER_G = 0.125
 
 
-class ReadingInstant(SignalEffect):
+class ReadingInstant(PartProperty):
     """Not an effect: where in its period the part's modulator reads the signal — over the
     period (its mean: the baseline's convention) or where the duty cycle ends (natural
     sampling; the data sheet does not say which). Read at the edge, a sample comes S·T2·a/g
@@ -308,16 +315,9 @@ class ReadingInstant(SignalEffect):
     estimator, it corrects the measurement."""
 
     name = "reading_instant"
-    setup_only = True
     stage = 2
     summary = "where in its period the modulator reads the signal: mean (0) … edge (1) (a property of the setup)"
     param_names = ("edge_fraction",)
-
-    def unusable(self, prep):
-        bw = prep.data.sensor_bandwidth_hz
-        if not bw or not np.isfinite(bw):
-            return "not a duty-cycle part (the sensor's own filter is not known)"
-        return super().unusable(prep)
 
     @staticmethod
     def _edge_term(prep, full):
