@@ -26,13 +26,14 @@ import numpy as np
 from scipy.special import gammaincinv
 
 from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation, noise_terms
-from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, SensorParams
+from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, NOMINAL_DUTY_PER_G, SensorParams, \
+    edge_reading_gain_s2_per_m
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 G = STANDARD_GRAVITY_MPS2
 ACF_LAGS = 32  # enough to cover the noise correlation of any window we use
 ZERO_G_DUTY = 0.5
-SENSITIVITY_DUTY_PER_G = 0.125
+SENSITIVITY_DUTY_PER_G = NOMINAL_DUTY_PER_G
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,8 @@ class EstimatorSettings:
     # does not say): such a reading adds (S·T2/2g)·∫a² dt of position per move, of one
     # sign (0.25 mm per stroke of the paper's). Not corrected — which reading a board has
     # is not known — but carried in the reported σ (estimator_kernel.reading_instant_var).
-    # On the simulator with edge readings, 78 % of the stop errors lay inside ±3σ without
-    # it (benchmarks/sigma_coverage.py --dcm-reading edge). False for other sensors: an ADC
+    # On the simulator with edge readings, 69–70 % of the stop errors lay inside ±3σ
+    # without it (benchmarks/sigma_coverage.py --dcm-reading edge). False for other sensors: an ADC
     # samples at a fixed instant.
     duty_cycle_reading_unknown: bool = False
     source: str = "defaults"
@@ -200,7 +201,8 @@ class EstimatorSettings:
         p[k.P_RESTART_VEL_VAR] = self.restart_speed_std_mps**2
         p[k.P_HINT_LATENCY] = self.hint_latency_s
         p[k.P_SCALE_VAR] = self.sensitivity_std_frac**2
-        p[k.P_READING_INSTANT] = SENSITIVITY_DUTY_PER_G / (2.0 * G) if self.duty_cycle_reading_unknown else 0.0
+        # per second of T2 (the kernel multiplies by each sample's period)
+        p[k.P_READING_INSTANT] = edge_reading_gain_s2_per_m(1.0) if self.duty_cycle_reading_unknown else 0.0
         return p
 
     def with_known_bias(self) -> "EstimatorSettings":

@@ -8,8 +8,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from gateway.core.drift_model import DriftModel
-from gateway.core.units import DEFAULT_TICK_HZ
+from gateway.core.units import DEFAULT_TICK_HZ, STANDARD_GRAVITY_MPS2
 
 # A calibrated part's sensitivity is known to about ±1 % (data sheet: 10–15 %/g before
 # calibration; a two-point calibration leaves the reference's own uncertainty). The
@@ -41,6 +43,20 @@ class AxisSensor:
 
 
 DCM_READINGS = ("mean", "edge")  # SensorParams.dcm_reading
+# board protocol: the duty cycle changes by S = 12.5 % per g
+NOMINAL_DUTY_PER_G = 0.125
+
+
+def edge_reading_gain_s2_per_m(period_s: float) -> float:
+    """S·T2/2g: a sample read where its duty cycle ends comes S·T2·a/g after the period's
+    middle, so it reads a + S·T2/2g · d(a²)/dt (SensorParams.dcm_reading = "edge")."""
+    return NOMINAL_DUTY_PER_G * period_s / (2.0 * STANDARD_GRAVITY_MPS2)
+
+
+def edge_reading_excess_mps2(motion_mps2: np.ndarray, spacing, period_s: float) -> np.ndarray:
+    """What an edge reading adds to a motion's acceleration: S·T2/2g · d(a²)/dt (spacing: the
+    sample times, or one period for a regular grid)."""
+    return edge_reading_gain_s2_per_m(period_s) * np.gradient(motion_mps2 * motion_mps2, spacing)
 
 
 @dataclass(frozen=True)

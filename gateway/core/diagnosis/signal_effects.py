@@ -24,6 +24,7 @@ import numpy as np
 from gateway.core.diagnosis.context import G, Prepared
 from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
+from gateway.core.sensor_model import edge_reading_excess_mps2
 from gateway.core.diagnosis.reading import shifted
 
 
@@ -300,10 +301,6 @@ class OutputFilter(PartProperty):
         return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0]) - nominal})
 
 
-# the duty cycle per g (board protocol): an edge-read sample comes S·T2·a/g after the period's middle
-DUTY_PER_G = 0.125
-
-
 class ReadingInstant(PartProperty):
     """Not an effect: where in its period the part's modulator reads the signal — over the
     period (its mean: the baseline's convention) or where the duty cycle ends (natural
@@ -321,9 +318,9 @@ class ReadingInstant(PartProperty):
 
     @staticmethod
     def _edge_term(prep, full):
-        """(S·T2/2g)·d(a²)/dt on the received samples, a the model's reading of the motion."""
+        """What an edge reading adds, on the received samples, to the model's reading of the motion."""
         period = prep.data.period_s
-        return (DUTY_PER_G * period / (2.0 * G)) * np.gradient(full * full, period)[prep.where]
+        return edge_reading_excess_mps2(full, period, period)[prep.where]
 
     def bounds(self, prep):
         return [0.0], [1.0]
@@ -338,11 +335,10 @@ class ReadingInstant(PartProperty):
     def compensate(self, prep, theta, acc, pos_est):
         # the measured motion (its offset taken out: the offset's share is a constant
         # delay, which moves no stop) read back to the period's middle
-        a = np.where(np.isfinite(acc), acc, np.nan)
-        motion = a - np.nanmedian(a)
-        term = (DUTY_PER_G * prep.data.period_s / (2.0 * G)) * np.gradient(np.nan_to_num(motion) ** 2,
-                                                                            prep.data.t_s)
-        return Compensation(acc_mps2=acc - theta[0] * term)
+        finite = np.isfinite(acc)
+        motion = np.where(finite, acc - np.median(acc[finite]), 0.0)
+        return Compensation(acc_mps2=acc - theta[0] * edge_reading_excess_mps2(motion, prep.data.t_s,
+                                                                             prep.data.period_s))
 
 
 CLIP_TOLERANCE_G = 0.003  # the timer's quantisation: clipped samples scatter by ~1 mg
