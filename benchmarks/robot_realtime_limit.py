@@ -11,7 +11,10 @@ Three measurements:
    error just before and after the zero-velocity update;
 3. at the end of each of the robot's rests (where the moves are scored): the position
    error against the filter's own σ — is the error what its white noise predicts?
-Only the design file is meant here (datasets/README.md: the other is held out).
+Designed on the design file. The held-out file (datasets/README.md) is run with it only
+to report what limits it — the issue asks that a goal not met be explained by the
+measurement that shows the limit; nothing is chosen from its output.
+`--hint` runs the filter with the robot's "in position" as the standstill hint.
 """
 from __future__ import annotations
 
@@ -39,12 +42,14 @@ SETTLE_S = 0.3
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--file", default="eV50p_MPU6050RM3100.csv")
+    ap.add_argument("--hint", action="store_true", help="with the robot's \"in position\" as the standstill hint")
     args = ap.parse_args()
     d = np.genfromtxt(REPO / "datasets" / "leiria-robot" / args.file, delimiter=",", names=True)
     t = d["sensor_time_s"] - d["sensor_time_s"][0]
     acc = d["acc_z_g"] * G
     rest = d["robot_at_rest"] > 0.5
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/robot_realtime_limit.py --file {args.file}")
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/robot_realtime_limit.py --file {args.file}"
+          + (" --hint" if args.hint else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")
     print()
@@ -63,10 +68,12 @@ def main() -> int:
               f"| {np.std(x) / np.sqrt(n_eff):.2f} |")
     series = AccelerationSeries(t_s=t, acc_mps2=acc, valid=np.isfinite(acc), lost_before=np.zeros(t.size, np.int64))
     settings = settings_for(series, "acceleration", "auto", None)
-    track = estimate_series(t, acc, method="realtime", settings=settings)
+    track = estimate_series(t, acc, method="realtime", settings=settings,
+                            standstill_hint=d["robot_at_rest"] if args.hint else None)
     err = track.pos_m - d["ref_z_m"]
     print()
-    print(f"realtime filter, no hint; mean test tolerance at a stop ≈ {settings.standstill_mean_sigmas:g} σ of a "
+    hinted = "the robot's rest as the hint" if args.hint else "no hint"
+    print(f"realtime filter, {hinted}; mean test tolerance at a stop ≈ {settings.standstill_mean_sigmas:g} σ of a "
           f"{settings.window_samples}-sample mean = "
           f"{settings.standstill_mean_sigmas * np.sqrt(settings.zaru_variance_mps2_sq / settings.window_samples) / G * 1e3:.1f} mg")
     print()
