@@ -12,7 +12,7 @@ on the simulator: the design ground behind docs/diagnosis.md §4's cross-validat
 3. the independent generator's temperature case as its design documents it
    (docs/diagnosis.md §7b: one ±4 °C swing over the whole record, starting at its mean
    and rising; 6 strokes of 30 cm, rests of 0.8 s), at the smallest documented
-   coefficient (0.5 mg/°C, the sign drawn), on parts as built, with the simulator's
+   coefficient (0.5 mg/°C, the sign drawn; `--offset-mg-per-c` for others), on parts as built, with the simulator's
    strokes as acceleration steps and jerk-limited (400 m/s³, as the generator drives): is the row's shortfall there (88 %) a property
    of the swing's shape or size? (Needs a checkout with TemperatureTerm.phase_rad and
    StrokeSettings.jerk_mps3; skipped otherwise.)
@@ -38,6 +38,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=15)
     ap.add_argument("--checkout", type=Path, default=Path(__file__).resolve().parents[1])
     ap.add_argument("--parts", default="1,2,3", help="which of the parts above to run (default: 1,2,3)")
+    ap.add_argument("--offset-mg-per-c", type=float, nargs="+", default=[0.5],
+                    help="part 3: the hidden coefficient's size(s), mg/°C (the sign drawn; default 0.5, the "
+                         "smallest the generator draws — it draws 0.5–2)")
     ap.add_argument("--dcm-reading", choices=("mean", "edge"), default="mean",
                     help="part 3: where the simulated modulator reads the signal (SensorParams.dcm_reading; "
                          "edge: where each duty cycle ends, as the generator's)")
@@ -48,7 +51,8 @@ def main() -> None:
     from benchmarks.machine_info import machine
 
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/temperature_swing_sweep.py --seeds {args.seeds} "
-          f"--checkout {args.checkout} --parts {args.parts} --dcm-reading {args.dcm_reading}")
+          f"--checkout {args.checkout} --parts {args.parts} --dcm-reading {args.dcm_reading} "
+          f"--offset-mg-per-c {' '.join(f'{x:g}' for x in args.offset_mg_per_c)}")
     print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
     drawn = dc.draw_terms
 
@@ -94,10 +98,11 @@ def main() -> None:
               f"{false} with a false name")
 
     if "3" in parts:
-        part_three(dc, args.seeds, args.dcm_reading)
+        for size in args.offset_mg_per_c:
+            part_three(dc, args.seeds, args.dcm_reading, size)
 
 
-def part_three(dc, seeds: int, dcm_reading: str = "mean") -> None:
+def part_three(dc, seeds: int, dcm_reading: str = "mean", offset_mg_per_c: float = 0.5) -> None:
     from gateway.core.motion_profiles import StrokeSettings
     from gateway.core.sensor_effects import TemperatureTerm
     if not ("phase_rad" in {f.name for f in dataclasses.fields(TemperatureTerm)}
@@ -105,14 +110,14 @@ def part_three(dc, seeds: int, dcm_reading: str = "mean") -> None:
         print("3. skipped: this checkout has no TemperatureTerm.phase_rad or StrokeSettings.jerk_mps3")
         return
     print("3. the independent generator's documented temperature case (one swing over the record, phase 0, "
-          f"0.5 mg/°C), parts as built, readings {'over the period' if dcm_reading == 'mean' else 'at the edge'}:")
+          f"{offset_mg_per_c:g} mg/°C), parts as built, readings {'over the period' if dcm_reading == 'mean' else 'at the edge'}:")
     for jerk in (0.0, 400.0):
         # as the generator's recordings: 6 strokes of 30 cm, rests of 0.6–1 s
         strokes = StrokeSettings(strokes=6, dwell_s=0.8, jerk_mps3=jerk)
         duration_s = dc.build_profile(dc.ScenarioSettings(strokes=strokes)).duration_s
 
         def one_swing(term, duration_s=duration_s):
-            return (dataclasses.replace(term, offset_g_per_c=math.copysign(0.5e-3, term.offset_g_per_c),
+            return (dataclasses.replace(term, offset_g_per_c=math.copysign(offset_mg_per_c * 1e-3, term.offset_g_per_c),
                                         cycle_s=duration_s, phase_rad=0.0)
                     if term.name == "temperature_offset" else term)
         named = collections.Counter()

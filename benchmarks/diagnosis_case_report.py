@@ -1,0 +1,91 @@
+"""What `adxlgw diagnose` said about one benchmark case, candidate by candidate.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --effect temperature_offset --seeds 130008 130018
+    PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --generator own --effect temperature_offset \
+        --seeds 17 --parts tolerance --jerk-mps3 400 --dcm-reading edge
+
+For each seed: the case as `diagnosis_benchmark.py` makes it (the independent generator,
+tests/independent_generator, or the own simulator with the same options), the hidden truth, and the
+diagnosis's verdict on every candidate (accepted / rejected and why, ΔBIC), its named
+effects, setup properties, negligible and not-physical lists. A reading aid for a
+benchmark row that is not met: it changes nothing, and what it shows about the
+independent generator must not be tuned on (docs/diagnosis.md §7b, "How it was used").
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from benchmarks.machine_info import machine  # noqa: E402
+from gateway.core.diagnosis import diagnose  # noqa: E402
+from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
+from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
+from tests import diagnosis_cases as own  # noqa: E402
+from tests.diagnosis_cases import estimator_settings  # noqa: E402
+from tests.independent_generator import cases as independent  # noqa: E402
+
+
+def own_case(effect: str | None, seed: int, parts: str, jerk_mps3: float, dcm_reading: str):
+    """The own simulator's case exactly as tests.diagnosis_cases.run_case builds it: (truth, data)."""
+    hidden = (effect,) if effect else ()
+    part = own.part_within_tolerance(seed) if parts == "tolerance" else None
+    if dcm_reading != "mean":
+        part = replace(part or own.SENSOR, dcm_reading=dcm_reading)
+    scenario = own.scenario_for(hidden)
+    strokes = (StrokeSettings(strokes=scenario[1], jerk_mps3=jerk_mps3)
+               if jerk_mps3 > 0 and scenario[0] == "paper" else None)
+    terms, data = own.make_case(hidden, seed, part=part, strokes=strokes)
+    return terms, data
+
+
+def report(effect: str | None, seed: int, args) -> list[str]:
+    if args.generator == "own":
+        truth, data = own_case(effect, seed, args.parts, args.jerk_mps3, args.dcm_reading)
+    else:
+        case = independent.make_case(effect, seed)
+        truth, data = independent.truth_of(case), case.data
+    result = diagnose(data, estimator_settings())
+    out = [f"### {effect or 'clean'}, seed {seed}", "",
+           f"truth: {truth}; named: {[e.name for e in result.effects] or 'nothing'}; "
+           f"residual white: {result.residual_white}; noise model {result.noise_model}", ""]
+    out.append("| candidate | status | ΔBIC | reason |")
+    out.append("| --- | --- | --- | --- |")
+    for c in result.candidates:
+        out.append(f"| {c.name} | {c.status} | {c.delta_bic:.1f} | {c.reason} |")
+    for title, items in (("setup", result.setup), ("negligible", result.negligible),
+                         ("not physical", result.not_physical)):
+        for item in items:
+            out.append(f"- {title}: {item}")
+    return out + [""]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--effect", default="temperature_offset", help="the hidden effect ('clean': none)")
+    ap.add_argument("--seeds", type=int, nargs="+", required=True)
+    ap.add_argument("--generator", choices=("independent", "own"), default="independent")
+    ap.add_argument("--parts", choices=("nominal", "tolerance"), default="nominal", help="own: the part")
+    ap.add_argument("--jerk-mps3", type=float, default=0.0, help="own: strokes jerk-limited at this jerk")
+    ap.add_argument("--dcm-reading", choices=DCM_READINGS, default="mean", help="own: where the modulator reads")
+    args = ap.parse_args()
+    effect = None if args.effect == "clean" else args.effect
+    own_options = (f" --parts {args.parts} --jerk-mps3 {args.jerk_mps3:g} --dcm-reading {args.dcm_reading}"
+                   if args.generator == "own" else "")
+    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --generator {args.generator} "
+          f"--effect {args.effect} --seeds {' '.join(map(str, args.seeds))}{own_options}")
+    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
+    print(f"machine: {machine()}")
+    print()
+    for seed in args.seeds:
+        print("\n".join(report(effect, seed, args)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
