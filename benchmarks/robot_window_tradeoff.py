@@ -26,6 +26,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.commands.estimate import settings_for  # noqa: E402
+from gateway.core import estimator_kernel as K  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.evaluation import move_errors  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
@@ -51,8 +52,10 @@ def main() -> int:
     print(f"machine: {machine()}")
     print(f"file:    {DESIGN_FILE}, sensor clock, median period {np.median(np.diff(t)) * 1e3:.2f} ms")
     print()
-    print("| window | method | hint | per move (%) | worst move | rest ends inside ±3σ | time flagged not trustworthy |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    first_move_s = float(t[np.flatnonzero(hint < 0.5)[0]])
+    print("| window | method | hint | per move (%) | worst move | rest ends inside ±3σ | time flagged not trustworthy "
+          "| first flagged at | stops accepted after the first move began |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for window_s in args.windows_s:
         settings = dataclasses.replace(base, standstill_window_s=window_s)
         for method, use_hint in METHODS:
@@ -62,9 +65,12 @@ def main() -> int:
             ends = np.array([m.end for m in moves])
             inside = int(np.count_nonzero(np.abs(track.pos_m[ends] - ref[ends]) <= 3 * track.pos_std_m[ends]))
             per_move = ", ".join(f"{100 * m.error_m / abs(m.ref_m):+.1f}" for m in moves)
+            flagged = np.flatnonzero(track.untrusted)
+            first_flag = f"{t[flagged[0]]:.2f} s" if flagged.size else "never"
+            stops = int(np.count_nonzero((track.flags & K.F_ENTRY).astype(bool) & (t > first_move_s)))
             print(f"| {window_s:g} s ({settings.window_samples} samples) | {method} | {'yes' if use_hint else 'no'} "
                   f"| {per_move} | {max(m.percent for m in moves):.1f} % | {inside}/{len(moves)} "
-                  f"| {100 * float(track.untrusted.mean()):.0f} % |")
+                  f"| {100 * float(track.untrusted.mean()):.0f} % | {first_flag} | {stops} |")
     return 0
 
 
