@@ -7,7 +7,12 @@
 For each seed: the case as `diagnosis_benchmark.py` makes it (the independent generator,
 tests/independent_generator, or the own simulator with the same options), the hidden truth, and the
 diagnosis's verdict on every candidate (accepted / rejected and why, ΔBIC), its named
-effects, setup properties, negligible and not-physical lists. A reading aid for a
+effects, setup properties, negligible and not-physical lists. With `--clean-twin` (own
+simulator only): the smoothed estimate's error at each stop of the reference for the
+recording as it is, for its clean twin (the same seed, part and noise without the hidden
+effect) and, for temperature_offset, for the recording less the fitted k·(T − T̄) — whether
+a compensation that "makes the distance worse" in fact makes it what it would be without
+the effect (the effect had cancelled other errors there). A reading aid for a
 benchmark row that is not met: it changes nothing, and what it shows about the
 independent generator must not be tuned on (docs/diagnosis.md §7b, "How it was used").
 """
@@ -19,11 +24,16 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.core.diagnosis import diagnose  # noqa: E402
+from gateway.core.estimator import estimate_series  # noqa: E402
+from gateway.core.evaluation import summarise_errors  # noqa: E402
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
 from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
 from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
 from tests import diagnosis_cases as own  # noqa: E402
@@ -62,7 +72,33 @@ def report(effect: str | None, seed: int, args) -> list[str]:
                          ("not physical", result.not_physical)):
         for item in items:
             out.append(f"- {title}: {item}")
+    if getattr(args, "clean_twin", False) and args.generator == "own":
+        out += clean_twin_lines(effect, seed, args, data, result)
     return out + [""]
+
+
+def stop_errors_mm(data, acc) -> np.ndarray:
+    track = estimate_series(data.t_s, acc, data.valid, method="smoothed", settings=estimator_settings(),
+                            lost_before=data.lost_before)
+    summary = summarise_errors(data.t_s, track.pos_m, data.ref_pos_m, data.ref_vel_mps)
+    return np.array([s.error_m for s in summary.stops]) * 1e3
+
+
+def clean_twin_lines(effect, seed, args, data, result) -> list[str]:
+    _, twin = own_case(None, seed, args.parts, args.jerk_mps3, args.dcm_reading)
+    rows = [("as recorded", stop_errors_mm(data, data.acc_mps2)),
+            ("clean twin (no hidden effect)", stop_errors_mm(twin, twin.acc_mps2))]
+    fitted = {e["name"]: e["params"] for e in result.negligible}
+    fitted.update({e.name: e.params for e in result.effects})
+    if effect == "temperature_offset" and effect in fitted:
+        k = fitted[effect]["offset_mg_per_c"][0] * 1e-3 * G
+        temp = data.temperature_c
+        rows.append((f"less the fitted {fitted[effect]['offset_mg_per_c'][0]:+.3f} mg/°C",
+                     stop_errors_mm(data, data.acc_mps2 - k * (temp - np.nanmean(temp)))))
+    out = ["", "| smoothed estimate | error at each stop (mm) | RMS (mm) |", "| --- | --- | --- |"]
+    for name, err in rows:
+        out.append(f"| {name} | {', '.join(f'{x:+.2f}' for x in err)} | {np.sqrt(np.mean(err ** 2)):.2f} |")
+    return out
 
 
 def main() -> int:
@@ -73,10 +109,12 @@ def main() -> int:
     ap.add_argument("--parts", choices=("nominal", "tolerance"), default="nominal", help="own: the part")
     ap.add_argument("--jerk-mps3", type=float, default=0.0, help="own: strokes jerk-limited at this jerk")
     ap.add_argument("--dcm-reading", choices=DCM_READINGS, default="mean", help="own: where the modulator reads")
+    ap.add_argument("--clean-twin", action="store_true",
+                    help="own: the stop errors as recorded, of the clean twin, and less the fitted temperature term")
     args = ap.parse_args()
     effect = None if args.effect == "clean" else args.effect
     own_options = (f" --parts {args.parts} --jerk-mps3 {args.jerk_mps3:g} --dcm-reading {args.dcm_reading}"
-                   if args.generator == "own" else "")
+                   + (" --clean-twin" if args.clean_twin else "") if args.generator == "own" else "")
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --generator {args.generator} "
           f"--effect {args.effect} --seeds {' '.join(map(str, args.seeds))}{own_options}")
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")

@@ -121,16 +121,21 @@ def part_three(dc, seeds: int, dcm_reading: str = "mean", offset_mg_per_c: float
                                         cycle_s=duration_s, phase_rad=0.0)
                     if term.name == "temperature_offset" else term)
         named = collections.Counter()
+        evidence = []  # the temperature candidate's ΔBIC in each case (how strongly the data say it)
         for seed in range(seeds):
             part = dc.part_within_tolerance(seed)
             if dcm_reading != "mean":
                 part = dataclasses.replace(part, dcm_reading=dcm_reading)
             _, data = dc.make_case(("temperature_offset",), seed, adjust=one_swing, strokes=strokes, part=part)
-            named[tuple(e.name for e in dc.run_diagnosis(data).effects)] += 1
+            result = dc.run_diagnosis(data)
+            named[tuple(e.name for e in result.effects)] += 1
+            evidence += [c.delta_bic for c in result.candidates if c.name == "temperature_offset"]
         alone = named[("temperature_offset",)]
         print(f"   strokes {'jerk-limited at 400 m/s³' if jerk else 'acceleration steps'}: named alone {alone} of "
               f"{seeds}; " + ", ".join(f"{' + '.join(k) or 'nothing'} ×{v}" for k, v in sorted(named.items())
-                                       if k != ("temperature_offset",)))
+                                       if k != ("temperature_offset",))
+              + (f"; its ΔBIC median {np.median(evidence):.0f} (range {min(evidence):.0f} … {max(evidence):.0f})"
+                 if evidence else ""))
 
 
 if __name__ == "__main__":
