@@ -131,9 +131,10 @@ def part_three(dc, seeds: int, dcm_reading: str = "mean", offset_mg_per_c: float
             named[tuple(e.name for e in result.effects)] += 1
             evidence += [c.delta_bic for c in result.candidates if c.name == "temperature_offset"]
         alone = named[("temperature_offset",)]
+        others = ", ".join(f"{' + '.join(k) or 'nothing'} ×{v}" for k, v in sorted(named.items())
+                           if k != ("temperature_offset",))
         print(f"   strokes {'jerk-limited at 400 m/s³' if jerk else 'acceleration steps'}: named alone {alone} of "
-              f"{seeds}; " + ", ".join(f"{' + '.join(k) or 'nothing'} ×{v}" for k, v in sorted(named.items())
-                                       if k != ("temperature_offset",))
+              f"{seeds}" + (f"; {others}" if others else "")
               + (f"; its ΔBIC median {np.median(evidence):.0f} (range {min(evidence):.0f} … {max(evidence):.0f})"
                  if evidence else ""))
 
