@@ -98,8 +98,10 @@ def distance_text(dist: dict | None) -> str:
         return f"distance error: not available ({dist.get('why', 'no reason given')})"
     key = dist["metric"]
     b, a = dist["before"].get(key), dist["after"].get(key)
+    chance = ("; the loss is within what the other errors at the stops make by chance"
+              if dist.get("loss_within_chance") else "")
     return (f"distance error ({key}): {_num(b, '.3f')} → {_num(a, '.3f')} mm "
-            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm)")
+            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{chance})")
 
 
 def summary_lines(result: DiagnosisResult, path: str) -> list[str]:

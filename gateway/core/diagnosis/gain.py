@@ -134,7 +134,7 @@ def _errors(prep: Prepared, plan: EstimatePlan) -> dict | None:
         s = summarise_errors(t, track.pos_m, ref_pos, ref_vel)
         stops = np.array([st.error_m for st in s.stops])
         return {"stop_rms_mm": float(np.sqrt(np.mean(stops**2))) * 1e3 if stops.size else float("nan"),
-                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3}
+                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3, "stops_mm": (stops * 1e3).tolist()}
     if plan.returns_to_start:
         return {"final_mm": float(track.pos_m[-1]) * 1e3}
     return None

@@ -23,7 +23,9 @@ from scipy.stats import chi2
 
 from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
 from gateway.core.diagnosis.gain import distance_gain, EstimatePlan
-from gateway.core.diagnosis.judgement import matters, physical, residual_share, setup_range
+from gateway.core.diagnosis.judgement import (
+    distance_loss_is_chance, matters, physical, residual_share, setup_range,
+)
 from gateway.core.diagnosis.model_fit import ModelFit, fit_model, out_of_sample_gain
 from gateway.core.diagnosis.reading import fit_noise_model
 from gateway.core.diagnosis.screening import (
@@ -399,7 +401,10 @@ def _classify(result: EffectResult, setup_why: str | None, effects: list, setup:
     if result.name == "sample_loss":  # counted, not fitted: a gap is a fact
         effects.append(result)
         return True
-    named, why = matters(share, distance_mm, position_mm)
+    chance = distance_mm is not None and distance_mm < 0 and distance_loss_is_chance(dist)
+    if chance:  # said in the report and the JSON beside the loss
+        dist["loss_within_chance"] = True
+    named, why = matters(share, distance_mm, position_mm, loss_is_chance=chance)
     if named:
         effects.append(result)
         return True
