@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +33,6 @@ from gateway.core.diagnosis import diagnose  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.evaluation import summarise_errors  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
 from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
 from tests import diagnosis_cases as own  # noqa: E402
 from tests.diagnosis_cases import estimator_settings  # noqa: E402
@@ -42,15 +40,9 @@ from tests.independent_generator import cases as independent  # noqa: E402
 
 
 def own_case(effect: str | None, seed: int, parts: str, jerk_mps3: float, dcm_reading: str):
-    """The own simulator's case exactly as tests.diagnosis_cases.run_case builds it: (truth, data)."""
-    hidden = (effect,) if effect else ()
-    part = own.part_within_tolerance(seed) if parts == "tolerance" else None
-    if dcm_reading != "mean":
-        part = replace(part or own.SENSOR, dcm_reading=dcm_reading)
-    scenario = own.scenario_for(hidden)
-    strokes = (StrokeSettings(strokes=scenario[1], jerk_mps3=jerk_mps3)
-               if jerk_mps3 > 0 and scenario[0] == "paper" else None)
-    terms, data = own.make_case(hidden, seed, part=part, strokes=strokes)
+    """The own simulator's case exactly as the benchmark builds it: (truth, data)."""
+    terms, data, _ = own.build_case((effect,) if effect else (), seed, parts == "tolerance", jerk_mps3,
+                                    dcm_reading)
     return terms, data
 
 

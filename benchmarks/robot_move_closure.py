@@ -35,22 +35,17 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.core.drift_fit import autocorrelation  # noqa: E402
+from gateway.core.runs import true_runs  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
 
 FILES = ("eV50p_MPU6050RM3100.csv", "V1000_LSM9DS0.csv")
-
-
-def rests(at_rest: np.ndarray) -> list[tuple[int, int]]:
-    """(first, last+1) index of each run of robot_at_rest."""
-    edges = np.diff(np.concatenate([[0], at_rest.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
 def closure_table(name: str) -> list[str]:
     d = np.genfromtxt(REPO / "datasets" / "leiria-robot" / name, delimiter=",", names=True)
     t = d["sensor_time_s"] - d["sensor_time_s"][0]
     acc = d["acc_z_g"] * G
-    runs = rests(d["robot_at_rest"] > 0.5)
+    runs = true_runs(d["robot_at_rest"] > 0.5)
     a0, b0 = runs[0]
     rest = acc[a0:b0]
     bias = float(np.mean(rest))

@@ -329,12 +329,19 @@ def run_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = 
     strokes driven jerk-limited (an S-curve drive; a standstill case has no strokes), and
     with the modulator reading where each duty cycle ends (SensorParams.dcm_reading)."""
     t0 = time.perf_counter()
+    terms, data, part = build_case(hidden, seed, parts_within_tolerance, jerk_mps3, dcm_reading)
+    result = run_diagnosis(data)
+    return judge(tuple(hidden), terms, data, result, seed, time.perf_counter() - t0, part)
+
+
+def build_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = False,
+               jerk_mps3: float = 0.0, dcm_reading: str = "mean"):
+    """The benchmark's case with these options (run_case's): (terms, what diagnose gets, the part or None)."""
     part = part_within_tolerance(seed) if parts_within_tolerance else None
     if dcm_reading != "mean":
         part = replace(part or SENSOR, dcm_reading=dcm_reading)
     scenario = scenario_for(tuple(hidden))
     strokes = (StrokeSettings(strokes=scenario[1], jerk_mps3=jerk_mps3)
                if jerk_mps3 > 0 and scenario[0] == "paper" else None)
-    terms, data = make_case(hidden, seed, part=part, strokes=strokes)
-    result = run_diagnosis(data)
-    return judge(tuple(hidden), terms, data, result, seed, time.perf_counter() - t0, part)
+    terms, data = make_case(tuple(hidden), seed, part=part, strokes=strokes)
+    return terms, data, part
