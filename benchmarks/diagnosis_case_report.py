@@ -60,6 +60,13 @@ def report(effect: str | None, seed: int, args) -> list[str]:
     out.append("| --- | --- | --- | --- |")
     for c in result.candidates:
         out.append(f"| {c.name} | {c.status} | {c.delta_bic:.1f} | {c.reason} |")
+    for e in result.effects:
+        rms = e.gain.get("residual_rms_mps2")
+        share = f"{100 * (1 - (rms[1] / rms[0]) ** 2):.2f} %" if rms and rms[0] > 0 else "n/a"
+        dist = e.gain.get("distance", {})
+        out.append(f"- named: {e.name} {e.params}; residual share {share}; distance improvement "
+                   f"{dist.get('improvement_mm', float('nan')):+.2f} mm"
+                   + (" (loss within chance)" if dist.get("loss_within_chance") else ""))
     for title, items in (("setup", result.setup), ("negligible", result.negligible),
                          ("not physical", result.not_physical)):
         for item in items:
