@@ -81,8 +81,9 @@ def predict(prep: Prepared, effects: tuple[SignalEffect, ...], theta: np.ndarray
     for e, th in zip(effects, chunks):
         if e.stage >= 2:
             e.apply(prep, th, sig)
-    # the baseline sensor saturates at its range too (the simulator clips at ±2 g)
-    r = prep.data.range_mps2
+    # the baseline sensor saturates at its range too (the simulator clips at ±2 g), read
+    # through what the effects make of full scale (the part's own sensitivity)
+    r = prep.data.range_mps2 * math.prod(e.full_scale_gain(th) for e, th in zip(effects, chunks))
     return np.clip(sig.out, -r, r)
 
 

@@ -86,6 +86,10 @@ class SignalEffect:
     def compensate(self, prep: Prepared, theta: np.ndarray, acc: np.ndarray, pos_est: np.ndarray) -> Compensation | None:
         return None
 
+    def full_scale_gain(self, theta: np.ndarray) -> float:
+        """How this effect changes where the part's saturation reads (1: not at all)."""
+        return 1.0
+
 
 def _ls_coefficient(residual: np.ndarray, regressor: np.ndarray, mask: np.ndarray) -> float:
     x = regressor[mask] - regressor[mask].mean()
@@ -126,6 +130,12 @@ class ScaleFactor(SignalEffect):
 
     def compensate(self, prep, theta, acc, pos_est):
         return Compensation(acc_mps2=acc / (1.0 + theta[0]))
+
+    def full_scale_gain(self, theta):
+        # the part saturates in acceleration, at its range; the reading of that saturation
+        # passes through the sensitivity like any other (a part 0.7 % low reads its ±2 g as
+        # ±1.986 g: left to the baseline's ±2 g, "clipping" fitted there)
+        return 1.0 + float(theta[0])
 
 
 class Nonlinearity(SignalEffect):
