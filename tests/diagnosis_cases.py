@@ -118,18 +118,23 @@ def draw_terms(effect_names: tuple[str, ...], seed: int) -> tuple[ErrorTerm, ...
 
 
 # A part as built: the sensitivity within its calibration's ±1 %, the filter capacitor
-# within ±10 % (what a real board has; the diagnosis is told the nominal part, as a user
-# is). Drawn from default_rng([seed, PART_STREAM]).
+# within ±10 %, the zero-g offset within ±0.1 g (the data sheet: "large part to part";
+# a mount tilted 3° adds 52 mg) — what a real board has; the diagnosis is told the
+# nominal part, as a user is. Drawn from default_rng([seed, PART_STREAM]), in that
+# order (a seed's sensitivity and capacitor are what they were before the offset was drawn).
 PART_STREAM = 8
 PART_SENSITIVITY_FRAC = 0.01
 PART_CAPACITOR_FRAC = 0.10
+PART_OFFSET_G = 0.1
 
 
 def part_within_tolerance(seed: int) -> SensorParams:
     rng = np.random.default_rng([seed, PART_STREAM])
     s = float(rng.uniform(-PART_SENSITIVITY_FRAC, PART_SENSITIVITY_FRAC))
     c = float(rng.uniform(1.0 - PART_CAPACITOR_FRAC, 1.0 + PART_CAPACITOR_FRAC))
-    return replace(SENSOR, x=replace(SENSOR.x, sensitivity_error_frac=s), filter_capacitor_f=SENSOR.filter_capacitor_f * c)
+    o = float(rng.uniform(-PART_OFFSET_G, PART_OFFSET_G))
+    return replace(SENSOR, x=replace(SENSOR.x, sensitivity_error_frac=s, zero_g_offset_g=o),
+                   filter_capacitor_f=SENSOR.filter_capacitor_f * c)
 
 
 def make_case(effect_names: tuple[str, ...], seed: int,

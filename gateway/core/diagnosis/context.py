@@ -220,6 +220,16 @@ class Prepared:
             return x[ok]
         return np.concatenate(pieces)
 
+    def level_at_rest(self, acc: np.ndarray) -> np.ndarray:
+        """What acc reads when nothing moves, over the whole record: the baseline's offset
+        and drift (its line through drift_shape) fitted on the received samples at rest."""
+        ok = self.rest & self.data.valid & np.isfinite(acc)
+        if ok.sum() < 2:
+            return np.zeros_like(acc)
+        x = np.column_stack([np.ones(acc.size), self.drift_shape])
+        coef = np.linalg.lstsq(x[ok], acc[ok], rcond=None)[0]
+        return x @ coef
+
     def full_reading(self, level0: float, step_t, step_size) -> np.ndarray:
         """The baseline sensor's reading of a piecewise-constant motion on the full grid."""
         return reading_from_steps(self.t_full, level0, step_t, step_size, self.data.sensor_bandwidth_hz)
