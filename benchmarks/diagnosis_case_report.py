@@ -39,16 +39,18 @@ from tests.diagnosis_cases import estimator_settings  # noqa: E402
 from tests.independent_generator import cases as independent  # noqa: E402
 
 
-def own_case(effect: str | None, seed: int, parts: str, jerk_mps3: float, dcm_reading: str):
-    """The own simulator's case exactly as the benchmark builds it: (truth, data)."""
+def own_case(effect: str | None, seed: int, parts: str, jerk_mps3: float, dcm_reading: str,
+             zero_g_offset_g: float | None = None):
+    """The own simulator's case exactly as the benchmark builds it: (truth, data); with
+    zero_g_offset_g, on the same part but for its zero-g offset."""
     terms, data, _ = own.build_case((effect,) if effect else (), seed, parts == "tolerance", jerk_mps3,
-                                    dcm_reading)
+                                    dcm_reading, zero_g_offset_g)
     return terms, data
 
 
 def report(effect: str | None, seed: int, args) -> list[str]:
     if args.generator == "own":
-        truth, data = own_case(effect, seed, args.parts, args.jerk_mps3, args.dcm_reading)
+        truth, data = own_case(effect, seed, args.parts, args.jerk_mps3, args.dcm_reading, args.zero_g_offset_g)
     else:
         case = independent.make_case(effect, seed)
         truth, data = independent.truth_of(case), case.data
@@ -84,9 +86,14 @@ def stop_errors_mm(data, acc) -> np.ndarray:
 
 
 def clean_twin_lines(effect, seed, args, data, result) -> list[str]:
-    _, twin = own_case(None, seed, args.parts, args.jerk_mps3, args.dcm_reading)
+    _, twin = own_case(None, seed, args.parts, args.jerk_mps3, args.dcm_reading, args.zero_g_offset_g)
     rows = [("as recorded", stop_errors_mm(data, data.acc_mps2)),
             ("clean twin (no hidden effect)", stop_errors_mm(twin, twin.acc_mps2))]
+    corrected = result.distance.get("after")
+    if corrected is not None:  # the diagnosis's own plan: every accepted effect (setup too) compensated
+        summary = summarise_errors(data.t_s, corrected.pos_m, data.ref_pos_m, data.ref_vel_mps)
+        rows.append(("as recorded, every accepted effect compensated",
+                     np.array([s.error_m for s in summary.stops]) * 1e3))
     fitted = {e["name"]: e["params"] for e in result.negligible}
     fitted.update({e.name: e.params for e in result.effects})
     if effect == "temperature_offset" and effect in fitted:
@@ -110,10 +117,14 @@ def main() -> int:
     ap.add_argument("--dcm-reading", choices=DCM_READINGS, default="mean", help="own: where the modulator reads")
     ap.add_argument("--clean-twin", action="store_true",
                     help="own: the stop errors as recorded, of the clean twin, and less the fitted temperature term")
+    ap.add_argument("--zero-g-offset-g", type=float, default=None,
+                    help="own: the part's zero-g offset, g (default: the part's own)")
     args = ap.parse_args()
     effect = None if args.effect == "clean" else args.effect
     own_options = (f" --parts {args.parts} --jerk-mps3 {args.jerk_mps3:g} --dcm-reading {args.dcm_reading}"
-                   + (" --clean-twin" if args.clean_twin else "") if args.generator == "own" else "")
+                   + (" --clean-twin" if args.clean_twin else "")
+                   + (f" --zero-g-offset-g {args.zero_g_offset_g:g}" if args.zero_g_offset_g is not None else "")
+                   if args.generator == "own" else "")
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --generator {args.generator} "
           f"--effect {args.effect} --seeds {' '.join(map(str, args.seeds))}{own_options}")
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")

@@ -340,11 +340,15 @@ def run_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = 
 
 
 def build_case(hidden: tuple[str, ...], seed: int, parts_within_tolerance: bool = False,
-               jerk_mps3: float = 0.0, dcm_reading: str = "mean"):
-    """The benchmark's case with these options (run_case's): (terms, what diagnose gets, the part or None)."""
+               jerk_mps3: float = 0.0, dcm_reading: str = "mean", zero_g_offset_g: float | None = None):
+    """The benchmark's case with these options (run_case's): (terms, what diagnose gets, the part or None).
+    zero_g_offset_g: the same part but for its zero-g offset (a reading aid's question)."""
     part = part_within_tolerance(seed) if parts_within_tolerance else None
     if dcm_reading != "mean":
         part = replace(part or SENSOR, dcm_reading=dcm_reading)
+    if zero_g_offset_g is not None:
+        part = part or SENSOR
+        part = replace(part, x=replace(part.x, zero_g_offset_g=zero_g_offset_g))
     scenario = scenario_for(tuple(hidden))
     strokes = (StrokeSettings(strokes=scenario[1], jerk_mps3=jerk_mps3)
                if jerk_mps3 > 0 and scenario[0] == "paper" else None)
