@@ -30,6 +30,7 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.core.diagnosis import diagnose  # noqa: E402
+from gateway.core.diagnosis.judgement import residual_share  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.evaluation import summarise_errors  # noqa: E402
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
@@ -64,7 +65,7 @@ def report(effect: str | None, seed: int, args) -> list[str]:
         out.append(f"| {c.name} | {c.status} | {c.delta_bic:.1f} | {c.reason} |")
     for e in result.effects:
         rms = e.gain.get("residual_rms_mps2")
-        share = f"{100 * (1 - (rms[1] / rms[0]) ** 2):.2f} %" if rms and rms[0] > 0 else "n/a"
+        share = f"{100 * residual_share(*rms):.2f} %" if rms and rms[0] > 0 else "n/a"
         dist = e.gain.get("distance", {})
         out.append(f"- named: {e.name} {e.params}; residual share {share}; distance improvement "
                    f"{dist.get('improvement_mm', float('nan')):+.2f} mm"
@@ -78,11 +79,15 @@ def report(effect: str | None, seed: int, args) -> list[str]:
     return out + [""]
 
 
+def track_stop_errors_mm(data, pos_m) -> np.ndarray:
+    summary = summarise_errors(data.t_s, pos_m, data.ref_pos_m, data.ref_vel_mps)
+    return np.array([s.error_m for s in summary.stops]) * 1e3
+
+
 def stop_errors_mm(data, acc) -> np.ndarray:
     track = estimate_series(data.t_s, acc, data.valid, method="smoothed", settings=estimator_settings(),
                             lost_before=data.lost_before)
-    summary = summarise_errors(data.t_s, track.pos_m, data.ref_pos_m, data.ref_vel_mps)
-    return np.array([s.error_m for s in summary.stops]) * 1e3
+    return track_stop_errors_mm(data, track.pos_m)
 
 
 def clean_twin_lines(effect, seed, args, data, result) -> list[str]:
@@ -91,9 +96,7 @@ def clean_twin_lines(effect, seed, args, data, result) -> list[str]:
             ("clean twin (no hidden effect)", stop_errors_mm(twin, twin.acc_mps2))]
     corrected = result.distance.get("after")
     if corrected is not None:  # the diagnosis's own plan: every accepted effect (setup too) compensated
-        summary = summarise_errors(data.t_s, corrected.pos_m, data.ref_pos_m, data.ref_vel_mps)
-        rows.append(("as recorded, every accepted effect compensated",
-                     np.array([s.error_m for s in summary.stops]) * 1e3))
+        rows.append(("as recorded, every accepted effect compensated", track_stop_errors_mm(data, corrected.pos_m)))
     fitted = {e["name"]: e["params"] for e in result.negligible}
     fitted.update({e.name: e.params for e in result.effects})
     if effect == "temperature_offset" and effect in fitted:
