@@ -92,6 +92,9 @@ static volatile uint8_t q_head; /* written by the edge interrupts */
 static volatile uint8_t q_tail; /* written by main */
 static uint16_t next_seq;       /* seq of the next sample; one per period, sent or not */
 static volatile __bit running;  /* samples are made once T2 is known */
+/* Set by an interrupt that left work for the main loop. Every interrupt (15 serial ones
+ * per sample) ends the CPU's idle mode; one bit test sends it back to sleep. */
+static volatile __bit work;
 
 /* Both edge interrupts run at the same (high) priority, so neither interrupts the other:
  * the pairing below needs no locking. */
@@ -106,6 +109,7 @@ static volatile __bit running;  /* samples are made once T2 is known */
                 q_flags[slot_] = (flags_);                                           \
                 q_seq[slot_] = next_seq;                                             \
                 q_head = after_;                                                     \
+                work = 1;                                                            \
             }                                                                        \
             next_seq++;                                                              \
         }                                                                            \
@@ -193,6 +197,7 @@ void y_fall_isr(void) __interrupt(2) __using(1)
         t2_sum_lo = (((uint16_t)TH1 << 8) | TL1) - t2_start_count;
         t2_sum_wrapped = TF1 ^ (((uint16_t)TH1 << 8 | TL1) < t2_start_count);
         t2_fresh = 1;
+        work = 1;
         TL1 = 0;
         TH1 = 0;
         TF1 = 0;
@@ -213,41 +218,50 @@ void y_fall_isr(void) __interrupt(2) __using(1)
 }
 
 /* --- frames ---------------------------------------------------------------------- */
+/* A frame is written straight into the ring through one pointer, each byte folded into
+ * the CRC on the way (inline: a call per byte would cost a third of the frame's time). */
 static uint8_t crc_hi, crc_lo;
+static __idata uint8_t *tx_put;
 
-static void put(uint8_t b)
-{
-    uint8_t i = crc_hi ^ b;
-    crc_hi = crc_lo ^ CRC_HI[i];
-    crc_lo = CRC_LO[i];
-    tx_buf[tx_head] = b;
-    tx_head = (tx_head + 1) & TX_MASK;
-}
+#define PUT_RAW(b)                          \
+    do {                                    \
+        *tx_put = (b);                      \
+        if (++tx_put == tx_buf + TX_SIZE)   \
+            tx_put = tx_buf;                \
+    } while (0)
+#define PUT(b)                                  \
+    do {                                        \
+        uint8_t v_ = (b);                       \
+        uint8_t i_ = crc_hi ^ v_;               \
+        crc_hi = crc_lo ^ CRC_HI[i_];           \
+        crc_lo = CRC_LO[i_];                    \
+        PUT_RAW(v_);                            \
+    } while (0)
+/* the CRC register after a frame's type and length bytes, from the initial 0xFFFF: a
+ * constant per frame type, folded by the compiler */
+#define CRC_AFTER(c, b) (((((unsigned long)(c)) << 8) & 0xFF00u) ^ CRC_ENTRY((((c) >> 8) ^ (b)) & 0xFFu))
+#define CRC_AFTER_HEADER(type, length) CRC_AFTER(CRC_AFTER(0xFFFFu, type), length)
 
-static void put_raw(uint8_t b)
-{
-    tx_buf[tx_head] = b;
-    tx_head = (tx_head + 1) & TX_MASK;
-}
-
-static void frame_begin(uint8_t type, uint8_t length)
+static void frame_begin(uint8_t type, uint8_t length, uint16_t crc_after_header)
 {
     /* wait for room for the whole frame (the serial interrupt empties the ring) */
     while (((tx_tail - tx_head - 1) & TX_MASK) < (uint8_t)(length + 6))
         SLEEP();
-    put_raw(SYNC1);
-    put_raw(SYNC2);
-    crc_hi = 0xFF;
-    crc_lo = 0xFF;
-    put(type);
-    put(length);
+    tx_put = tx_buf + tx_head;
+    PUT_RAW(SYNC1);
+    PUT_RAW(SYNC2);
+    PUT_RAW(type);
+    PUT_RAW(length);
+    crc_hi = crc_after_header >> 8;
+    crc_lo = crc_after_header & 0xFF;
 }
 
 static void frame_end(void)
 {
     uint8_t hi = crc_hi, lo = crc_lo;
-    put_raw(hi);
-    put_raw(lo);
+    PUT_RAW(hi);
+    PUT_RAW(lo);
+    tx_head = tx_put - tx_buf; /* one write: the serial interrupt sees the whole frame */
     if (!tx_busy) {
         tx_busy = 1;
         TI = 1; /* the serial interrupt sends the first byte */
@@ -259,21 +273,21 @@ static uint32_t uptime_s;
 
 static void send_report(uint8_t type)
 {
-    frame_begin(type, 14);
-    put(last_seq >> 8);
-    put(last_seq & 0xFF);
-    put(uptime_s >> 24);
-    put((uptime_s >> 16) & 0xFF);
-    put((uptime_s >> 8) & 0xFF);
-    put(uptime_s & 0xFF);
-    put(TICK_HZ >> 24);
-    put((TICK_HZ >> 16) & 0xFF);
-    put((TICK_HZ >> 8) & 0xFF);
-    put(TICK_HZ & 0xFF);
-    put(TEMP_NO_SENSOR >> 8);
-    put(TEMP_NO_SENSOR & 0xFF);
-    put(FW_MAJOR);
-    put(FW_MINOR);
+    frame_begin(type, 14, type == TYPE_HELLO ? CRC_AFTER_HEADER(TYPE_HELLO, 14) : CRC_AFTER_HEADER(TYPE_STATUS, 14));
+    PUT(last_seq >> 8);
+    PUT(last_seq & 0xFF);
+    PUT(uptime_s >> 24);
+    PUT((uptime_s >> 16) & 0xFF);
+    PUT((uptime_s >> 8) & 0xFF);
+    PUT(uptime_s & 0xFF);
+    PUT(TICK_HZ >> 24);
+    PUT((TICK_HZ >> 16) & 0xFF);
+    PUT((TICK_HZ >> 8) & 0xFF);
+    PUT(TICK_HZ & 0xFF);
+    PUT(TEMP_NO_SENSOR >> 8);
+    PUT(TEMP_NO_SENSOR & 0xFF);
+    PUT(FW_MAJOR);
+    PUT(FW_MINOR);
     frame_end();
 }
 
@@ -314,16 +328,16 @@ static void send_sample(void)
         flags |= FLAG_X_TIMED_OUT;
     if (t1y > t2)
         flags |= FLAG_Y_TIMED_OUT;
-    frame_begin(TYPE_SAMPLE, 9);
-    put(seq >> 8);
-    put(seq & 0xFF);
-    put(t1x >> 8);
-    put(t1x & 0xFF);
-    put(t1y >> 8);
-    put(t1y & 0xFF);
-    put(t2 >> 8);
-    put(t2 & 0xFF);
-    put(flags);
+    frame_begin(TYPE_SAMPLE, 9, CRC_AFTER_HEADER(TYPE_SAMPLE, 9));
+    PUT(seq >> 8);
+    PUT(seq & 0xFF);
+    PUT(t1x >> 8);
+    PUT(t1x & 0xFF);
+    PUT(t1y >> 8);
+    PUT(t1y & 0xFF);
+    PUT(t2 >> 8);
+    PUT(t2 & 0xFF);
+    PUT(flags);
     frame_end();
     last_seq = seq;
     /* the board's clock is the sum of the periods (the protocol's sample time) */
@@ -362,15 +376,16 @@ void main(void)
     take_t2_measurement();
     running = 1;
     for (;;) {
-        if (q_tail != q_head) {
+        while (!work)
+            SLEEP(); /* until the next interrupt: the idle share is this time */
+        work = 0;
+        while (q_tail != q_head)
             send_sample();
-        } else if (status_due) {
+        if (status_due) {
             status_due = 0;
             send_report(TYPE_STATUS);
-        } else if (t2_fresh) {
-            take_t2_measurement();
-        } else {
-            SLEEP(); /* until the next interrupt: the idle share is this time */
         }
+        if (t2_fresh)
+            take_t2_measurement();
     }
 }
