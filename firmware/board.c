@@ -237,10 +237,20 @@ static __idata uint8_t *tx_put;
         crc_lo = CRC_LO[i_];                    \
         PUT_RAW(v_);                            \
     } while (0)
-/* the CRC register after a frame's type and length bytes, from the initial 0xFFFF: a
- * constant per frame type, folded by the compiler */
-#define CRC_AFTER(c, b) (((((unsigned long)(c)) << 8) & 0xFF00u) ^ CRC_ENTRY((((c) >> 8) ^ (b)) & 0xFFu))
-#define CRC_AFTER_HEADER(type, length) CRC_AFTER(CRC_AFTER(0xFFFFu, type), length)
+/* the CRC register after a SAMPLE frame's type and length bytes: the same for every
+ * SAMPLE, so computed once at start-up */
+static uint16_t crc_after_sample_header;
+
+static uint16_t crc_after_header(uint8_t type, uint8_t length)
+{
+    uint8_t i = 0xFF ^ type;
+    crc_hi = 0xFF ^ CRC_HI[i];
+    crc_lo = CRC_LO[i];
+    i = crc_hi ^ length;
+    crc_hi = crc_lo ^ CRC_HI[i];
+    crc_lo = CRC_LO[i];
+    return ((uint16_t)crc_hi << 8) | crc_lo;
+}
 
 static void frame_begin(uint8_t type, uint8_t length, uint16_t crc_after_header)
 {
@@ -273,7 +283,7 @@ static uint32_t uptime_s;
 
 static void send_report(uint8_t type)
 {
-    frame_begin(type, 14, type == TYPE_HELLO ? CRC_AFTER_HEADER(TYPE_HELLO, 14) : CRC_AFTER_HEADER(TYPE_STATUS, 14));
+    frame_begin(type, 14, crc_after_header(type, 14));
     PUT(last_seq >> 8);
     PUT(last_seq & 0xFF);
     PUT(uptime_s >> 24);
@@ -328,7 +338,7 @@ static void send_sample(void)
         flags |= FLAG_X_TIMED_OUT;
     if (t1y > t2)
         flags |= FLAG_Y_TIMED_OUT;
-    frame_begin(TYPE_SAMPLE, 9, CRC_AFTER_HEADER(TYPE_SAMPLE, 9));
+    frame_begin(TYPE_SAMPLE, 9, crc_after_sample_header);
     PUT(seq >> 8);
     PUT(seq & 0xFF);
     PUT(t1x >> 8);
@@ -370,6 +380,7 @@ void main(void)
     EX1 = 1;
     ES = 1;
     EA = 1;
+    crc_after_sample_header = crc_after_header(TYPE_SAMPLE, 9);
     send_report(TYPE_HELLO);
     while (!t2_fresh)
         SLEEP();
