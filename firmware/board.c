@@ -133,6 +133,9 @@ static uint8_t y_tmod = TMOD_BOTH_GATED;
 static volatile uint16_t t2_sum_lo; /* the last measurement: ticks in T2_SPAN_PERIODS */
 static volatile __bit t2_sum_wrapped;
 static volatile __bit t2_fresh;
+/* X falls counted, so that a T2 span in which Y missed a fall (a stuck Y: the span then
+ * holds more than T2_SPAN_PERIODS periods) is seen and dropped */
+static uint8_t x_falls, x_falls_at_t2_start, x_span;
 
 void x_fall_isr(void) __interrupt(0) __using(1)
 {
@@ -147,6 +150,7 @@ void x_fall_isr(void) __interrupt(0) __using(1)
     x_flag = TF0 ? FLAG_X_TIMED_OUT : 0; /* high for more than 65 535 ticks */
     TF0 = 0;
     x_done = 1;
+    x_falls++;
     if (y_done) {
         if (!P3_3) { /* Y fell in this period too: the pair is complete */
             EMIT(x_t1, y_t1, x_flag | y_flag);
@@ -181,6 +185,7 @@ void y_fall_isr(void) __interrupt(2) __using(1)
         break;
     case T2_START: /* Timer 1 now runs on from this period's high time, read above */
         t2_start_count = y_t1;
+        x_falls_at_t2_start = x_falls;
         TF1 = 0;
         t2_left = T2_SPAN_PERIODS - 1;
         t2_phase = T2_RUN;
@@ -194,10 +199,15 @@ void y_fall_isr(void) __interrupt(2) __using(1)
         break;
     default: /* T2_STOP: gated again with Y low, Timer 1 stopped at the write above */
         y_flag = FLAG_Y_TIMED_OUT;
-        t2_sum_lo = (((uint16_t)TH1 << 8) | TL1) - t2_start_count;
-        t2_sum_wrapped = TF1 ^ (((uint16_t)TH1 << 8 | TL1) < t2_start_count);
-        t2_fresh = 1;
-        work = 1;
+        /* As many X falls as Y falls in the span (one more or less: X's fall may cross
+         * Y's at either end), else a stuck input lengthened it: dropped, T2 kept. */
+        x_span = x_falls - x_falls_at_t2_start;
+        if (x_span >= T2_SPAN_PERIODS - 1 && x_span <= T2_SPAN_PERIODS + 1) {
+            t2_sum_lo = (((uint16_t)TH1 << 8) | TL1) - t2_start_count;
+            t2_sum_wrapped = TF1 ^ (((uint16_t)TH1 << 8 | TL1) < t2_start_count);
+            t2_fresh = 1;
+            work = 1;
+        }
         TL1 = 0;
         TH1 = 0;
         TF1 = 0;

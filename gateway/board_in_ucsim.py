@@ -52,12 +52,19 @@ class BoardRunSettings:
     def periods(self) -> int:
         return int(self.board_s / self.sensor.t2_s)
 
+    @property
+    def waveform_periods(self) -> int:
+        """The board's periods, the spare, and the periods X spends stuck: s51's run ends
+        at a count of X falling edges, and a stuck X has none."""
+        stuck_x_s = sum(s.duration_s for s in self.stuck if s.axis == "x")
+        return self.periods + SPARE_PERIODS + int(np.ceil(stuck_x_s / self.sensor.t2_s))
+
 
 def scenario_waveform(settings: BoardRunSettings) -> DutyWaveform:
     """The scenario's counts for the whole run — repeated as `adxlgw emulate --loop` does
     (seed + block for each repeat) — as the pin waveform."""
     profile = build_profile(settings.scenario)
-    need = settings.periods + SPARE_PERIODS
+    need = settings.waveform_periods
     t1x, t1y, t2 = [], [], []
     block = 0
     while sum(a.size for a in t1x) < need:
@@ -75,6 +82,32 @@ def write_vcd(wave: DutyWaveform, stuck: tuple[StuckInput, ...], path: Path) -> 
         for line in vcd_lines(wave, stuck):
             f.write(line)
             f.write("\n")
+
+
+@dataclass(frozen=True)
+class BoardRecord:
+    """A finished run of the firmware in s51: its UART bytes, its CPU report, the pins."""
+
+    uart_bytes: bytes
+    s51: S51Result
+    waveform: DutyWaveform
+    sizes: str
+
+
+def run_board_to_file(settings: BoardRunSettings, work: Path, timeout_s: float | None = None) -> BoardRecord:
+    """Build, run s51 to the end of the settings' board time with the UART into a file,
+    and return what the board sent (no pacing: for tests and benchmarks)."""
+    measured = settings.periods - WARMUP_PERIODS
+    if measured < 1:
+        raise ValueError(f"board_s {settings.board_s}: shorter than the start-up span")
+    ihx, sizes = build_firmware(FIRMWARE_DIR, work / "build")
+    wave = scenario_waveform(settings)
+    write_vcd(wave, settings.stuck, work / "pins.vcd")
+    uart = work / "uart.bin"
+    uart.touch()
+    with S51Board(ihx, work / "pins.vcd", uart, work / "s51.cmd", WARMUP_PERIODS, measured) as board:
+        result = board.wait(timeout_s)
+    return BoardRecord(uart.read_bytes(), result, wave, sizes)
 
 
 def budget_lines(result: S51Result, sizes: str) -> list[str]:
