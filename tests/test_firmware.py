@@ -22,6 +22,8 @@ from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 
+pytestmark = pytest.mark.slow
+
 SEED = 7
 TICK_HZ = 921_600
 # s51 is given this long per run; it needs ~1/2.6 of the board time on an idle core
