@@ -20,13 +20,18 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.board_protocol import DecoderCounters, Sample, StreamDecoder
 from drivers.pty_port import PtyPort
 from drivers.ucsim_board import BoardSimulatorError, S51Board, S51Result, build_firmware, relay_paced
 from gateway.commands.common import add_scenario_options, positive_float, scenario_from_args
+from gateway.core.conversion import AxisCalibration, acceleration_mps2, axis_valid, lost_before_from_seq, sample_times_s
 from gateway.core.duty_waveform import DutyWaveform, StuckInput, vcd_lines, waveform_from_counts
+from gateway.core.estimator import estimate_series
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.evaluation import rest_intervals
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_model import SensorParams
-from gateway.core.simulator import simulate
+from gateway.core.simulator import SimulatedRun, simulate
 
 REPO = Path(__file__).resolve().parents[1]
 FIRMWARE_DIR = REPO / "firmware"
@@ -108,6 +113,110 @@ def run_board_to_file(settings: BoardRunSettings, work: Path, timeout_s: float |
     with S51Board(ihx, work / "pins.vcd", uart, work / "s51.cmd", WARMUP_PERIODS, measured) as board:
         result = board.wait(timeout_s)
     return BoardRecord(uart.read_bytes(), result, wave, sizes)
+
+
+# --- checks of the firmware's stream against the waveform it was given ------------------
+
+
+@dataclass(frozen=True)
+class BoardStream:
+    """The SAMPLE frames of a byte stream as columns, with the decoder's counters."""
+
+    frames: list
+    counters: DecoderCounters
+    seq: np.ndarray
+    t1x: np.ndarray
+    t1y: np.ndarray
+    t2: np.ndarray
+    flags: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.seq.size)
+
+
+def decode_board_bytes(data: bytes) -> BoardStream:
+    decoder = StreamDecoder()
+    frames = decoder.feed(data)
+    samples = [f for f in frames if isinstance(f, Sample)]
+
+    def column(name):
+        return np.array([getattr(s, name) for s in samples], dtype=np.int64)
+
+    return BoardStream(frames, decoder.counters, column("seq"), column("t1x_ticks"), column("t1y_ticks"),
+                       column("t2_ticks"), column("flags"))
+
+
+def first_period(stream: BoardStream, wave: DutyWaveform, search: int = 200) -> int:
+    """The waveform period of the firmware's first sample (its start-up takes a few tens
+    of periods): the offset where the X counts agree best over the whole stream."""
+    ok = (stream.flags & 1) == 0
+    n = min(len(stream), len(wave) - search)
+    errors = [np.mean(np.abs(stream.t1x[:n][ok[:n]] - wave.t1x_ticks[p:p + n][ok[:n]])) for p in range(search)]
+    return int(np.argmin(errors))
+
+
+@dataclass(frozen=True)
+class TimingCheck:
+    """The firmware's counts against the waveform's, in ticks (worst over the stream)."""
+
+    first_period: int
+    samples: int
+    worst_t1x_ticks: float
+    worst_t1y_ticks: float
+    worst_t2_ticks: float
+    x_unmeasured: int  # samples with X's flag
+    y_unmeasured: int  # with Y's: the T2 spans (32 of every 1024 periods) and timeouts
+    clock_error_ticks: int  # the sum of the T2 sent less the waveform's over the same periods
+
+
+def timing_against_waveform(stream: BoardStream, wave: DutyWaveform) -> TimingCheck:
+    p0 = first_period(stream, wave)
+    n = len(stream)
+    x_ok = (stream.flags & 1) == 0
+    y_ok = (stream.flags & 2) == 0
+    err_x = (stream.t1x - wave.t1x_ticks[p0:p0 + n])[x_ok]
+    err_y = (stream.t1y - wave.t1y_ticks[p0:p0 + n])[y_ok]
+    err_t2 = stream.t2 - wave.t2_ticks[p0:p0 + n]
+
+    def worst(err):
+        return float(np.max(np.abs(err))) if err.size else float("nan")
+
+    return TimingCheck(p0, n, worst(err_x), worst(err_y), worst(err_t2), int(np.count_nonzero(~x_ok)),
+                       int(np.count_nonzero(~y_ok)), int(stream.t2.sum() - wave.t2_ticks[p0:p0 + n].sum()))
+
+
+def realtime_position_m(t2, t1x, flags, seq, tick_hz: float) -> np.ndarray:
+    """The gateway's causal estimate (`adxlgw estimate --method realtime` on a raw
+    recording: the sensor model's settings) of X's position for each sample."""
+    lost = lost_before_from_seq(seq)
+    t = sample_times_s(t2, tick_hz, lost)
+    acc = acceleration_mps2(t1x, t2, AxisCalibration())
+    valid = axis_valid(flags, t1x, t2, "x")
+    return estimate_series(t, acc, valid, method="realtime", settings=from_sensor_model(SensorParams()),
+                           lost_before=lost).pos_m
+
+
+@dataclass(frozen=True)
+class StopCheck:
+    stop: int  # 1 = the first stop after the initial rest
+    firmware_m: float
+    emulator_m: float
+    truth_m: float
+
+
+def position_at_stop(stream: BoardStream, wave: DutyWaveform, truth: SimulatedRun, stop: int) -> StopCheck:
+    """Position at the end of the `stop`-th stop (or the stream's end, if sooner), from the
+    firmware's stream and from the emulator's (the simulated counts from period 0: what
+    `adxlgw emulate` sends), both by the gateway's realtime estimate."""
+    p0 = first_period(stream, wave)
+    start, end = rest_intervals(truth.t_s, truth.ref_vel_mps)[stop]
+    at = min(end - 1, p0 + len(stream) - 1)
+    if at <= start:
+        raise ValueError(f"the stream ends before stop {stop}")
+    n = at + 1
+    emulator = realtime_position_m(truth.t2[:n], truth.t1x[:n], truth.flags[:n], truth.seq[:n], truth.tick_hz)
+    firmware = realtime_position_m(stream.t2, stream.t1x, stream.flags, stream.seq, truth.tick_hz)
+    return StopCheck(stop, float(firmware[at - p0]), float(emulator[at]), float(truth.ref_pos_m[at]))
 
 
 def budget_lines(result: S51Result, sizes: str) -> list[str]:

@@ -11,15 +11,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.board_protocol import Hello, Sample, Status, StreamDecoder
-from gateway.board_in_ucsim import WARMUP_PERIODS, BoardRunSettings, run_board_to_file
-from gateway.core.conversion import AxisCalibration, acceleration_mps2, axis_valid, lost_before_from_seq, sample_times_s
+from drivers.board_protocol import Hello, Status
+from gateway.board_in_ucsim import (
+    WARMUP_PERIODS,
+    BoardRunSettings,
+    decode_board_bytes,
+    first_period,
+    position_at_stop,
+    run_board_to_file,
+    timing_against_waveform,
+)
 from gateway.core.duty_waveform import StuckInput
-from gateway.core.estimator import estimate_series
-from gateway.core.estimator_settings import from_sensor_model
-from gateway.core.evaluation import rest_intervals
 from gateway.core.scenarios import ScenarioSettings, build_profile
-from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 
 pytestmark = pytest.mark.slow
@@ -36,41 +39,17 @@ TIMING_TOLERANCE_TICKS = 2
 POSITION_TOLERANCE_M = 1e-3
 
 
-class Stream:
-    def __init__(self, data: bytes):
-        self.decoder = StreamDecoder()
-        self.frames = self.decoder.feed(data)
-        samples = [f for f in self.frames if isinstance(f, Sample)]
-        self.seq = np.array([s.seq for s in samples])
-        self.t1x = np.array([s.t1x_ticks for s in samples])
-        self.t1y = np.array([s.t1y_ticks for s in samples])
-        self.t2 = np.array([s.t2_ticks for s in samples])
-        self.flags = np.array([s.flags for s in samples])
-
-    def __len__(self) -> int:
-        return int(self.seq.size)
-
-
-def first_period(stream: Stream, wave_t1x: np.ndarray, search: int = 200) -> int:
-    """The waveform period of the firmware's first sample: the offset where the X counts
-    agree best (the start-up before the first sample takes a few tens of periods)."""
-    ok = (stream.flags & 1) == 0
-    n = min(len(stream), wave_t1x.size - search)
-    errors = [np.mean(np.abs(stream.t1x[:n][ok[:n]] - wave_t1x[p:p + n][ok[:n]])) for p in range(search)]
-    return int(np.argmin(errors))
-
-
 @pytest.fixture(scope="module")
 def paper_run(tmp_path_factory):
     duration_s = build_profile(ScenarioSettings()).duration_s
     settings = BoardRunSettings(seed=SEED, board_s=duration_s - 0.1)
     record = run_board_to_file(settings, tmp_path_factory.mktemp("paper"), timeout_s=S51_TIMEOUT_S)
-    return settings, record, Stream(record.uart_bytes)
+    return settings, record, decode_board_bytes(record.uart_bytes)
 
 
 def test_the_frames_decode_without_an_error_or_a_lost_sample(paper_run):
     settings, record, stream = paper_run
-    c = stream.decoder.counters
+    c = stream.counters
     assert (c.crc_errors, c.length_errors, c.unknown_types, c.bytes_skipped, c.samples_lost) == (0, 0, 0, 0, 0)
     assert isinstance(stream.frames[0], Hello) and stream.frames[0].tick_hz == TICK_HZ
     assert c.hellos_decoded == 1
@@ -85,22 +64,15 @@ def test_the_frames_decode_without_an_error_or_a_lost_sample(paper_run):
 
 def test_t1x_t1y_and_t2_are_the_waveforms_within_two_ticks(paper_run):
     _, record, stream = paper_run
-    wave = record.waveform
-    p0 = first_period(stream, wave.t1x_ticks)
-    n = len(stream)
-    x_ok = (stream.flags & 1) == 0
-    y_ok = (stream.flags & 2) == 0
-    assert x_ok.all()  # X is never stuck here; Y gives a span every 1024 periods to T2
-    err_x = stream.t1x - wave.t1x_ticks[p0:p0 + n]
-    err_y = (stream.t1y - wave.t1y_ticks[p0:p0 + n])[y_ok]
-    err_t2 = stream.t2 - wave.t2_ticks[p0:p0 + n]
-    for name, err in (("t1x", err_x), ("t1y", err_y), ("t2", err_t2)):
-        assert np.max(np.abs(err)) <= TIMING_TOLERANCE_TICKS, f"{name}: worst {np.max(np.abs(err))} ticks"
-    # Y is not measured while its timer times T2: 32 of every 1024 + 34 periods
-    assert 0 < np.count_nonzero(~y_ok) <= np.ceil(n / (1024 + 34)) * 32 + 32
-    # the board's clock (the sum of the T2 sent) keeps the waveform's time
-    drift_ticks = stream.t2.sum() - wave.t2_ticks[p0:p0 + n].sum()
-    assert abs(drift_ticks) <= TIMING_TOLERANCE_TICKS * 32, f"board clock off by {drift_ticks} ticks"
+    check = timing_against_waveform(stream, record.waveform)
+    for name in ("worst_t1x_ticks", "worst_t1y_ticks", "worst_t2_ticks"):
+        assert getattr(check, name) <= TIMING_TOLERANCE_TICKS, check
+    assert check.x_unmeasured == 0  # X is never stuck here
+    # Y is not measured while its timer times T2: 32 of every 1024 periods
+    assert 0 < check.y_unmeasured <= (len(stream) // 1024 + 1) * 32
+    # the board's clock (the sum of the T2 sent) keeps the waveform's time: each span's
+    # mean is within a tick, its remainder spread over the periods
+    assert abs(check.clock_error_ticks) <= TIMING_TOLERANCE_TICKS * 32, check
 
 
 def test_the_idle_share_at_500_samples_per_s_is_at_least_a_quarter(paper_run):
@@ -111,33 +83,15 @@ def test_the_idle_share_at_500_samples_per_s_is_at_least_a_quarter(paper_run):
     assert 0 < budget.isr_share < 1 and 0 < budget.main_share < 1
 
 
-def _position_at(times_t2, t1x, flags, seq, index):
-    lost = lost_before_from_seq(seq)
-    t = sample_times_s(times_t2, TICK_HZ, lost)
-    acc = acceleration_mps2(t1x, times_t2, AxisCalibration())
-    valid = axis_valid(flags, t1x, times_t2, "x")
-    # the raw recording's default: the sensor model's settings (adxlgw estimate without a drift fit)
-    track = estimate_series(t, acc, valid, method="realtime", settings=from_sensor_model(SensorParams()),
-                            lost_before=lost)
-    return float(track.pos_m[index])
-
-
 def test_the_position_at_the_tenth_stop_matches_the_emulators(paper_run):
     settings, record, stream = paper_run
     truth = simulate(build_profile(settings.scenario), settings.sensor, seed=SEED)
-    wave = record.waveform
-    assert np.array_equal(wave.t1x_ticks[:len(truth)], truth.t1x[:wave.t1x_ticks.size])
-    p0 = first_period(stream, wave.t1x_ticks)
-    stops = rest_intervals(truth.t_s, truth.ref_vel_mps)
-    start, stop = stops[10]  # 0 is the initial rest; the 10th stop follows the 10th stroke
-    at = min(stop - 1, p0 + len(stream) - 1)
-    assert at > start + 50, "the run ends before the 10th stop"
-    n_emu = at + 1
-    emulator_m = _position_at(truth.t2[:n_emu], truth.t1x[:n_emu], truth.flags[:n_emu], truth.seq[:n_emu], at)
-    firmware_m = _position_at(stream.t2, stream.t1x, stream.flags, stream.seq, at - p0)
-    assert abs(firmware_m - emulator_m) <= POSITION_TOLERANCE_M, (firmware_m, emulator_m)
-    # and both are near the truth there (the estimate works on this stream at all)
-    assert abs(emulator_m - truth.ref_pos_m[at]) < 0.03
+    n = min(len(truth), len(record.waveform))
+    np.testing.assert_array_equal(record.waveform.t1x_ticks[:n], truth.t1x[:n])
+    check = position_at_stop(stream, record.waveform, truth, stop=10)
+    assert abs(check.firmware_m - check.emulator_m) <= POSITION_TOLERANCE_M, check
+    # and the estimate is near the truth there (the stream is usable at all)
+    assert abs(check.emulator_m - check.truth_m) < 0.03, check
 
 
 @pytest.fixture(scope="module")
@@ -150,17 +104,17 @@ def stuck_run(tmp_path_factory):
     )
     settings = BoardRunSettings(seed=SEED, board_s=1.6, stuck=stuck)
     record = run_board_to_file(settings, tmp_path_factory.mktemp("stuck"), timeout_s=S51_TIMEOUT_S)
-    return settings, record, Stream(record.uart_bytes)
+    return settings, record, decode_board_bytes(record.uart_bytes)
 
 
 def test_a_stuck_input_sets_its_timeout_flag_and_the_next_good_period_recovers(stuck_run):
     settings, record, stream = stuck_run
-    c = stream.decoder.counters
+    c = stream.counters
     assert (c.crc_errors, c.samples_lost) == (0, 0)
     assert np.all(np.diff(stream.seq) == 1)  # one sample per period, stuck or not
     wave = record.waveform
     t_start = wave.start_s  # each sample's period in the waveform
-    p0 = first_period(stream, wave.t1x_ticks)
+    p0 = first_period(stream, wave)
     periods = p0 + np.arange(len(stream))
     start_s = t_start[periods]
     end_s = start_s + wave.t2_ticks[periods] / TICK_HZ
