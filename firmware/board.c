@@ -136,6 +136,12 @@ static volatile __bit t2_fresh;
 /* X falls counted, so that a T2 span in which Y missed a fall (a stuck Y: the span then
  * holds more than T2_SPAN_PERIODS periods) is seen and dropped */
 static uint8_t x_falls, x_falls_at_t2_start, x_span;
+/* Set when Y fell while the X interrupt ran: the Y interrupt that follows starts late, by
+ * up to the X interrupt's length — too late to start or end a T2 span (a 32-period span
+ * whose one end is 60 cycles late is 2 ticks off per period). Such a span is not started
+ * (tried again at the next Y fall) or not used (tried again T2_RETRY_PERIODS later). */
+static volatile __bit y_delayed;
+#define T2_RETRY_PERIODS 64
 
 void x_fall_isr(void) __interrupt(0) __using(1)
 {
@@ -160,6 +166,8 @@ void x_fall_isr(void) __interrupt(0) __using(1)
         }
         y_done = 0;
     }
+    if (IE1) /* Y fell meanwhile: its interrupt waits for this one to end */
+        y_delayed = 1;
 }
 
 void y_fall_isr(void) __interrupt(2) __using(1)
@@ -184,6 +192,13 @@ void y_fall_isr(void) __interrupt(2) __using(1)
         }
         break;
     case T2_START: /* Timer 1 now runs on from this period's high time, read above */
+        if (y_delayed) { /* not from a late start: gated again, try at the next fall */
+            TMOD = TMOD_BOTH_GATED;
+            TL1 = 0;
+            TH1 = 0;
+            TF1 = 0;
+            break;
+        }
         t2_start_count = y_t1;
         x_falls_at_t2_start = x_falls;
         TF1 = 0;
@@ -202,7 +217,9 @@ void y_fall_isr(void) __interrupt(2) __using(1)
         /* As many X falls as Y falls in the span (one more or less: X's fall may cross
          * Y's at either end), else a stuck input lengthened it: dropped, T2 kept. */
         x_span = x_falls - x_falls_at_t2_start;
-        if (x_span >= T2_SPAN_PERIODS - 1 && x_span <= T2_SPAN_PERIODS + 1) {
+        t2_countdown = T2_RETRY_PERIODS;
+        if (!y_delayed && x_span >= T2_SPAN_PERIODS - 1 && x_span <= T2_SPAN_PERIODS + 1) {
+            t2_countdown = T2_EVERY_PERIODS;
             t2_sum_lo = (((uint16_t)TH1 << 8) | TL1) - t2_start_count;
             t2_sum_wrapped = TF1 ^ (((uint16_t)TH1 << 8 | TL1) < t2_start_count);
             t2_fresh = 1;
@@ -211,10 +228,10 @@ void y_fall_isr(void) __interrupt(2) __using(1)
         TL1 = 0;
         TH1 = 0;
         TF1 = 0;
-        t2_countdown = T2_EVERY_PERIODS;
         t2_phase = T2_GATED;
         break;
     }
+    y_delayed = 0;
     y_done = 1;
     if (x_done) {
         if (!P3_2) { /* X fell in this period too */
