@@ -59,10 +59,12 @@ def firmware_on_paper(seed: int) -> None:
         print("  " + line)
 
 
-def record_through_pty(seconds: float) -> None:
+def record_through_pty(seconds: float, t2_error_frac: float | None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         link, out = Path(tmp) / "board", Path(tmp) / "rec.csv"
-        board = subprocess.Popen([str(ROOT / "scripts/board-in-ucsim"), "--link", str(link), "--seconds", str(seconds)],
+        part = [] if t2_error_frac is None else ["--t2-error-frac", str(t2_error_frac)]
+        board = subprocess.Popen([str(ROOT / "scripts/board-in-ucsim"), "--link", str(link), "--seconds", str(seconds),
+                                  *part],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             board.stdout.readline()
@@ -76,7 +78,8 @@ def record_through_pty(seconds: float) -> None:
     board_s = c["t2"].sum() / TICK_HZ
     host_s = c["t_host_s"][-1] - c["t_host_s"][0]
     summary = [line for line in rec.stderr.splitlines() if line.startswith("record:")]
-    print(f"pty, {seconds:g} s of board time: {summary[0] if summary else rec.stderr.strip()}")
+    part = "the default part" if t2_error_frac is None else f"--t2-error-frac {t2_error_frac:g}"
+    print(f"pty, {seconds:g} s of board time, {part}: {summary[0] if summary else rec.stderr.strip()}")
     print(f"  {len(recording)} samples over {board_s:.3f} s of board time: {len(recording) / board_s:.2f} samples/s "
           f"(the board's rate 1/T2: {TICK_HZ / c['t2'].mean():.2f}); host arrivals {(len(recording) - 1) / host_s:.2f}/s; "
           f"seq steps all +1: {bool(np.all(np.diff(c['seq']) == 1))}")
@@ -88,12 +91,15 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     p.add_argument("--pty-seconds", type=float, default=60.0, help="0: skip part 2")
+    p.add_argument("--t2-error-frac", type=float, nargs="*", default=[None],
+                   help="part 2 once per value (the part's T2 error; default: the simulator's)")
     args = p.parse_args()
     print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}")
     for seed in args.seeds:
         firmware_on_paper(seed)
     if args.pty_seconds > 0:
-        record_through_pty(args.pty_seconds)
+        for frac in args.t2_error_frac:
+            record_through_pty(args.pty_seconds, frac)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import argparse
 import os
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -251,6 +252,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=positive_float, default=60.0, help="board time to run, s (default: 60)")
     p.add_argument("--stuck", type=parse_stuck, action="append", default=[],
                    help="hold an input: AXIS:START_S:DURATION_S:LEVEL (x or y, 0 or 1); repeatable")
+    p.add_argument("--t2-error-frac", type=float, default=SensorParams().t2_error_frac,
+                   help="the part's T2 against RSET/125 MΩ (default: the simulator's "
+                        f"{SensorParams().t2_error_frac:+g}; 0: exactly 2.000 ms, 500 samples/s)")
+    p.add_argument("--linger", type=positive_float, default=1.0,
+                   help="keep the port open this long after the last frame, s, so the reader gets it (default: 1)")
     p.add_argument("--wait-for-reader-s", type=positive_float, default=None,
                    help="start the board's clock after this long even if nobody opened the port "
                         "(default: wait for a reader)")
@@ -259,8 +265,11 @@ def parser() -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not -0.5 < args.t2_error_frac < 0.5:
+        print(f"board-in-ucsim: --t2-error-frac {args.t2_error_frac}: expected within ±0.5", file=sys.stderr)
+        return 2
     settings = BoardRunSettings(scenario=scenario_from_args(args), seed=args.seed, board_s=args.seconds,
-                                stuck=tuple(args.stuck))
+                                stuck=tuple(args.stuck), sensor=SensorParams(t2_error_frac=args.t2_error_frac))
     measured = settings.periods - WARMUP_PERIODS
     if measured < 1:
         print(f"board-in-ucsim: --seconds {args.seconds}: too short (at least "
@@ -278,6 +287,8 @@ def run(args: argparse.Namespace) -> int:
             with S51Board(ihx, work / "pins.vcd", uart, work / "s51.cmd", WARMUP_PERIODS, measured) as board:
                 counts = relay_paced(uart, port, args.wait_for_reader_s)
                 result = board.wait()
+            # closing a pty drops what its reader has not read yet
+            time.sleep(args.linger)
         finally:
             port.close(remove_link=True)
     for line in budget_lines(result, sizes):
