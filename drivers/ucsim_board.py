@@ -259,8 +259,10 @@ def relay_paced(pipe_path: Path, port: PtyPort, wait_for_reader_s: float | None 
                 delay = start + due_s - clock()
                 if delay > 0:
                     sleep(delay)
-                counts["bytes"] += port.write(piece)
+                # a reader that went away must not stall the relay: then the bytes
+                # are lost as on a line with nobody listening
+                counts["bytes"] += port.write(piece, block=port.has_reader())
                 counts["samples"] += 1
-    counts["bytes"] += port.write(pacer.rest())
+    counts["bytes"] += port.write(pacer.rest(), block=port.has_reader())
     reader.join()
     return counts
