@@ -105,3 +105,17 @@ def test_the_s51_script_stops_on_counts_of_x_falling_edges():
     assert script.index("break 0x0003 100") < script.index("break 0x0003 500") < script.index("quit")
     with pytest.raises(ValueError):
         s51_script("b.ihx", "p.vcd", 0, 5)
+
+
+def test_board_in_ucsim_refuses_bad_arguments_with_exit_2(tmp_path, capsys):
+    from gateway.board_in_ucsim import main
+
+    link = str(tmp_path / "board")
+    assert main(["--link", link, "--seconds", "0.1"]) == 2
+    assert "too short" in capsys.readouterr().err
+    assert main(["--link", link, "--t2-error-frac", "0.9"]) == 2
+    with pytest.raises(SystemExit) as stop:
+        main(["--link", link, "--stuck", "x:1:nope:0"])
+    assert stop.value.code == 2
+    assert "AXIS:START_S:DURATION_S:LEVEL" in capsys.readouterr().err
+    assert not (tmp_path / "board").exists()
