@@ -119,6 +119,10 @@ static volatile __bit work;
 static uint16_t x_t1, y_t1;
 static uint8_t x_flag, y_flag; /* its timed-out bit, or 0 */
 static volatile __bit x_done, y_done;
+/* An axis that timed out: its next fall may end a high time that began mid-period (an
+ * input stuck low that comes back while the waveform is high), which no count can tell
+ * from a small duty cycle — so that capture is flagged too, and the one after is good. */
+static __bit x_recovering, y_recovering;
 
 /* T2 timing on Timer 1 */
 #define T2_GATED 0
@@ -151,9 +155,13 @@ void x_fall_isr(void) __interrupt(0) __using(1)
     TL0 = 0;
     TH0 = 0;
     if (x_done) /* our last fall met no Y fall: Y timed out in that period */
+    {
         EMIT(x_t1, 0, x_flag | FLAG_Y_TIMED_OUT);
+        y_recovering = 1;
+    }
     x_t1 = ((uint16_t)hi << 8) | lo;
-    x_flag = TF0 ? FLAG_X_TIMED_OUT : 0; /* high for more than 65 535 ticks */
+    x_flag = (TF0 || x_recovering) ? FLAG_X_TIMED_OUT : 0; /* TF0: high for over 65 535 ticks */
+    x_recovering = 0;
     TF0 = 0;
     x_done = 1;
     x_falls++;
@@ -163,6 +171,7 @@ void x_fall_isr(void) __interrupt(0) __using(1)
             x_done = 0;
         } else { /* Y's capture is from a period whose X fall never came */
             EMIT(0, y_t1, FLAG_X_TIMED_OUT | y_flag);
+            x_flag = FLAG_X_TIMED_OUT; /* so this fall is the first after a timeout */
         }
         y_done = 0;
     }
@@ -178,9 +187,13 @@ void y_fall_isr(void) __interrupt(2) __using(1)
      * each Y falling edge: starting and stopping the T2 span here cancels that delay. */
     TMOD = y_tmod;
     if (y_done) /* our last fall met no X fall: X timed out in that period */
+    {
         EMIT(0, y_t1, FLAG_X_TIMED_OUT | y_flag);
+        x_recovering = 1;
+    }
     y_t1 = ((uint16_t)hi << 8) | lo;
-    y_flag = TF1 ? FLAG_Y_TIMED_OUT : 0;
+    y_flag = (TF1 || y_recovering) ? FLAG_Y_TIMED_OUT : 0;
+    y_recovering = 0;
     switch (t2_phase) {
     case T2_GATED:
         TL1 = 0;
@@ -239,6 +252,7 @@ void y_fall_isr(void) __interrupt(2) __using(1)
             y_done = 0;
         } else { /* X's capture is from a period whose Y fall never came */
             EMIT(x_t1, 0, x_flag | FLAG_Y_TIMED_OUT);
+            y_flag = FLAG_Y_TIMED_OUT; /* so this fall is the first after a timeout */
         }
         x_done = 0;
     }

@@ -116,23 +116,31 @@ def test_a_stuck_input_sets_its_timeout_flag_and_the_next_good_period_recovers(s
     assert (c.crc_errors, c.samples_lost) == (0, 0)
     assert np.all(np.diff(stream.seq) == 1)  # one sample per period, stuck or not
     wave = record.waveform
-    t_start = wave.start_s  # each sample's period in the waveform
     p0 = first_period(stream, wave)
     periods = p0 + np.arange(len(stream))
-    start_s = t_start[periods]
+    start_s = wave.start_s[periods]
     end_s = start_s + wave.t2_ticks[periods] / TICK_HZ
+    for axis, bit in (("x", 1), ("y", 2)):
+        t1 = stream.t1x if axis == "x" else stream.t1y
+        truth = (wave.t1x_ticks if axis == "x" else wave.t1y_ticks)[periods]
+        # The period in which an input gets stuck is not the waveform's: the pin itself
+        # fell early or stayed high, and the board times what the pin did.
+        struck = np.zeros(len(stream), bool)
+        for s in settings.stuck:
+            if s.axis == axis:
+                struck |= (start_s <= s.start_s) & (end_s > s.start_s)
+        measured = ((stream.flags & bit) == 0) & ~struck
+        # never confidently wrong: every other count sent without its flag is the waveform's,
+        # also where a stuck input comes back mid-period (that capture is flagged)
+        assert np.max(np.abs(t1[measured] - truth[measured])) <= TIMING_TOLERANCE_TICKS, axis
     for s in settings.stuck:
         bit = 1 if s.axis == "x" else 2
-        t1 = stream.t1x if s.axis == "x" else stream.t1y
-        truth = (wave.t1x_ticks if s.axis == "x" else wave.t1y_ticks)[periods]
         inside = (start_s >= s.start_s) & (end_s <= s.start_s + s.duration_s)
         assert inside.sum() >= 10
         assert np.all(stream.flags[inside] & bit), f"{s}: a period inside the stretch was not flagged"
-        # the first whole period after the stretch is measured again, and right
+        # measured again within two whole periods after the stretch (the first fall after
+        # a timeout may end a high time that began mid-period, so it is flagged)
         after = int(np.argmax(start_s >= s.start_s + s.duration_s))
-        assert stream.flags[after] & bit == 0, f"{s}: the period after the stretch is still flagged"
-        assert abs(int(t1[after]) - truth[after]) <= TIMING_TOLERANCE_TICKS
-        # the other axis keeps being measured through the stretch (but Y's T2 spans)
-        other = 2 if bit == 1 else 1
-        if other == 1:
-            assert not np.any(stream.flags[inside] & other)
+        assert not np.all(stream.flags[after:after + 2] & bit), f"{s}: still flagged after the stretch"
+        if bit == 2:  # X keeps being measured while Y is stuck
+            assert not np.any(stream.flags[inside] & 1)
