@@ -91,8 +91,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--seeds", type=int, nargs="*", default=[0, 1, 2])
     p.add_argument("--pty-seconds", type=float, default=60.0, help="0: skip part 2")
-    p.add_argument("--t2-error-frac", type=float, nargs="*", default=[None],
-                   help="part 2 once per value (the part's T2 error; default: the simulator's)")
+    p.add_argument("--t2-error-frac", type=lambda v: None if v == "default" else float(v), nargs="*",
+                   default=[None], help="part 2 once per value: the part's T2 error, or 'default' (the simulator's)")
     args = p.parse_args()
     print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}")
     for seed in args.seeds:

@@ -17,8 +17,9 @@
  * XOUT and YOUT are common (the ADXL202 starts both duty cycles together), so an input pin
  * that is still high at the other axis's falling edge has its fall of this period to come.
  * An axis whose fall does not come before the other axis's next one timed out: the sample
- * goes out with its flag, and the next good period is measured again (a stuck-low input
- * leaves its gated timer stopped; a stuck-high one ends with a count longer than T2).
+ * goes out with its flag, so does the axis's first capture after it (its high time may have
+ * begun mid-period), and the period after that is measured again (a stuck-low input leaves
+ * its gated timer stopped; a stuck-high one ends with a count longer than T2).
  */
 #include <8052.h>
 #include <stdint.h>
