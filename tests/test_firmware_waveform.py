@@ -119,3 +119,15 @@ def test_board_in_ucsim_refuses_bad_arguments_with_exit_2(tmp_path, capsys):
     assert stop.value.code == 2
     assert "AXIS:START_S:DURATION_S:LEVEL" in capsys.readouterr().err
     assert not (tmp_path / "board").exists()
+
+
+def test_after_a_stuck_stretch_the_pin_takes_the_level_the_waveform_has_then():
+    # periods of 1000 ticks, high for the first 500: the stretch ends 0.2 periods into one
+    tick_s = 1 / TICK_HZ
+    w = waveform_from_counts(TICK_HZ, [500] * 20, [500] * 20, [1000] * 20)
+    end_s = 5.2 * 1000 * tick_s
+    stuck = StuckInput("x", start_s=2.7 * 1000 * tick_s, duration_s=end_s - 2.7 * 1000 * tick_s, level=0)
+    x = [(t, c["x"]) for t, c in pin_events(w, (stuck,)) if "x" in c]
+    at_end = [level for t, level in x if abs(t - round(end_s * 1e9)) <= 1]
+    assert at_end == [1]  # mid-high: the pin rises where the stretch ends, falls at 5.5 periods
+    assert any(abs(t - round(5.5 * 1000 * tick_s * 1e9)) <= 1 and level == 0 for t, level in x)

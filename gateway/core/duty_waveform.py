@@ -99,8 +99,9 @@ def pin_events(wave: DutyWaveform, stuck: tuple[StuckInput, ...] = ()) -> Iterat
                 continue
             keep = ~s.covers(t)
             end_s = s.start_s + s.duration_s
-            # the waveform's level at the stretch's end: high if its last edge before was a rise
-            before_end = (t < end_s) & keep
+            # the waveform's level at the stretch's end: that of its last edge before the
+            # end, the edges inside the stretch included (the waveform went on meanwhile)
+            before_end = t < end_s
             last = np.argmax(np.where(before_end, t, -np.inf)) if np.any(before_end) else None
             level_at_end = int(level[last]) if last is not None else 0
             t = np.concatenate((t[keep], [s.start_s, end_s]))
