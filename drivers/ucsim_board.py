@@ -15,7 +15,6 @@ the idle share is s51's count, not an estimate.
 """
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import subprocess
@@ -26,7 +25,7 @@ from pathlib import Path
 from typing import Iterator
 
 from drivers.board_protocol import HEADER_LENGTH, CRC_LENGTH, PAYLOAD_LENGTH, SYNC, sample_at
-from drivers.errors import BoardProtocolError
+from drivers.errors import DriverError
 from drivers.pty_port import PtyPort
 
 # An 80C52: the CMOS part, which has the idle mode the firmware sleeps in (s51's "8052"
@@ -38,7 +37,7 @@ INT0_VECTOR = 0x0003
 DEFAULT_TICK_HZ = XTAL_HZ // CLOCKS_PER_MACHINE_CYCLE
 
 
-class BoardSimulatorError(BoardProtocolError):
+class BoardSimulatorError(DriverError):
     """The tools for the simulated board are missing or failed (one line: what and where)."""
 
 
