@@ -15,6 +15,7 @@ the idle share is s51's count, not an estimate.
 """
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -228,11 +229,21 @@ def read_pipe(path: Path, chunks: list[bytes], done: threading.Event, lock: thre
         done.set()
 
 
+def _release_pipe_reader(path: Path) -> None:
+    """A reader still blocked opening the pipe (its writer died before opening it) gets
+    its end of file: open the write end once and close it."""
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+    except OSError:
+        pass  # no reader waiting in open(): nothing to release
+
+
 def relay_paced(pipe_path: Path, port: PtyPort, wait_for_reader_s: float | None = None,
-                clock=time.monotonic, sleep=time.sleep) -> dict[str, int]:
+                writer_alive=lambda: True, clock=time.monotonic, sleep=time.sleep) -> dict[str, int]:
     """Read the board's bytes from the pipe as s51 writes them (s51 runs ahead of real
     time) and write each SAMPLE to the pty when its period ends in board time, the clock
-    starting when a reader opens the pty. Returns byte and sample counts."""
+    starting when a reader opens the pty. Ends at the pipe's end of file, also when the
+    writer (`writer_alive` false) died without opening it. Returns byte and sample counts."""
     chunks: list[bytes] = []
     lock = threading.Lock()
     done = threading.Event()
@@ -251,6 +262,8 @@ def relay_paced(pipe_path: Path, port: PtyPort, wait_for_reader_s: float | None 
                     if chunks:
                         continue
                 break
+            if not writer_alive():
+                _release_pipe_reader(pipe_path)
             sleep(0.005)
             continue
         for data in new:

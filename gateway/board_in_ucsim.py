@@ -286,7 +286,8 @@ def run(args: argparse.Namespace) -> int:
         print(port.path, flush=True)
         try:
             with S51Board(ihx, work / "pins.vcd", uart, work / "s51.cmd", WARMUP_PERIODS, measured) as board:
-                counts = relay_paced(uart, port, args.wait_for_reader_s)
+                counts = relay_paced(uart, port, args.wait_for_reader_s,
+                                     writer_alive=lambda: board.process.poll() is None)
                 result = board.wait()
             # closing a pty drops what its reader has not read yet
             time.sleep(args.linger)

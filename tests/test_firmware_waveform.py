@@ -131,3 +131,22 @@ def test_after_a_stuck_stretch_the_pin_takes_the_level_the_waveform_has_then():
     at_end = [level for t, level in x if abs(t - round(end_s * 1e9)) <= 1]
     assert at_end == [1]  # mid-high: the pin rises where the stretch ends, falls at 5.5 periods
     assert any(abs(t - round(5.5 * 1000 * tick_s * 1e9)) <= 1 and level == 0 for t, level in x)
+
+
+def test_the_relay_ends_when_the_simulator_dies_before_opening_its_pipe(tmp_path):
+    import os
+    import threading
+
+    from drivers.pty_port import PtyPort
+    from drivers.ucsim_board import relay_paced
+
+    pipe = tmp_path / "uart.pipe"
+    os.mkfifo(pipe)
+    port = PtyPort()
+    result = {}
+    relay = threading.Thread(target=lambda: result.update(relay_paced(pipe, port, wait_for_reader_s=0.01,
+                                                                      writer_alive=lambda: False)))
+    relay.start()
+    relay.join(timeout=60)
+    port.close()
+    assert not relay.is_alive() and result == {"bytes": 0, "samples": 0}
