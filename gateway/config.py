@@ -63,6 +63,21 @@ def _addresses(v):
     return None
 
 
+def _travel(v):
+    if len(v) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        return "must be two numbers, [lowest, highest]"
+    lo, hi = (float(x) for x in v)
+    if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
+        return "must be finite, lowest < highest"
+    if max(abs(lo), abs(hi)) > MAX_TRAVEL_M:
+        return f"must lie within ±{MAX_TRAVEL_M:g} m"
+    return None
+
+
+#: no linear axis this gateway serves is longer: the state file's own limit (state_store)
+MAX_TRAVEL_M = 1.0e4
+
+
 def _nonempty(v):
     return None if v.strip() else "must not be empty"
 
@@ -156,6 +171,16 @@ SCHEMA: tuple[Key, ...] = (
     Key("estimator", "hint_timeout_ms", 1000, int,
         "How long the machine's standstill hint (Modbus CMD_HINT_*, CAN command codes 3-5) stays in "
         "force after it was written; a PLC writes it every cycle while it holds.", _range(10, 600_000)),
+    Key("estimator", "travel_m", [-10.0, 10.0], list,
+        "The axis's travel, [lowest, highest] published position in m (from the tare point). A saved "
+        "position outside it is refused at start (the state file is then moved aside), and a restored "
+        "position is never less uncertain than the travel allows. Default: 10 m either way, 30 times the "
+        "paper's 0.3 m stroke and 12 times the robot's 0.8 m move; set your machine's.", _travel),
+    Key("estimator", "still_while_down", False, bool,
+        "true: nothing moves the axis while the gateway is down (it is locked, or the gateway's stop stops "
+        "the machine), so a position saved by an orderly stop is restored as exact. false (safe): the "
+        "axis may have moved meanwhile; the restored position's POSITION_STD grows with the time it was "
+        "not watched, at the machine's top speed, up to the travel (docs/daemon.md, Faults, scored)."),
     Key("estimator", "drift_model", "", str,
         "Zero-drift model of this sensor from 'adxlgw fit-drift --model-out' (JSON); empty: the "
         "sensor model's defaults."),

@@ -20,7 +20,7 @@ function runs as plain Python — one implementation under two runners
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -234,6 +234,10 @@ class SamplePipeline:
         # published = estimator position − offset; a start position (e.g. the last one
         # published before a restart) is a prior to continue from, not a reference
         self.reference_offset_m = -start_position_m
+        #: the variance of that offset, m²: what the position carries from before this
+        #: estimator's start (a restored position, an estimate before a start-over), added to
+        #: the estimator's own in every published σ (set_start_uncertainty, _start_over)
+        self.reference_var_m2 = 0.0
         self.referenced = False
         self._estimated = False  # a sample went through the estimator since start or reset
         self._result = ChunkResult()
@@ -315,6 +319,7 @@ class SamplePipeline:
         if est is None:
             return False
         self.reference_offset_m += est.pos_m
+        self.reference_var_m2 = 0.0  # here is zero by definition
         self.referenced = True
         self._latest = None
         return True
@@ -327,6 +332,12 @@ class SamplePipeline:
         self.estimator.request_bias_reestimate()
         self._latest = None
         return True
+
+    def set_start_uncertainty(self, std_m: float) -> None:
+        """The start position's own uncertainty (1σ, m): a restored position is a prior whose
+        σ says what the axis could have done while nobody watched (state_store.restored_position_std_m)."""
+        self.reference_var_m2 = std_m * std_m if math.isfinite(std_m) else math.inf
+        self._latest = None
 
     def reset(self) -> None:
         """Start the estimator over (e.g. continuity lost); the position stays continuous
@@ -360,8 +371,11 @@ class SamplePipeline:
     def _start_over(self) -> None:
         est = self.latest()
         if est is not None and math.isfinite(est.pos_m):
-            # keep the published position continuous; it is just no longer trusted
+            # keep the published position continuous; it is just no longer trusted, and no
+            # more certain than it was (the new estimator starts with a position variance 0)
             self.reference_offset_m = -est.pos_m
+            if math.isfinite(est.pos_std_m):
+                self.reference_var_m2 = est.pos_std_m * est.pos_std_m
         self.referenced = False
         self.estimator.restart()  # the axis may be moving: the velocity is not known
         self.set_hint(self.hint)  # the machine's word still holds
@@ -384,7 +398,10 @@ class SamplePipeline:
             return None
         state = self.estimator.state
         # one Estimate, built once per change: every wire's snapshot reads it
-        return Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
+        est = Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
+        if self.reference_var_m2 > 0.0:  # the start position's own uncertainty, independent of the filter's
+            est = replace(est, pos_std_m=math.sqrt(est.pos_std_m * est.pos_std_m + self.reference_var_m2))
+        return est
 
     @property
     def stop_by_hint(self) -> bool:

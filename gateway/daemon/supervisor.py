@@ -43,7 +43,7 @@ from gateway.daemon.board_port import BoardPort
 from gateway.errors import ConfigError, DeviceError
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
-from gateway.daemon.state_store import PersistentState, StateStore
+from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
 from gateway.daemon.terminal_view import TerminalView
 from gateway.daemon.wires import Wires
 
@@ -91,7 +91,7 @@ class Gateway:
         self.clock = clock
         self.publish_tick_s = publish_tick_s  # how often to republish while the board is quiet
         self.counters = Counters()
-        self.state_store = StateStore(cfg.state.path)
+        self.state_store = StateStore(cfg.state.path, travel_m=tuple(cfg.estimator.travel_m))
         saved = self.state_store.load()
         #: start_at_rest believed: configured, and this is a first start (no state file) or
         #: the last run stopped in order while the axis stood. After a crash, kill -9 or
@@ -109,6 +109,11 @@ class Gateway:
         self.pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
                                        start_position_m=saved.last_position_m or 0.0,
                                        start_at_rest=self.starts_at_rest)
+        # the restored position's σ is set at the first estimate: the axis was unwatched
+        # until then (a board that comes late included), not only while the gateway was down
+        # (a first start — no state file — has nothing to restore: its position starts at 0
+        # by definition, unreferenced)
+        self._restored: PersistentState | None = None if self.state_store.found_none else saved
         self._hint_until = math.inf  # when the machine's standstill hint expires
         self.intake = BoardIntake(self.pipeline)
         self.board = BoardPort(lambda: self.cfg)
@@ -282,6 +287,8 @@ class Gateway:
                 self.intake.receive(self.clock(), waiting)
         intake = self.intake
         if intake.drain():
+            if self._restored is not None:
+                self._set_restored_uncertainty()
             # as of the newest sample's arrival, as if each chunk had been handled then
             # (_publish written out: this runs at every wakeup)
             intake.publish(intake.events.last_sample_s)
@@ -291,6 +298,19 @@ class Gateway:
             # asyncio timer is a dozen calls); it fires 1–3 ticks after the last sample
             if self._tick_handle is not None and self._tick_due - now < self.publish_tick_s:
                 self._arm_tick(now, QUIET_AFTER_TICKS * self.publish_tick_s)
+
+    def _set_restored_uncertainty(self) -> None:
+        """Once, at the first estimate: the restored position's σ (state_store.restored_position_std_m)."""
+        if self.pipeline.latest() is None:
+            return
+        saved, self._restored = self._restored, None
+        est = self.cfg.estimator
+        std_m = restored_position_std_m(saved, time.time(), self.pipeline.estimator.settings.restart_speed_std_mps,
+                                        tuple(est.travel_m), est.still_while_down)
+        self.pipeline.set_start_uncertainty(std_m)
+        log.info("restored position %s m, σ %.3f m (saved %s s before the first sample)",
+                 "unknown" if saved.last_position_m is None else f"{saved.last_position_m:.4f}", std_m,
+                 "?" if saved.saved_at_unix_s is None else f"{time.time() - saved.saved_at_unix_s:.1f}")
 
     def _publish(self, now: float) -> None:
         """New values as of `now`: the heartbeat moves and every wire will show them
