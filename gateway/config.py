@@ -126,8 +126,9 @@ SCHEMA: tuple[Key, ...] = (
     Key("modbus", "rtu_writes_enabled", False, bool, "Accept commands over RTU (it has no client address)."),
     Key("modbus", "max_connections", 64, int,
         "Modbus TCP connections served at once (keep it well below the open-file limit). At the "
-        "limit a client in write_allow or priority_clients still gets in (the connection idle "
-        "longest is closed for it); anyone else is refused.", _range(1, 10_000)),
+        "limit a newcomer gets in by closing the connection that has done least (none of its "
+        "requests complete, else idle longest); a client in write_allow or priority_clients is "
+        "never closed for anyone else (a newcomer finding only those is refused).", _range(1, 10_000)),
     Key("modbus", "priority_clients", [], list,
         "Addresses or networks that always get a connection, besides those in write_allow "
         "(e.g. the PLC when writes are disabled).", _addresses),
