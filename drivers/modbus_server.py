@@ -684,7 +684,10 @@ class ModbusServer:
             commands_declined=int(result is CommandResult.DECLINED),
             commands_failed=int(result is CommandResult.FAILED),
         )
-        log.info("Modbus command %s from %s: %s", command.name, source, result.name)
+        # a PLC writes the hint every cycle: one line per source, command and result and
+        # peer_log_interval_s, with a count
+        self.peer_log.note(source, f"command {command.name} {result.name}",
+                           f"Modbus command {command.name}: {result.name}", logging.INFO)
         return result
 
 

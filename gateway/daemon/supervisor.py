@@ -335,6 +335,7 @@ class Gateway:
             stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
             config_reloaded_at_s=self._reloaded_at,
             can_send_errors=0 if can is None else can.send_errors,
+            can_refused_commands=0 if can is None else can.refused_commands,
             simulated=self.cfg.serial.port == "emulated",
         )
 
