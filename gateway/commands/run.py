@@ -48,10 +48,17 @@ def overrides_from(args: argparse.Namespace) -> dict:
     return {k: v for k, v in pairs.items() if v is not None}
 
 
-def load_with_overrides(path: str | None, overrides: dict) -> Config:
-    """The config `run` starts (or reloads) with; ConfigError (exit 2) if it cannot run."""
+def load_overridden(path: str | None, overrides: dict) -> Config:
+    """The config file with the command line's overrides (a reload reads it again; the
+    daemon checks it against the running one: preflight.refuse_reload)."""
     cfg = load_config(path)
-    cfg = cfg.replace(overrides) if overrides else cfg
+    return cfg.replace(overrides) if overrides else cfg
+
+
+def load_with_overrides(path: str | None, overrides: dict) -> Config:
+    """The config `run` starts with; ConfigError (exit 2) or DeviceError (exit 3) if it
+    cannot run (the checks of `config --check`: preflight.findings)."""
+    cfg = load_overridden(path, overrides)
     for finding in refuse_unrunnable(cfg):
         log.log(logging.WARNING if finding.severity == "device" else logging.INFO, "%s", finding.line(cfg.source))
     return cfg
@@ -70,7 +77,7 @@ def serve(cfg: Config, reload) -> int:
 def run(args: argparse.Namespace) -> NoReturn:
     overrides = overrides_from(args)
     cfg = load_with_overrides(args.config, overrides)
-    reload = (lambda: load_with_overrides(args.config, overrides)) if args.config else None
+    reload = (lambda: load_overridden(args.config, overrides)) if args.config else None
     exit_now(serve(cfg, reload))
 
 

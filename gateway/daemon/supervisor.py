@@ -41,6 +41,7 @@ from gateway.config import Config
 from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
 from gateway.daemon.board_port import BoardPort
 from gateway.errors import ConfigError, DeviceError
+from gateway.daemon.preflight import refuse_reload
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
@@ -457,6 +458,7 @@ class Gateway:
         self._drain(self.clock())  # the bytes received so far, under the config they came with
         try:
             new = self._reload()
+            refuse_reload(self.cfg, new)  # all or nothing: a changed wire that cannot work refuses it
         except ConfigError as err:
             self.counters.config_reload_errors += 1
             log.error("reload refused, keeping the running config: %s", err)
