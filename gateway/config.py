@@ -8,6 +8,7 @@ is None has none on purpose (the board's port: a gateway must not guess its wire
 """
 from __future__ import annotations
 
+import difflib
 import ipaddress
 import math
 import tomllib
@@ -248,33 +249,45 @@ _KIND_NAMES = {bool: "true or false", int: "a whole number", float: "a number", 
 
 
 def validate(data: dict[str, Any], source: str) -> Config:
+    """The settings in `data`, or one ConfigError listing every problem, one line each."""
     by_section = {s: {k.name: k for k in SCHEMA if k.section == s} for s in SECTIONS}
     values = {s: {k.name: k.default for k in SCHEMA if k.section == s} for s in SECTIONS}
+    problems: list[str] = []
     for section, table in data.items():
         if section not in by_section:
-            raise ConfigError(f"{source}: unknown section [{section}] (known: {', '.join(SECTIONS)})")
+            problems.append(f"unknown section [{section}] (known: {', '.join(SECTIONS)})")
+            continue
         if not isinstance(table, dict):
-            raise ConfigError(f"{source}: [{section}] must be a table")
+            problems.append(f"[{section}] must be a table")
+            continue
         for name, value in table.items():
             key = by_section[section].get(name)
             if key is None:
-                raise ConfigError(f"{source}: unknown key {section}.{name}")
+                near = difflib.get_close_matches(name, by_section[section], n=1)
+                problems.append(f"unknown key {section}.{name} " + (
+                    f"(did you mean {section}.{near[0]}?)" if near else
+                    f"(known in [{section}]: {', '.join(by_section[section])})"))
+                continue
             ok, value = _type_ok(key, value)
             if not ok:
-                raise ConfigError(f"{source}: {key.dotted} = {value!r} must be {_KIND_NAMES[key.kind]}")
+                problems.append(f"{key.dotted} = {value!r} must be {_KIND_NAMES[key.kind]}")
+                continue
             complaint = key.check(value) if key.check else None
             if complaint:
-                raise ConfigError(f"{source}: {key.dotted} = {value!r} {complaint}")
+                problems.append(f"{key.dotted} = {value!r} {complaint}")
+                continue
             values[section][name] = value
     if values["can"]["min_interval_ms"] > values["can"]["period_ms"]:
-        raise ConfigError(f"{source}: can.min_interval_ms must not exceed can.period_ms")
+        problems.append("can.min_interval_ms must not exceed can.period_ms")
     if values["serial"]["reconnect_min_s"] > values["serial"]["reconnect_max_s"]:
-        raise ConfigError(f"{source}: serial.reconnect_min_s must not exceed serial.reconnect_max_s")
+        problems.append("serial.reconnect_min_s must not exceed serial.reconnect_max_s")
     if values["serial"]["stale_after_ms"] > values["serial"]["lost_after_ms"]:
         # a lost board whose values are not yet stale would be published as fresh
-        raise ConfigError(f"{source}: serial.stale_after_ms must not exceed serial.lost_after_ms")
+        problems.append("serial.stale_after_ms must not exceed serial.lost_after_ms")
     if not (values["modbus"]["tcp_enabled"] or values["modbus"]["rtu_enabled"] or values["can"]["enabled"]):
-        raise ConfigError(f"{source}: no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled or can.enabled")
+        problems.append("no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled or can.enabled")
+    if problems:
+        raise ConfigError("\n".join(f"{source}: {p}" for p in problems))
     return Config(values, source)
 
 
