@@ -24,6 +24,7 @@ as they are are not checked again (the running daemon holds them).
 """
 from __future__ import annotations
 
+import importlib.util
 import socket
 from dataclasses import dataclass
 
@@ -65,7 +66,11 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
                              "not set: set it to the board's serial device (e.g. /dev/ttyUSB0 or "
                              "/dev/serial/by-id/…), or to \"emulated\" for the built-in virtual board"))
     elif port == EMULATED:
-        found.append(Finding("serial.port", "note", "the built-in emulated board: every value is simulated"))
+        if importlib.util.find_spec("scipy") is None:  # the simulator behind it is an offline tool
+            found.append(Finding("serial.port", "error", "the emulated board needs the offline tools: "
+                                 "pip install 'adxl-gateway[offline]'"))
+        else:
+            found.append(Finding("serial.port", "note", "the built-in emulated board: every value is simulated"))
     else:
         found += _link("serial.port", check_serial_port(port))
     if cfg.estimator.drift_model and changed("estimator", "drift_model"):
