@@ -77,6 +77,7 @@ STOPS_SCORED = 3
 FLAG_WITHIN_S = 2.0
 ERROR_GOAL_M = 5e-3
 POLL_S = 0.02
+START_LIMIT_S = 300
 HELLO_REPORT = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 
 
@@ -230,7 +231,9 @@ def write_config(path: Path, link: Path, port: int, state: Path, start_at_rest: 
 def start_daemon(config: Path, port: int, pty: PtyPort, log) -> subprocess.Popen:
     proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "run", "--config", str(config)],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=log)
-    deadline = time.monotonic() + 60
+    # generous: the first start after an edit compiles the kernels anew (gateway/compiled_cache.py),
+    # minutes on a loaded 2-core machine; the scores do not depend on it
+    deadline = time.monotonic() + START_LIMIT_S
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             raise SystemExit(f"the daemon exited with {proc.returncode}: see {log.name}")
@@ -238,7 +241,7 @@ def start_daemon(config: Path, port: int, pty: PtyPort, log) -> subprocess.Popen
             return proc
         time.sleep(0.02)
     proc.kill()
-    raise SystemExit("the daemon never opened the board port within 60 s")
+    raise SystemExit(f"the daemon never opened the board port within {START_LIMIT_S} s")
 
 
 def write_hostile_state(path: Path) -> None:

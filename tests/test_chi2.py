@@ -26,7 +26,7 @@ def test_the_daemon_imports_none_of_the_offline_libraries():
     import sys
 
     offline = ("scipy.special", "scipy.stats", "scipy.signal", "scipy.optimize", "scipy.ndimage",
-               "scipy.interpolate", "pyarrow", "polars", "matplotlib", "tqdm", "PIL", "fontTools")
+               "scipy.interpolate", "pyarrow", "polars", "matplotlib", "tqdm", "PIL", "fontTools", "rich")
     code = ("import sys, gateway.daemon.supervisor, gateway.daemon.settings, gateway.commands.run; "
             f"print(sorted(m for m in sys.modules if m.startswith({offline!r})))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -45,7 +45,7 @@ def test_dependencies_are_ranges_and_constraints_pin_each_inside_its_range():
     assert not {r.name for r in runtime + offline} & TEST_ONLY
     # the daemon's install carries none of the offline tools' libraries (tests/test_chi2.py:
     # the daemon imports none of them)
-    assert not {r.name for r in runtime} & {"scipy", "matplotlib", "pyarrow", "polars", "tqdm"}
+    assert not {r.name for r in runtime} & {"scipy", "matplotlib", "pyarrow", "polars", "tqdm", "rich"}
 
 
 def test_the_installed_code_never_imports_the_test_only_libraries():

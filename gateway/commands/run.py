@@ -10,7 +10,6 @@ from typing import NoReturn
 
 from gateway.config import Config, load_config
 from gateway.daemon.preflight import refuse_unrunnable
-from gateway.daemon.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
 
@@ -70,6 +69,8 @@ def serve(cfg: Config, reload) -> int:
     logging.getLogger().setLevel(cfg.service.log_level.upper())
     if not cfg.service.view:
         return asyncio.run(Gateway(cfg, reload=reload).run())
+    from gateway.daemon.terminal_view import TerminalView  # rich: the [offline] extra (preflight checks)
+
     with TerminalView() as view:  # log lines above, the view below, until the daemon ends
         return asyncio.run(Gateway(cfg, reload=reload, view=view).run())
 

@@ -73,6 +73,9 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
             found.append(Finding("serial.port", "note", "the built-in emulated board: every value is simulated"))
     else:
         found += _link("serial.port", check_serial_port(port))
+    if cfg.service.view and importlib.util.find_spec("rich") is None:
+        found.append(Finding("service.view", "error", "the live view needs the offline tools: "
+                             "pip install 'adxl-gateway[offline]'"))
     if cfg.estimator.drift_model and changed("estimator", "drift_model"):
         try:
             load_drift_model(cfg.estimator.drift_model)

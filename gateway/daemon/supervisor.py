@@ -29,7 +29,7 @@ import math
 import signal
 import time
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import can
 
@@ -45,8 +45,10 @@ from gateway.daemon.preflight import refuse_reload
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
-from gateway.daemon.terminal_view import TerminalView
 from gateway.daemon.wires import Wires
+
+if TYPE_CHECKING:  # rich, behind the view, is an offline tool's library (pyproject's [offline])
+    from gateway.daemon.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
 
@@ -68,6 +70,12 @@ class Counters:
     config_reloads: int = 0
     config_reload_errors: int = 0
     watchdog_pings: int = 0
+
+
+def _terminal_view() -> TerminalView:
+    from gateway.daemon.terminal_view import TerminalView
+
+    return TerminalView()
 
 
 class Gateway:
@@ -119,7 +127,7 @@ class Gateway:
         self.intake = BoardIntake(self.pipeline)
         self.board = BoardPort(lambda: self.cfg)
         self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
-        self.view = view if view is not None else (TerminalView() if cfg.service.view else None)
+        self.view = view if view is not None else (_terminal_view() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
         self._reloaded_at: float | None = None
