@@ -132,6 +132,7 @@ class Gateway:
         self._port_just_read = False
         self._reloaded_at: float | None = None
         self._stop_requested = asyncio.Event()
+        self._sigint = False
         self._ready = asyncio.Event()
         self._started = False
         self._stopped = False
@@ -190,7 +191,7 @@ class Gateway:
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
         loop.add_signal_handler(signal.SIGTERM, self.request_stop)
-        loop.add_signal_handler(signal.SIGINT, self.request_stop)
+        loop.add_signal_handler(signal.SIGINT, self._interrupted)
         loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self._reload_logged())))
         async with self:
             stopper = asyncio.create_task(self._stop_requested.wait())
@@ -198,7 +199,12 @@ class Gateway:
             stopper.cancel()
             if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
                 raise self._board_task.exception()
-        return 0
+        # Ctrl-C is "interrupted" (exit 130, the README's table); SIGTERM an orderly stop (0)
+        return 130 if self._sigint else 0
+
+    def _interrupted(self) -> None:
+        self._sigint = True
+        self.request_stop()
 
     async def stop(self) -> None:
         """Cancel, then gather; close the port and servers; save the state."""
