@@ -446,7 +446,7 @@ class ModbusServer:
             else:
                 self._restore_exception_handler()
             self._restore_exception_handler = None
-        self.peer_log.flush()
+        self.peer_log.flush(everything=True)  # the counts held back: said before the server goes
 
     # ------------------------------------------------------- start helpers --
     async def _start_tcp(self) -> None:

@@ -305,9 +305,29 @@ def test_peer_errors_are_logged_once_per_interval_with_a_count(caplog) -> None:
     with caplog.at_level(logging.DEBUG):
         run(scenario())
     lines = [r for r in caplog.records if r.levelno >= logging.WARNING]
-    # one line per (peer, kind) for a 60 s interval, plus nothing from pymodbus
-    assert len(lines) <= 3, [r.getMessage() for r in lines]
-    assert sum(len(r.getMessage()) for r in lines) < 600
+    # one line per (peer, kind) for a 60 s interval and one with its count when the server
+    # stops, plus nothing from pymodbus
+    assert len(lines) <= 6, [r.getMessage() for r in lines]
+    assert sum(len(r.getMessage()) for r in lines) < 1200
+
+
+def test_a_hint_written_every_cycle_is_logged_once_per_interval(caplog) -> None:
+    """A PLC writes CMD_HINT_AT_REST every cycle, as the register map says: one line, not one per write."""
+    from tests.test_modbus_server import Recorder
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True, peer_log_interval_s=60), Recorder()) as server:
+            async with tcp_client(server.tcp_port) as plc:
+                for _ in range(50):
+                    assert not (await plc.write_register(BY_NAME["CMD_HINT_AT_REST"].address, 1,
+                                                         device_id=1)).isError()
+            assert server.counters.commands_done == 50
+
+    with caplog.at_level(logging.INFO, logger="drivers.modbus_server"):
+        run(scenario())
+    lines = [r.getMessage() for r in caplog.records if "HINT_AT_REST" in r.getMessage()]
+    # the first at once, the 49 others counted in one line when the server stops
+    assert len(lines) == 2 and "49 times" in lines[1], lines
 
 
 # --------------------------------------------------------------------------- #
