@@ -145,6 +145,17 @@ def test_bad_foreign_files_are_one_line_exit_2(tmp_path, capsys, content, args, 
     assert not (tmp_path / "o.csv").exists()
 
 
+@pytest.mark.parametrize("out, message", [
+    ("o.xlsx", "not a recording's extension: .csv, .parquet, .pq"),  # it used to get CSV silently
+    ("missing/o.csv", "no directory"),
+])
+def test_an_output_it_cannot_write_is_refused_before_the_work(tmp_path, capsys, out, message):
+    src = _write(tmp_path, "t,acc\n" + rows(30))
+    code = cli_main(["import", str(src), "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and message in err, err
+
+
 def test_a_bad_foreign_file_in_a_process_of_its_own(tmp_path):
     src = _write(tmp_path, "t,acc\n" + rows(3) + "soon,1\n")
     r = adxlgw_process("import", src, "--arrival-col", "t", "--acc-col", "acc", "--out", tmp_path / "o.csv")

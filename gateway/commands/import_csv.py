@@ -23,7 +23,9 @@ from gateway.core.retiming import (Retiming, RetimingError, RetimingSettings, on
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
 from gateway.offline.progress import progress_bar
-from gateway.offline.recording import HINT_COLUMN, MAX_LINE_BYTES, cell_text, line_blocks, write_recording
+from gateway.offline.recording import (
+    HINT_COLUMN, MAX_LINE_BYTES, cell_text, check_output, line_blocks, write_recording,
+)
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}
 TIME_SCALES = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
@@ -320,6 +322,7 @@ def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
+    check_output(args.out)  # before the work
     values, lines, skipped = read_foreign(args)
     time_col = args.arrival_col or args.time_col
     need = RetimingSettings().min_rows if args.arrival_col else 2
