@@ -1,4 +1,4 @@
-"""Faults played into the real daemon on a pty, scored against the truth (issue 13, part 4).
+"""Faults played into the real daemon on a pty, scored against the truth (issues 13 and 31).
 
     PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py [--cases NAME,...] [--seed 0]
     PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py --trace "outage 2 s"   # every read of one case
@@ -13,6 +13,12 @@ keeps its gap) at each phase; kill -9 of the daemon mid-cruise and a start again
 same state file (with start_at_rest false on the restart — what a restart can honestly
 promise — and with the same config); a board reset mid-cruise (a HELLO, seq from 0); a
 5 mg offset step mid-cruise; 2 s and 8 s outages from mid-cruise (nothing on the line).
+The restarts, the board reset and the outages each with the first true stop after the
+fault lasting 1, 5 or 20 s (the paper's dwell, a PLC's pause, and longer than the
+estimator's quiet_stop_s, where a stop is accepted on quiet alone). Two more: an orderly
+stop (SIGTERM) at rest at +0.3 m, the axis moved back to 0 while the gateway is down,
+a start again with start_at_rest = true; and a hostile but plausible state file (9999 m
+with the orderly-stop mark) before the first start.
 The restarts use a longer, robot-like move (0.8 m at 0.25 m/s, 3.1 s of cruise) and kill
 1 s into its cruise: the daemon takes 0.3–2 s to answer again on this machine, and on the
 paper's 0.2 s cruise it would come back with the axis already at rest.
@@ -28,14 +34,18 @@ Per case: the error at each of the next real stops after the fault (the last rea
 the stop; V = VALID set there), how long after the fault VALID was first seen clear and
 POSITION_UNTRUSTED first seen set, whether VALID stayed clear until a read inside a true
 stop (then VALID again: the error there), reads with VALID set and |error| > 5 mm
-after the fault, and the
-share of reads with |error| ≤ 3·POSITION_STD. The goal (issue 13): error ≤ 5 mm at the
-next real stop, or flagged in time and kept until a stop; coverage ≥ 99 % over all cases.
+after the fault, reads VALID with |error| > 3·POSITION_STD (over the whole run: never
+confidently wrong), and the share of reads with |error| ≤ 3·POSITION_STD. The goal (issue
+31): no read VALID beyond 3σ in any case ("goal met"); issue 13's (error ≤ 5 mm at the
+next real stop, or flagged within 2 s and kept until a stop) is in the columns before it.
+The first daemon start after an edit of gateway/ or drivers/ compiles the kernels anew:
+run the benchmark from a checkout that is not being edited.
 """
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import logging
 import math
 import multiprocessing as mp
@@ -58,7 +68,8 @@ from drivers.board_protocol import encode_hello, encode_sample_records  # noqa: 
 from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register  # noqa: E402
 from drivers.published_values import StatusBits  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
-from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
+from gateway.core.motion_profiles import (  # noqa: E402
+    PiecewiseConstantAcceleration, Segment, StrokeSettings, reciprocating_strokes)
 from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
 from gateway.core.simulator import ErrorTerm, simulate  # noqa: E402
 
@@ -75,16 +86,25 @@ STOPS_SCORED = 3
 FLAG_WITHIN_S = 2.0
 ERROR_GOAL_M = 5e-3
 POLL_S = 0.02
+START_LIMIT_S = 300
 HELLO_REPORT = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 
 
 @dataclass(frozen=True)
 class Case:
     name: str
-    kind: str  # none, gap, outage, restart, reset, offset
+    kind: str  # none, gap, outage, restart, reset, offset, moved (while down), hostile (state file)
     phase: str = "cruise"
     length_s: float = 0.0  # gap or outage
     restart_at_rest: bool = False  # restart: start_at_rest on the second start
+    rest_s: float = STROKE.dwell_s  # the first true stop after the fault lasts this long
+
+
+#: the rests after a fault: the paper's 1 s dwell, a PLC's pause, and one longer than the
+#: estimator's quiet_stop_s (10 s), where a stop is accepted on quiet alone
+RESTS_S = (1.0, 5.0, 20.0)
+#: the hostile state file: a number within the state file's own limits, the orderly-stop mark
+HOSTILE_POSITION_M = 9999.0
 
 
 def all_cases() -> list[Case]:
@@ -92,13 +112,24 @@ def all_cases() -> list[Case]:
     for gap_ms in (5, 10, 20, 50):
         for phase in PHASE_S:
             cases.append(Case(f"gap {gap_ms} ms, {phase}", "gap", phase, gap_ms / 1000))
+    for rest_s in RESTS_S:
+        r = f", rest {rest_s:g} s"
+        cases += [
+            Case("restart (kill -9), start_at_rest=false on restart" + r, "restart", rest_s=rest_s),
+            Case("restart (kill -9), same config (start_at_rest=true)" + r, "restart", restart_at_rest=True,
+                 rest_s=rest_s),
+            Case("board reset (HELLO, seq from 0)" + r, "reset", rest_s=rest_s),
+            Case("outage 2 s" + r, "outage", length_s=2.0, rest_s=rest_s),
+            Case("outage 8 s" + r, "outage", length_s=8.0, rest_s=rest_s),
+        ]
     cases += [
-        Case("restart (kill -9), start_at_rest=false on restart", "restart"),
-        Case("restart (kill -9), same config (start_at_rest=true)", "restart", restart_at_rest=True),
-        Case("board reset (HELLO, seq from 0)", "reset"),
         Case("offset step 5 mg", "offset"),
-        Case("outage 2 s", "outage", length_s=2.0),
-        Case("outage 8 s", "outage", length_s=8.0),
+        # an orderly stop (SIGTERM) at rest at +0.3 m, the axis moved back to 0 while the
+        # gateway was down, a start again with start_at_rest = true
+        Case("orderly stop at rest, axis moved while down (start_at_rest=true)", "moved", restart_at_rest=True,
+             length_s=3.0),
+        # a state file within its own limits, with the orderly-stop mark: 9999 m
+        Case(f"state file says {HOSTILE_POSITION_M:g} m, stopped at rest (start_at_rest=true)", "hostile"),
     ]
     return cases
 
@@ -124,7 +155,22 @@ class BoardScript:
     fault_slot: int  # first slot the fault touches
     fault_end_slot: int  # first slot after it (== fault_slot for an instant fault)
     stops: list[tuple[int, int]]  # true rests: first and last slot
-    kill_slot: int | None = None  # restart: when the daemon is killed
+    kill_slot: int | None = None  # restart: when the daemon is killed (moved: stopped in order)
+    restart_slot: int | None = None  # moved: when it is started again (else: at once)
+
+
+def with_rest_after(profile: PiecewiseConstantAcceleration, after_s: float, rest_s: float,
+                    ) -> PiecewiseConstantAcceleration:
+    """The profile with its first rest that begins after `after_s` lasting `rest_s`."""
+    segments = list(profile.segments)
+    t = v = 0.0
+    for k, seg in enumerate(segments):
+        if seg.acc_mps2 == 0.0 and abs(v) < 1e-12 and t > after_s:
+            segments[k] = Segment(rest_s, 0.0)
+            break
+        t += seg.duration_s
+        v += seg.acc_mps2 * seg.duration_s
+    return PiecewiseConstantAcceleration(segments)
 
 
 def rest_intervals(ref_vel_mps: np.ndarray, min_slots: int) -> list[tuple[int, int]]:
@@ -136,20 +182,37 @@ def rest_intervals(ref_vel_mps: np.ndarray, min_slots: int) -> list[tuple[int, i
 def board_script(case: Case, seed: int = 0) -> BoardScript:
     # long enough for the fault, the daemon's way back and STOPS_SCORED stops after it
     stroke = LONG_STROKE if case.kind == "restart" else STROKE
-    busy_s = case.length_s + (2.0 if case.kind == "restart" else 0.5)
-    period_s = 2 * stroke.max_speed_mps / stroke.max_acc_mps2 + (
-        stroke.stroke_m - stroke.max_speed_mps ** 2 / stroke.max_acc_mps2) / stroke.max_speed_mps + stroke.dwell_s
+    busy_s = case.length_s + (2.0 if case.kind in ("restart", "moved") else 0.5)
+    move_s = 2 * stroke.max_speed_mps / stroke.max_acc_mps2 + (
+        stroke.stroke_m - stroke.max_speed_mps ** 2 / stroke.max_acc_mps2) / stroke.max_speed_mps
+    period_s = move_s + stroke.dwell_s
     strokes = FAULT_STROKE + 1 + math.ceil(busy_s / period_s) + STOPS_SCORED
     settings = replace(stroke, strokes=strokes)
     stroke_start_s = settings.rest_start_s + FAULT_STROKE * period_s
-    centre_s = stroke_start_s + (LONG_CRUISE_AT_S if case.kind == "restart" else PHASE_S[case.phase])
-    fault_s = centre_s - case.length_s / 2 if case.kind == "gap" else centre_s
+    if case.kind == "moved":
+        # stopped in order in the dwell after the fault stroke (at +0.3 m), the axis back at
+        # 0 while the gateway is down (the dwell lasts the downtime), started again there
+        fault_s = stroke_start_s + move_s + 0.5 * stroke.dwell_s
+        profile = with_rest_after(reciprocating_strokes(settings), fault_s, stroke.dwell_s + case.length_s)
+    elif case.kind == "hostile":
+        fault_s = 0.0
+        profile = build_profile(ScenarioSettings(strokes=settings))
+    else:
+        centre_s = stroke_start_s + (LONG_CRUISE_AT_S if case.kind == "restart" else PHASE_S[case.phase])
+        fault_s = centre_s - case.length_s / 2 if case.kind == "gap" else centre_s
+        recovered_s = fault_s + case.length_s + (1.0 if case.kind == "restart" else 0.0)
+        profile = with_rest_after(build_profile(ScenarioSettings(strokes=settings)), recovered_s, case.rest_s)
     terms = (OffsetStep(fault_s, 5e-3),) if case.kind == "offset" else ()
-    run = simulate(build_profile(ScenarioSettings(strokes=settings)), seed=seed, error_terms=terms)
+    run = simulate(profile, seed=seed, error_terms=terms)
     # the board's own period (its t2 counts) is not exactly the writer's 2 ms slot: the
     # fault's slot is found on the simulated sample times, its length in board periods
     fault_slot = int(np.searchsorted(run.t_s, fault_s))
     end_slot = fault_slot + int(round(case.length_s / (run.t_s[1] - run.t_s[0])))
+    restart_slot = None
+    if case.kind == "moved":  # back in the gateway's hands once the axis rests at its new place
+        first_rest = next(a for a, _ in rest_intervals(run.ref_vel_mps, 1) if a > fault_slot)
+        restart_slot = first_rest + int(0.5 / SLOT_S)
+        end_slot = restart_slot
     seq = run.seq.astype(np.int64)
     if case.kind == "reset":
         seq[fault_slot:] -= seq[fault_slot]  # the board counts from 0 again after its HELLO
@@ -162,7 +225,8 @@ def board_script(case: Case, seed: int = 0) -> BoardScript:
         frames[fault_slot] = encode_hello(uptime_s=0, **HELLO_REPORT) + frames[fault_slot]
     return BoardScript(frames, run.ref_pos_m, fault_slot, end_slot,
                        rest_intervals(run.ref_vel_mps, int(0.5 / SLOT_S)),
-                       kill_slot=fault_slot if case.kind == "restart" else None)
+                       kill_slot=fault_slot if case.kind in ("restart", "moved") else None,
+                       restart_slot=restart_slot)
 
 
 # --------------------------------------------------------------------------- the daemon
@@ -176,7 +240,9 @@ def write_config(path: Path, link: Path, port: int, state: Path, start_at_rest: 
 def start_daemon(config: Path, port: int, pty: PtyPort, log) -> subprocess.Popen:
     proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "run", "--config", str(config)],
                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=log)
-    deadline = time.monotonic() + 60
+    # generous: the first start after an edit compiles the kernels anew (gateway/compiled_cache.py),
+    # minutes on a loaded 2-core machine; the scores do not depend on it
+    deadline = time.monotonic() + START_LIMIT_S
     while time.monotonic() < deadline:
         if proc.poll() is not None:
             raise SystemExit(f"the daemon exited with {proc.returncode}: see {log.name}")
@@ -184,7 +250,15 @@ def start_daemon(config: Path, port: int, pty: PtyPort, log) -> subprocess.Popen
             return proc
         time.sleep(0.02)
     proc.kill()
-    raise SystemExit("the daemon never opened the board port within 60 s")
+    raise SystemExit(f"the daemon never opened the board port within {START_LIMIT_S} s")
+
+
+def write_hostile_state(path: Path) -> None:
+    """A state file within the file's own limits that says the axis stood, in order, far away."""
+    now = time.time()
+    path.write_text(json.dumps({"version": 1, "tare_offset_m": 0.0, "bias_estimate_mps2": 0.0,
+                                "last_position_m": HOSTILE_POSITION_M, "saved_at_unix_s": now,
+                                "stopped_at_rest_unix_s": now}))
 
 
 # --------------------------------------------------------------------------- the poller
@@ -226,6 +300,8 @@ def play(case: Case, script: BoardScript, tmp: Path) -> tuple[np.ndarray, list[t
     port = free_port()
     config = tmp / "gw.toml"
     write_config(config, pty.link, port, tmp / "state.json", start_at_rest=True)
+    if case.kind == "hostile":
+        write_hostile_state(tmp / "state.json")
     log = open(tmp / "daemon.log", "w")
     daemon = start_daemon(config, port, pty, log)
     start_ns = time.monotonic_ns() + int(1.0e9)
@@ -242,9 +318,15 @@ def play(case: Case, script: BoardScript, tmp: Path) -> tuple[np.ndarray, list[t
         if script.kill_slot is not None:
             due = start_ns + int(script.kill_slot * SLOT_S * 1e9)
             time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
-            daemon.kill()  # SIGKILL: no shutdown, no last state write
+            if case.kind == "moved":  # an orderly stop: the last state is written, at rest
+                daemon.send_signal(signal.SIGTERM)
+            else:
+                daemon.kill()  # SIGKILL: no shutdown, no last state write
             daemon.wait(timeout=10)
             kill_ns = time.monotonic_ns()
+            if script.restart_slot is not None:
+                due = start_ns + int(script.restart_slot * SLOT_S * 1e9)
+                time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
             write_config(config, pty.link, port, tmp / "state.json", start_at_rest=case.restart_at_rest)
             daemon = start_daemon(config, port, pty, log)
         written = w_recv.recv()
@@ -272,6 +354,7 @@ class Score:
     revalidated_in_stop: bool | None = None  # None: still flagged at the end of the run
     revalidated_error_m: float | None = None
     valid_wrong_reads: int = 0
+    valid_beyond_3sigma: int = 0  # reads VALID with |error| > 3·POSITION_STD (or σ unknown): never
     covered: int = 0
     finite: int = 0
     reads: int = 0
@@ -283,10 +366,12 @@ class Score:
                 and self.clear_delay_s is not None and self.clear_delay_s <= FLAG_WITHIN_S
                 and self.revalidated_in_stop is not False)
 
-    @property
-    def meets_goal(self) -> bool:
-        first_ok = bool(self.stop_errors_m) and abs(self.stop_errors_m[0]) <= ERROR_GOAL_M
-        return first_ok or self.flagged_ok
+    def meets_goal(self, case: Case) -> bool:
+        """The goal (issue 31): no read VALID beyond 3·POSITION_STD, whatever the fault.
+        (Issue 13's — error ≤ 5 mm at the next stop, or flagged within 2 s and kept until
+        a true stop — is shown in the columns before: a restart cannot flag within 2 s
+        while the daemon is down.)"""
+        return self.valid_beyond_3sigma == 0
 
 
 def align(written: np.ndarray, frames: list[bytes], reads: list[tuple], kill_ns: int | None):
@@ -332,6 +417,10 @@ def score(case: Case, script: BoardScript, written: np.ndarray, reads: list[tupl
     s.covered = int((np.abs(err[finite]) <= 3 * std[finite]).sum())
     valid = (status & StatusBits.VALID) != 0
     untrusted = (status & StatusBits.POSITION_UNTRUSTED) != 0
+    # VALID is a promise about the reported σ too: a read VALID outside ±3σ of the truth is
+    # confidently wrong, whatever the size of the error (a NaN σ promises nothing: counted)
+    beyond = ~(np.abs(err) <= 3 * std)
+    s.valid_beyond_3sigma = int((seen & valid & beyond).sum())
     if case.kind == "none":
         return s
     fault_ns = start_ns + int(script.fault_slot * SLOT_S * 1e9)
@@ -372,8 +461,9 @@ def row(case: Case, s: Score) -> str:
             False: f"**no** ({mm(s.revalidated_error_m)} mm)"}[s.revalidated_in_stop] \
         if s.clear_delay_s is not None else "–"
     cover = f"{100 * s.covered / s.finite:.1f} % of {s.finite}" if s.finite else "–"
-    goal = "–" if case.kind == "none" else ("yes" if s.meets_goal else "**no**")
-    return (f"| {case.name} | {stops} | {flag} | {kept} | {s.valid_wrong_reads} | {cover} | {goal} |")
+    goal = "yes" if s.meets_goal(case) else "**no**"
+    return (f"| {case.name} | {stops} | {flag} | {kept} | {s.valid_wrong_reads} | {s.valid_beyond_3sigma} | {cover} "
+            f"| {goal} |")
 
 
 def print_trace(case: Case, script: BoardScript, written, reads, start_ns: int, kill_ns: int | None) -> None:
@@ -420,8 +510,9 @@ def main() -> None:
     print("errors in mm (daemon − truth); at stops: the last read in each of the next "
           f"{STOPS_SCORED} true stops after the fault, V = VALID set there")
     print("| case | error at the next stops (mm) | VALID clear / UNTRUSTED set after the fault | VALID clear until a "
-          "true stop (error when VALID again) | reads VALID with \\|error\\| > 5 mm | \\|error\\| ≤ 3σ | goal met |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+          "true stop (error when VALID again) | reads VALID with \\|error\\| > 5 mm | reads VALID with \\|error\\| > 3σ "
+          "| \\|error\\| ≤ 3σ | goal met |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     covered = finite = 0
     for case in cases:
         script = board_script(case, args.seed)

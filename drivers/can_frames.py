@@ -111,7 +111,7 @@ class AckResult(enum.IntEnum):
     FAILED = 2  # the daemon's handler raised
     DISABLED = 3  # commands over CAN are not enabled
     CRC_ERROR = 4
-    COUNTER_ERROR = 5  # counter 15, or the same counter as the previous command
+    COUNTER_ERROR = 5  # counter 15, or not 1..MAX_COUNTER_DELTA ahead of the previous command (a replay)
     UNKNOWN_COMMAND = 6
     BAD_LENGTH = 7
 
@@ -405,12 +405,25 @@ class CommandCheck:
     counter: int
 
 
+#: How far a command's counter may advance over the previous accepted one (E2E profile 1's
+#: MaxDeltaCounter): 1 is the next frame, up to 3 tolerates two command frames lost in a row.
+#: An older frame (a replay) or the same one again lies behind: refused.
+MAX_COUNTER_DELTA = 3
+
+
+def counter_delta(counter: int, last_counter: int) -> int:
+    """How far `counter` is ahead of `last_counter` on the 0..14 ring (0: the same)."""
+    return (counter - last_counter) % (COUNTER_MAX + 1)
+
+
 def check_command(payload: bytes, last_counter: int | None, table: FrameTable = DEFAULT_FRAMES) -> CommandCheck:
     """E2E and content check of an ADXL_Command payload.
 
-    `last_counter` is the counter of the previous valid command (None: none yet); a
-    repeat of it is refused, any other value 0..14 is accepted (commands are rare, so
-    a gap only means frames were lost or the sender restarted).
+    `last_counter` is the counter of the previous accepted command (None: none since the
+    gateway started, so any counter 0..14 is accepted); the counter must be ahead of it
+    by 1..MAX_COUNTER_DELTA, so a repeat or an older frame replayed is refused
+    (COUNTER_ERROR). A sender that restarted re-synchronises with two frames in a row
+    (CanPublisher: COMMAND_RESYNC_S).
     """
     frame = table.command
     if len(payload) != frame.dlc:
@@ -421,7 +434,8 @@ def check_command(payload: bytes, last_counter: int | None, table: FrameTable = 
     code, counter = raw["Cmd_Code"], raw["Cmd_Counter"]
     if e2e_p01_crc(frame.data_id, payload) != raw["Cmd_CRC"]:
         return CommandCheck(AckResult.CRC_ERROR, None, code, counter)
-    if counter > COUNTER_MAX or counter == last_counter:
+    if counter > COUNTER_MAX or (last_counter is not None
+                                 and not 1 <= counter_delta(counter, last_counter) <= MAX_COUNTER_DELTA):
         return CommandCheck(AckResult.COUNTER_ERROR, None, code, counter)
     try:
         command = Command(code)

@@ -33,6 +33,16 @@ A failed send (can.CanError: buffer full, bus off, interface down) is counted an
 logged at a limited rate; the loop keeps going. Commands arrive through a python-can
 Notifier; only frames that pass the E2E check are acted upon, and only when commands
 are enabled. Every command frame is answered with an ADXL_CommandAck.
+
+Replays: a command's counter must be 1..MAX_COUNTER_DELTA ahead of the last accepted
+one's, so an older frame played again (or the same one) is refused as COUNTER_ERROR and
+counted (commands_rejected, Modbus CAN_REFUSED_COMMANDS). A sender that restarted (its
+counter anywhere) is back in step after two frames with consecutive counters within
+COMMAND_RESYNC_S: the first is refused, the second carried out. A limit: the counter is 4
+bits without a key, so a recorded pair of consecutive frames played again within the
+window, or a first frame after the gateway starts, cannot be told from the sender's own
+(what the bus's access control is for). Refused frames are logged as one line per reason
+and `refused_log_interval_s`, with a count (drivers/peer_log.py).
 """
 
 from __future__ import annotations
@@ -58,6 +68,7 @@ from .can_frames import (
     encode_ack,
     next_counter,
 )
+from .peer_log import PeerLogLimiter
 from .published_values import NOTHING_PUBLISHED, CommandCallback, ValuesSource, current
 
 log = logging.getLogger(__name__)
@@ -96,6 +107,8 @@ class CanPublisherConfig:
     bus_options: Mapping[str, Any] = field(default_factory=dict)
     #: At most one log line per this interval about failing sends.
     send_error_log_interval_s: float = 10.0
+    #: Refused command frames: one log line per reason and this interval, with a count.
+    refused_log_interval_s: float = 10.0
 
     def __post_init__(self) -> None:
         if not self.period_ms > 0:
@@ -123,6 +136,11 @@ class CanCounters:
 
 BusFactory = Callable[..., can.BusABC]
 
+#: A sender that restarted is back in step when its next frame, one counter ahead of a
+#: refused one, comes within this long (a PLC resends an unacknowledged command within
+#: a few cycles; a replayed pair from long ago is not within it).
+COMMAND_RESYNC_S = 1.0
+
 
 class CanPublisher:
     """Sends ADXL_Position/ADXL_Velocity cyclically and serves ADXL_Command.
@@ -149,10 +167,15 @@ class CanPublisher:
         self._alive = {frame.frame_id: 0 for frame in config.frames.cyclic}
         self._alive[config.frames.ack.frame_id] = 0
         self._last_command_counter: int | None = None
+        # a refused frame's counter and time: the next frame one ahead of it within
+        # COMMAND_RESYNC_S puts a restarted sender back in step
+        self._resync_from: tuple[int, float] | None = None
+        self._refused_log = PeerLogLimiter(log, config.refused_log_interval_s)
         self._bus: can.BusABC | None = None
         self._notifier: can.Notifier | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
+        self._flush_timer: asyncio.TimerHandle | None = None
         self._running = False
         self._in_cycle = False  # building the values of a transmission (see update)
         self._period_s = config.period_ms / 1000.0
@@ -180,6 +203,11 @@ class CanPublisher:
     def send_errors(self) -> int:
         """counters.send_errors, without making a snapshot (read once per values build)."""
         return self._counts["send_errors"]
+
+    @property
+    def refused_commands(self) -> int:
+        """counters.commands_rejected, without making a snapshot (read once per values build)."""
+        return self._counts["commands_rejected"]
 
     @property
     def running(self) -> bool:
@@ -248,17 +276,27 @@ class CanPublisher:
         self._running = True
         self._next_due = time.monotonic()
         self._arm_timer()
+        self._flush_timer = loop.call_later(cfg.refused_log_interval_s, self._flush_refused_log)
         log.info(
             "CAN publisher on %s:%s every %g ms%s", cfg.interface, cfg.channel, cfg.period_ms,
             f", also on update at most every {cfg.min_interval_ms:g} ms" if cfg.min_interval_ms is not None
             else ", in step with the updates" if cfg.sync_to_updates else "",
         )
 
+    def _flush_refused_log(self) -> None:
+        """The counts of refused frames held back, once per interval (see peer_log)."""
+        self._refused_log.flush()
+        self._flush_timer = self._loop.call_later(self.config.refused_log_interval_s, self._flush_refused_log)
+
     async def stop(self) -> None:
         self._running = False
         timer, self._timer = self._timer, None
         if timer is not None:
             timer.cancel()
+        flush, self._flush_timer = self._flush_timer, None
+        if flush is not None:
+            flush.cancel()
+            self._refused_log.flush(everything=True)
         notifier, self._notifier = self._notifier, None
         if notifier is not None:
             # Joins the reader thread (if any) in an executor so the loop keeps going.
@@ -362,9 +400,17 @@ class CanPublisher:
         ):
             return
         frames = self.frames
-        check = check_command(bytes(message.data), self._last_command_counter, frames)
+        payload = bytes(message.data)
+        check = check_command(payload, self._last_command_counter, frames)
+        if check.problem is AckResult.COUNTER_ERROR:
+            now = time.monotonic()
+            resync = self._resync_from
+            if resync is not None and now - resync[1] <= COMMAND_RESYNC_S:
+                check = check_command(payload, resync[0], frames)  # one ahead of the refused one?
+            self._resync_from = None if check.problem is None else (check.counter, now)
         if check.problem is None:
             self._last_command_counter = check.counter
+            self._resync_from = None
         result = self._act(check)
         ack_id = frames.ack.frame_id
         self._send(ack_id, encode_ack(check, result, self._alive[ack_id], frames))
@@ -373,11 +419,14 @@ class CanPublisher:
         if check.problem is not None or check.command is None:
             problem = check.problem or AckResult.UNKNOWN_COMMAND
             self._bump(commands_rejected=1)
-            log.warning("CAN command frame refused: %s (code %d)", problem.name, check.code)
+            self._refused_log.note(f"CAN {self.config.channel}", problem.name,
+                                   f"command frame refused: {problem.name} (code {check.code}, "
+                                   f"counter {check.counter})")
             return problem
         if not self.config.commands_enabled or self._on_command is None:
             self._bump(commands_rejected=1)
-            log.warning("CAN command %s refused: commands over CAN are disabled", check.command.name)
+            self._refused_log.note(f"CAN {self.config.channel}", "disabled",
+                                   f"command {check.command.name} refused: commands over CAN are disabled")
             return AckResult.DISABLED
         source = f"can:{self.config.channel}"
         try:
@@ -387,7 +436,9 @@ class CanPublisher:
             self._bump(commands_declined=1)
             return AckResult.FAILED
         self._bump(commands_accepted=int(done), commands_declined=int(not done))
-        log.info("CAN command %s: %s", check.command.name, "done" if done else "declined")
+        # a hint comes every PLC cycle: one line per command, result and interval
+        self._refused_log.note(f"CAN {self.config.channel}", f"{check.command.name} {done}",
+                               f"command {check.command.name}: {'done' if done else 'declined'}", logging.INFO)
         return AckResult.DONE if done else AckResult.DECLINED
 
     def _bump(self, **deltas: int) -> None:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from .published_values import PublishedValues, StatusBits
 
 #: Bump whenever a row is added, moved or changes meaning; the PLC can check it.
-MAP_VERSION = 3
+MAP_VERSION = 4
 
 PLC_INPUT_BASE = 30001
 PLC_HOLDING_BASE = 40001
@@ -230,13 +230,17 @@ REGISTERS: tuple[Register, ...] = (
              "server.refused_connections", wraps=True),
     Register("MODBUS_CLOSED_CONNECTIONS", _I, 48, _U32, "count", 1,
              "Modbus TCP connections the server closed: idle timeout, a malformed frame, or "
-             "making room for a priority client.", "server.closed_connections", wraps=True),
+             "making room for a newcomer at max_connections.", "server.closed_connections", wraps=True),
     Register("DEVICE_NAME", _I, 50, _STR, "", 1,
              "[modbus] device_name: ASCII, two characters per register (first in the high "
              "byte), NUL-padded; all zero when not configured.", "server.device_name"),
     Register("STATUS_EXT", _I, 66, _BITS, "", 1,
              "Second status word (StatusExtBits): 0 SIMULATED, 1 HINT_AT_REST, 2 HINT_MOVING, "
              "3 HINT_CONFLICT, 4 OFFSET_STEP, 5 STOP_BY_HINT.", "status_ext"),
+    Register("CAN_REFUSED_COMMANDS", _I, 67, _U32, "count", 1,
+             "CAN command frames refused since start: commands disabled, a CRC or length error, an "
+             "unknown code, a counter not 1..3 ahead of the last accepted one (a replay).",
+             "can_refused_commands", wraps=True),
     Register("CMD_TARE", _H, 0, _U16, "", 1,
              "Write 1: position := 0 here (tare). Reads 0 (auto-clear). Writing 0 does nothing.",
              "command.TARE"),

@@ -73,6 +73,12 @@ def _parity_kept(handle: serial.SerialBase, parity: str) -> bool:
 
 def tcp_listen_problem(host: str, port: int) -> str:
     """Why listening on (host, port) fails, found by trying it; a generic line if it works now."""
+    return tcp_listen_check(host, port) or f"cannot listen on {host}:{port} (it is free now: try again)"
+
+
+def tcp_listen_check(host: str, port: int) -> str | None:
+    """Why listening on (host, port) would fail now, found by binding it (and closing at
+    once); None when it would work. Port 0 checks only the address."""
     try:
         infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except socket.gaierror as err:
@@ -90,4 +96,4 @@ def tcp_listen_problem(host: str, port: int) -> str:
         if err.errno == errno.EADDRNOTAVAIL:
             return f"address {host} is not an address of this machine"
         return f"cannot listen on {host}:{port}: {err.strerror or err}"
-    return f"cannot listen on {host}:{port} (it is free now: try again)"
+    return None

@@ -15,9 +15,10 @@ its own handler whose transport knows the peer (pymodbus issue #2159 has the sam
 question; no public hook exists in 3.x).
 
 Connections (TCP), so a PLC is never locked out and a bad peer costs bounded resources
-(policy in drivers/modbus_admission.py): at most `max_connections`, priority clients
-(write_allow and priority_clients) always get in, idle connections are closed after
-`idle_timeout_s`. The MBAP header of every frame is checked here before pymodbus sees it:
+(policy in drivers/modbus_admission.py): at most `max_connections`; at the limit a
+newcomer gets in by closing the connection that has done least, never a priority client
+(write_allow and priority_clients) for a non-priority one; idle connections are closed
+after `idle_timeout_s`. The MBAP header of every frame is checked here before pymodbus sees it:
 a protocol id other than 0 or a length outside 2..254 cannot be resynchronised on a byte
 stream, so the connection is closed at once (counted in MODBUS_REJECTED_FRAMES) instead
 of waiting deaf for bytes that never complete the frame. Requests are answered in the
@@ -194,8 +195,9 @@ class ModbusServerConfig:
     #: RTU has no client address: whether the RS-485 master may write (also needs
     #: writes_enabled).
     rtu_writes_enabled: bool = False
-    #: TCP connections served at once. At the limit a priority client still gets in
-    #: (the connection idle longest is closed for it); anyone else is refused.
+    #: TCP connections served at once. At the limit a newcomer gets in by closing the
+    #: connection that has done least (modbus_admission), never a priority one for a
+    #: non-priority newcomer (refused when only priority ones are left).
     max_connections: int = 64
     #: Addresses or networks that always get in, besides those in write_allow.
     priority_clients: tuple[str, ...] = ()
@@ -444,7 +446,7 @@ class ModbusServer:
             else:
                 self._restore_exception_handler()
             self._restore_exception_handler = None
-        self.peer_log.flush()
+        self.peer_log.flush(everything=True)  # the counts held back: said before the server goes
 
     # ------------------------------------------------------- start helpers --
     async def _start_tcp(self) -> None:
@@ -564,8 +566,9 @@ class ModbusServer:
             victim = self._connections.get(decision.evict)
             if victim is not None:
                 self.peer_log.note(victim.peer_ip or "?", "evicted",
-                                   f"Modbus connection {victim.source} closed to make room for priority "
-                                   f"client {handler.peer_ip}")
+                                   f"Modbus connection {victim.source} closed at max_connections: it had done "
+                                   f"least, room for {'priority ' if handler.priority else ''}client "
+                                   f"{handler.peer_ip}")
                 victim.close_connection(abort=True)
         self._connections[id(handler)] = handler
         return True
@@ -681,7 +684,10 @@ class ModbusServer:
             commands_declined=int(result is CommandResult.DECLINED),
             commands_failed=int(result is CommandResult.FAILED),
         )
-        log.info("Modbus command %s from %s: %s", command.name, source, result.name)
+        # a PLC writes the hint every cycle: one line per source, command and result and
+        # peer_log_interval_s, with a count
+        self.peer_log.note(source, f"command {command.name} {result.name}",
+                           f"Modbus command {command.name}: {result.name}", logging.INFO)
         return result
 
 
@@ -723,6 +729,7 @@ class _GatewayRequestHandler(ServerRequestHandler):
         self._admitted = False
         self._closing = False
         self._last_request_s = self.loop.time()
+        self._requests = 0  # complete requests (modbus_admission.least_active)
         self._buffer = bytearray()
         self._queue: collections.deque[ModbusPDU | _Undecodable] = collections.deque()
         self._worker: asyncio.Task[None] | None = None
@@ -731,7 +738,8 @@ class _GatewayRequestHandler(ServerRequestHandler):
 
     # ------------------------------------------------------ connection life --
     def connection(self) -> Connection:
-        return Connection(key=id(self), priority=self.priority, last_request_s=self._last_request_s)
+        return Connection(key=id(self), priority=self.priority, last_request_s=self._last_request_s,
+                          requests=self._requests)
 
     def callback_connected(self) -> None:
         super().callback_connected()
@@ -828,6 +836,7 @@ class _GatewayRequestHandler(ServerRequestHandler):
             frame = bytes(buffer[start:end])
             start = end
             self._last_request_s = self.loop.time()
+            self._requests += 1
             try:
                 _, pdu = self.framer.handleFrame(frame, 0, 0)
             except ModbusIOException as exc:

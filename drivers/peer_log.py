@@ -24,6 +24,7 @@ class _Entry:
     last_logged_s: float
     suppressed: int = 0
     last_message: str = ""
+    level: int = logging.WARNING
 
 
 class PeerLogLimiter:
@@ -46,9 +47,10 @@ class PeerLogLimiter:
         #: Lines actually written (tests and the benchmark compare it with the events).
         self.lines = 0
 
-    def note(self, peer: str, kind: str, message: str) -> None:
+    def note(self, peer: str, kind: str, message: str, level: int | None = None) -> None:
         """One event: `message` is the line's text (without the peer), `kind` groups
-        events that share a limit (e.g. "bad frame", "refused write")."""
+        events that share a limit (e.g. "bad frame", "refused write"); `level`: the
+        limiter's unless given (the first one given for a kind stays its level)."""
         now = self._clock()
         key = (peer, kind)
         entry = self._entries.get(key)
@@ -57,26 +59,27 @@ class PeerLogLimiter:
                 key = (OTHER_PEERS, kind)
                 entry = self._entries.get(key)
             if entry is None:
-                self._entries[key] = _Entry(last_logged_s=now)
-                self._emit(key, message)
+                self._entries[key] = entry = _Entry(last_logged_s=now, level=self._level if level is None else level)
+                self._emit(key, entry, message)
                 return
         if now - entry.last_logged_s >= self.interval_s:
-            self._emit(key, message, self._more(entry.suppressed))
+            self._emit(key, entry, message, self._more(entry.suppressed))
             entry.last_logged_s = now
             entry.suppressed = 0
         else:
             entry.suppressed += 1
             entry.last_message = message
 
-    def flush(self) -> None:
+    def flush(self, everything: bool = False) -> None:
         """Log the counts held back for longer than the interval, and forget quiet peers
-        (call it now and then, e.g. from a housekeeping timer)."""
+        (call it now and then, e.g. from a housekeeping timer); `everything`: every count
+        held back, whatever its age (at a stop)."""
         now = self._clock()
         for key, entry in list(self._entries.items()):
-            if now - entry.last_logged_s < self.interval_s:
+            if now - entry.last_logged_s < self.interval_s and not (everything and entry.suppressed):
                 continue
             if entry.suppressed:
-                self._emit(key, entry.last_message, f" ({entry.suppressed} times since the last line)")
+                self._emit(key, entry, entry.last_message, f" ({entry.suppressed} times since the last line)")
                 entry.last_logged_s = now
                 entry.suppressed = 0
             else:
@@ -85,6 +88,6 @@ class PeerLogLimiter:
     def _more(self, suppressed: int) -> str:
         return f" ({suppressed} more since the last line)" if suppressed else ""
 
-    def _emit(self, key: tuple[str, str], message: str, suffix: str = "") -> None:
-        self._log.log(self._level, "%s: %s%s", key[0], message, suffix)
+    def _emit(self, key: tuple[str, str], entry: _Entry, message: str, suffix: str = "") -> None:
+        self._log.log(entry.level, "%s: %s%s", key[0], message, suffix)
         self.lines += 1

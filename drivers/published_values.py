@@ -157,6 +157,9 @@ class PublishedValues:
     #: CAN sends that failed (copied by the daemon from CanPublisher.counters), so a
     #: Modbus client can see the health of the CAN side.
     can_send_errors: int = 0
+    #: CAN command frames refused (disabled, E2E: CRC, a counter not ahead — a replay —,
+    #: length, code), copied from CanPublisher.counters.commands_rejected.
+    can_refused_commands: int = 0
     #: The second status word (StatusExtBits).
     status_ext: StatusExtBits = StatusExtBits(0)
 

@@ -61,7 +61,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     parser.add_argument("--version", action="version", version=f"adxlgw {version()}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    # not required here: `adxlgw --foo` must say --foo is unknown, not that a command is missing (main)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for command, name in COMMAND_MODULES.items():
         if only is None or command == only:
             importlib.import_module(f"gateway.commands.{name}").add_parser(sub)
@@ -83,7 +84,11 @@ def main(argv: list[str] | None = None) -> int:
     warn_if_not_compiled()
     argv = sys.argv[1:] if argv is None else argv
     parser = build_parser(only=chosen_command(argv))
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    if args.command is None:
+        parser.error(f"no command given: one of {', '.join(COMMAND_MODULES)} (adxlgw --help)")
     if args.verbose:
         logging.getLogger().setLevel(logging.DEBUG)
     try:

@@ -8,6 +8,7 @@ is None has none on purpose (the board's port: a gateway must not guess its wire
 """
 from __future__ import annotations
 
+import difflib
 import ipaddress
 import math
 import tomllib
@@ -63,6 +64,21 @@ def _addresses(v):
     return None
 
 
+def _travel(v):
+    if len(v) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        return "must be two numbers, [lowest, highest]"
+    lo, hi = (float(x) for x in v)
+    if not (math.isfinite(lo) and math.isfinite(hi)) or not lo < hi:
+        return "must be finite, lowest < highest"
+    if max(abs(lo), abs(hi)) > MAX_TRAVEL_M:
+        return f"must lie within ±{MAX_TRAVEL_M:g} m"
+    return None
+
+
+#: no linear axis this gateway serves is longer: the state file's own limit (state_store)
+MAX_TRAVEL_M = 1.0e4
+
+
 def _nonempty(v):
     return None if v.strip() else "must not be empty"
 
@@ -111,8 +127,9 @@ SCHEMA: tuple[Key, ...] = (
     Key("modbus", "rtu_writes_enabled", False, bool, "Accept commands over RTU (it has no client address)."),
     Key("modbus", "max_connections", 64, int,
         "Modbus TCP connections served at once (keep it well below the open-file limit). At the "
-        "limit a client in write_allow or priority_clients still gets in (the connection idle "
-        "longest is closed for it); anyone else is refused.", _range(1, 10_000)),
+        "limit a newcomer gets in by closing the connection that has done least (none of its "
+        "requests complete, else idle longest); a client in write_allow or priority_clients is "
+        "never closed for anyone else (a newcomer finding only those is refused).", _range(1, 10_000)),
     Key("modbus", "priority_clients", [], list,
         "Addresses or networks that always get a connection, besides those in write_allow "
         "(e.g. the PLC when writes are disabled).", _addresses),
@@ -156,6 +173,16 @@ SCHEMA: tuple[Key, ...] = (
     Key("estimator", "hint_timeout_ms", 1000, int,
         "How long the machine's standstill hint (Modbus CMD_HINT_*, CAN command codes 3-5) stays in "
         "force after it was written; a PLC writes it every cycle while it holds.", _range(10, 600_000)),
+    Key("estimator", "travel_m", [-10.0, 10.0], list,
+        "The axis's travel, [lowest, highest] published position in m (from the tare point). A saved "
+        "position outside it is refused at start (the state file is then moved aside), and a restored "
+        "position is never less uncertain than the travel allows. Default: 10 m either way, 30 times the "
+        "paper's 0.3 m stroke and 12 times the robot's 0.8 m move; set your machine's.", _travel),
+    Key("estimator", "still_while_down", False, bool,
+        "true: nothing moves the axis while the gateway is down (it is locked, or the gateway's stop stops "
+        "the machine), so a position saved by an orderly stop is restored as exact. false (safe): the "
+        "axis may have moved meanwhile; the restored position's POSITION_STD grows with the time it was "
+        "not watched, at the machine's top speed, up to the travel (docs/daemon.md, Faults, scored)."),
     Key("estimator", "drift_model", "", str,
         "Zero-drift model of this sensor from 'adxlgw fit-drift --model-out' (JSON); empty: the "
         "sensor model's defaults."),
@@ -222,33 +249,45 @@ _KIND_NAMES = {bool: "true or false", int: "a whole number", float: "a number", 
 
 
 def validate(data: dict[str, Any], source: str) -> Config:
+    """The settings in `data`, or one ConfigError listing every problem, one line each."""
     by_section = {s: {k.name: k for k in SCHEMA if k.section == s} for s in SECTIONS}
     values = {s: {k.name: k.default for k in SCHEMA if k.section == s} for s in SECTIONS}
+    problems: list[str] = []
     for section, table in data.items():
         if section not in by_section:
-            raise ConfigError(f"{source}: unknown section [{section}] (known: {', '.join(SECTIONS)})")
+            problems.append(f"unknown section [{section}] (known: {', '.join(SECTIONS)})")
+            continue
         if not isinstance(table, dict):
-            raise ConfigError(f"{source}: [{section}] must be a table")
+            problems.append(f"[{section}] must be a table")
+            continue
         for name, value in table.items():
             key = by_section[section].get(name)
             if key is None:
-                raise ConfigError(f"{source}: unknown key {section}.{name}")
+                near = difflib.get_close_matches(name, by_section[section], n=1)
+                problems.append(f"unknown key {section}.{name} " + (
+                    f"(did you mean {section}.{near[0]}?)" if near else
+                    f"(known in [{section}]: {', '.join(by_section[section])})"))
+                continue
             ok, value = _type_ok(key, value)
             if not ok:
-                raise ConfigError(f"{source}: {key.dotted} = {value!r} must be {_KIND_NAMES[key.kind]}")
+                problems.append(f"{key.dotted} = {value!r} must be {_KIND_NAMES[key.kind]}")
+                continue
             complaint = key.check(value) if key.check else None
             if complaint:
-                raise ConfigError(f"{source}: {key.dotted} = {value!r} {complaint}")
+                problems.append(f"{key.dotted} = {value!r} {complaint}")
+                continue
             values[section][name] = value
     if values["can"]["min_interval_ms"] > values["can"]["period_ms"]:
-        raise ConfigError(f"{source}: can.min_interval_ms must not exceed can.period_ms")
+        problems.append("can.min_interval_ms must not exceed can.period_ms")
     if values["serial"]["reconnect_min_s"] > values["serial"]["reconnect_max_s"]:
-        raise ConfigError(f"{source}: serial.reconnect_min_s must not exceed serial.reconnect_max_s")
+        problems.append("serial.reconnect_min_s must not exceed serial.reconnect_max_s")
     if values["serial"]["stale_after_ms"] > values["serial"]["lost_after_ms"]:
         # a lost board whose values are not yet stale would be published as fresh
-        raise ConfigError(f"{source}: serial.stale_after_ms must not exceed serial.lost_after_ms")
+        problems.append("serial.stale_after_ms must not exceed serial.lost_after_ms")
     if not (values["modbus"]["tcp_enabled"] or values["modbus"]["rtu_enabled"] or values["can"]["enabled"]):
-        raise ConfigError(f"{source}: no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled or can.enabled")
+        problems.append("no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled or can.enabled")
+    if problems:
+        raise ConfigError("\n".join(f"{source}: {p}" for p in problems))
     return Config(values, source)
 
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up everything the project needs on a fresh Debian/Ubuntu machine.
-#   scripts/setup.sh          the gateway itself: a virtual environment in .venv
+#   scripts/setup.sh          the gateway and its offline tools (the demo's emulated board
+#                             needs them): a virtual environment in .venv, adxl-gateway[offline]
 #   scripts/setup.sh --test   also the test tools: Debian packages (socat, mbpoll,
 #                             can-utils, qemu and a guest kernel for SocketCAN tests)
 # Idempotent: a second run only checks.
@@ -50,8 +51,8 @@ if [ ! -x .venv/bin/python ]; then
     log "creating .venv"
     "$PYTHON" -m venv .venv
 fi
-extras=""
-[ $want_test -eq 1 ] && extras="[test]"
+extras="[offline]"
+[ $want_test -eq 1 ] && extras="[offline,test]"
 stamp=".venv/.installed$extras"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ constraints.txt -nt "$stamp" ]; then
     log "installing adxl-gateway$extras into .venv (the tested versions: constraints.txt)"

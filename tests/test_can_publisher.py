@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import contextlib
 import dataclasses
 import itertools
@@ -575,6 +576,47 @@ def test_corrupt_repeated_and_foreign_command_frames_are_refused(channel: str) -
     assert [c for c, _ in recorder.calls] == [Command.TARE, Command.TARE]
     assert publisher.counters.commands_rejected == 4
     assert publisher.counters.commands_accepted == 2
+
+
+def test_an_older_command_frame_replayed_is_refused_and_a_restarted_sender_gets_back_in_step(channel: str) -> None:
+    """The counter must advance by 1..MAX_COUNTER_DELTA: a TARE recorded and played again
+    later lies behind and is refused (it used to set a new zero)."""
+    recorder = Recorder()
+
+    async def scenario() -> CanPublisher:
+        async with publishing(virtual_config(channel, commands_enabled=True), recorder) as (publisher, peer):
+            recorded = encode_command(Command.TARE, 4)
+            assert (await exchange(peer, recorded))["Ack_Result"] == AckResult.DONE
+            for counter in (5, 6, 7):
+                assert (await exchange(peer, encode_command(Command.HINT_AT_REST, counter)))["Ack_Result"] \
+                    == AckResult.DONE
+            assert (await exchange(peer, recorded))["Ack_Result"] == AckResult.COUNTER_ERROR  # the replay
+            # a jump beyond the window (two frames lost is the most tolerated) is refused ...
+            assert (await exchange(peer, encode_command(Command.HINT_AT_REST, 12)))["Ack_Result"] \
+                == AckResult.COUNTER_ERROR
+            # ... and the sender's next frame, one ahead of it, puts it back in step (a restart)
+            assert (await exchange(peer, encode_command(Command.HINT_AT_REST, 13)))["Ack_Result"] == AckResult.DONE
+            assert (await exchange(peer, encode_command(Command.HINT_AT_REST, 14)))["Ack_Result"] == AckResult.DONE
+            return publisher
+
+    publisher = run(scenario())
+    assert [c for c, _ in recorder.calls].count(Command.TARE) == 1
+    assert publisher.counters.commands_rejected == 2
+
+
+def test_refused_command_frames_are_logged_as_one_summary_per_interval(channel: str, caplog) -> None:
+    async def scenario() -> None:
+        async with publishing(virtual_config(channel, commands_enabled=False), Recorder()) as (publisher, peer):
+            for k in range(300):
+                peer.send(COMMAND_FRAME.frame_id, encode_command(Command.TARE, k % 15))
+            await peer.frames(300, ACK_FRAME.frame_id)
+            assert publisher.counters.commands_rejected == 300
+
+    with caplog.at_level(logging.INFO, logger="drivers.can_publisher"):
+        run(scenario())
+    lines = [r.getMessage() for r in caplog.records if "refused: commands" in r.getMessage()]
+    # the first at once, the 299 others counted in one line when the publisher stops
+    assert len(lines) == 2 and "299 times" in lines[1], lines
 
 
 @pytest.mark.parametrize("answer, expected", [(False, AckResult.DECLINED), (RuntimeError("bug"), AckResult.FAILED)])

@@ -96,17 +96,21 @@ def test_cli_config_default_and_check(tmp_path):
     assert f"adxlgw config: error: {path}: serial.port: not set" in r.stderr
     board = tmp_path / "ttyUSB0"  # what the check asks of a device path: that it exists
     board.touch()
-    path.write_text(f'[serial]\nport = "{board}"\n[can]\ninterface = "virtual"\nchannel = "x"\n')
+    # (Modbus port 0: the check binds the port, and another gateway may hold 5020 here)
+    path.write_text(f'[serial]\nport = "{board}"\n[modbus]\nport = 0\n[can]\ninterface = "virtual"\nchannel = "x"\n')
     r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "can.channel: python-can's in-process virtual bus: no frame leaves this process" in r.stderr
     assert r.stderr.strip().endswith(f"{path}: ok")
-    path.write_text("[can]\nchanel = \"vcan0\"\n")
+    path.write_text("[can]\nchanel = \"vcan0\"\nperiod_ms = 0\n")
     r = subprocess.run([sys.executable, "-m", "gateway.cli", "config", "--check", str(path)],
                        capture_output=True, text=True)
     assert r.returncode == 2
-    assert r.stderr.strip() == f"adxlgw config: error: {path}: unknown key can.chanel"
+    # every problem at once, one line each
+    assert r.stderr.strip().splitlines() == [
+        f"adxlgw config: error: {path}: unknown key can.chanel (did you mean can.channel?)",
+        f"{path}: can.period_ms = 0 must be ≥ 1"]
 
 
 def test_cli_regmap_json_and_dbc_match_the_shipped_files():

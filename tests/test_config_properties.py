@@ -39,13 +39,14 @@ def check(tmp_path_factory, data: bytes) -> None:
     try:
         load_config(path)
     except ConfigError as err:
-        message = str(err)
-        assert message and "\n" not in message and str(path) in message, message
+        # every problem at once: each line names the file and what is wrong
+        lines = str(err).split("\n")
+        assert all(line and str(path) in line for line in lines), str(err)
 
 
 @settings(max_examples=300)
 @given(data=mutated_defaults())
-def test_a_mutated_default_config_loads_or_is_one_config_error(tmp_path_factory, data):
+def test_a_mutated_default_config_loads_or_is_one_config_error_a_line_per_problem(tmp_path_factory, data):
     check(tmp_path_factory, data)
 
 

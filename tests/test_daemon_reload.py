@@ -63,6 +63,23 @@ def test_a_reload_that_cannot_bind_is_refused_and_the_old_modbus_keeps_serving(t
         taken.close()
 
 
+def test_a_reload_to_a_missing_serial_port_is_refused_and_the_board_kept(tmp_path, pty):
+    """All or nothing: it used to be applied (the board dropped, BOARD_LOST) while every
+    other bad reload was refused."""
+    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
+    source = Reloadable(cfg)
+
+    async def scenario():
+        async with running_gateway(cfg, reload=source) as gw:
+            opened = gw.board.source
+            source.cfg = cfg.replace({"serial.port": str(tmp_path / "no-such-board")})
+            await gw.reload()
+            assert gw.counters.config_reload_errors == 1 and gw.counters.config_reloads == 0
+            assert gw.cfg is cfg and gw.board.source is opened and opened.is_open
+
+    run(scenario())
+
+
 def test_a_reload_of_can_alone_keeps_modbus_clients_connected(tmp_path, pty):
     cfg = gateway_config(tmp_path, str(pty.link))
     source = Reloadable(cfg)

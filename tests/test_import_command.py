@@ -101,7 +101,13 @@ def rows(n, t=lambda i: 0.01 * i, extra=""):
 @pytest.mark.parametrize(
     "content, args, message",
     [
-        ("t,acc\n" + rows(30), ["--arrival-col", "t", "--acc-col", "acc_x"], "f.csv:1: no column 'acc_x' in the header"),
+        ("t,acc\n" + rows(30), ["--arrival-col", "t", "--acc-col", "acc_x"],
+         "f.csv:1: no column 'acc_x' in the header; its columns: 't', 'acc'"),
+        ("t;acc\n0;1\n", ["--time-col", "t", "--acc-col", "acc"],
+         "its columns: 't;acc'; one column only, with ';' in it: a ';'-separated file? give --delimiter ';'"),
+        # a millisecond time column read as seconds: 0.5 samples/s
+        ("t,acc\n0,1\n2,1\n4,1\n", ["--time-col", "t", "--acc-col", "acc"],
+         "f.csv: column 't' read in s: 0.5 samples/s, too slow for an accelerometer's log"),
         ("t,acc\n" + rows(5), ["--arrival-col", "t", "--acc-col", "acc"],
          "f.csv: 5 rows with both 't' and 'acc'; re-timing needs at least 20"),
         ("t,acc\n" + rows(10) + "0.05,1\n" + rows(20, t=lambda i: 1 + 0.01 * i),
@@ -137,6 +143,17 @@ def test_bad_foreign_files_are_one_line_exit_2(tmp_path, capsys, content, args, 
     assert code == 2, err
     assert err.count("\n") == 1 and message in err
     assert not (tmp_path / "o.csv").exists()
+
+
+@pytest.mark.parametrize("out, message", [
+    ("o.xlsx", "not a recording's extension: .csv, .parquet, .pq"),  # it used to get CSV silently
+    ("missing/o.csv", "no directory"),
+])
+def test_an_output_it_cannot_write_is_refused_before_the_work(tmp_path, capsys, out, message):
+    src = _write(tmp_path, "t,acc\n" + rows(30))
+    code = cli_main(["import", str(src), "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and message in err, err
 
 
 def test_a_bad_foreign_file_in_a_process_of_its_own(tmp_path):

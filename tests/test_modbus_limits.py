@@ -67,26 +67,51 @@ async def wait_for(condition, within_s: float = 5.0) -> None:
 # --------------------------------------------------------------------------- #
 # Connection limit and priority clients
 # --------------------------------------------------------------------------- #
-def test_at_the_limit_others_are_refused_and_the_plc_still_gets_in() -> None:
+def test_at_the_limit_a_newcomer_gets_in_and_a_priority_client_is_never_closed_for_it() -> None:
+    """No peer holds the gateway: trickling clients and an idle flood are closed for a
+    newcomer (the connection that has done least first); the PLC polling all along stays."""
     async def scenario() -> None:
         config = tcp_config(max_connections=4, write_allow=(PLC_IP,), idle_timeout_s=0)
         async with serving(config) as server:
             port = server.tcp_port
-            flood = [await open_raw(port) for _ in range(10)]
-            await wait_for(lambda: server.counters.refused_connections == 6)
-            assert server.counters.clients_connected == 4
-            # the refused ones were closed at once; the admitted ones still answer
-            refused = [r for r, _ in flood if await closed_by_server(r, 0.2)]
-            assert len(refused) == 6
-            # the PLC (an address in write_allow) gets in: the connection idle longest goes
             async with tcp_client(port, source_ip=PLC_IP) as plc:
+                assert not (await plc.read_input_registers(0, count=1, device_id=1)).isError()
+                # three slowloris-like clients: one complete request each, then nothing
+                slow = []
+                for k in range(3):
+                    reader, writer = await open_raw(port)
+                    writer.write(mbap(k + 1, READ_VERSION))
+                    assert await reader.readexactly(11) == answer_to_version_read(k + 1)
+                    slow.append((reader, writer))
+                # an idle flood: each newcomer gets in, closing the one that has done least
+                flood = [await open_raw(port) for _ in range(10)]
+                await wait_for(lambda: server.counters.closed_connections == 10)
+                assert server.counters.refused_connections == 0 and server.counters.clients_connected == 4
+                # the first of the flood closed the trickling client idle longest; after that the
+                # flood's own connections, which never completed a request, went first
+                assert await closed_by_server(slow[0][0], 1.0)
+                assert not await closed_by_server(slow[1][0], 0.1)
+                # a new ordinary client is answered; the PLC, polling all along, still is
+                async with tcp_client(port) as newcomer:
+                    assert not (await newcomer.read_input_registers(0, count=1, device_id=1)).isError()
                 words = await read_table(plc)
                 assert decode(plc, words, "POSITION", WordOrder.ABCD) == pytest.approx(SAMPLE.position_m, rel=1e-6)
-                assert decode(plc, words, "MODBUS_REFUSED_CONNECTIONS", WordOrder.ABCD) == 6
-                assert decode(plc, words, "MODBUS_CLOSED_CONNECTIONS", WordOrder.ABCD) == 1
-                assert server.counters.clients_connected == 4
-            assert await closed_by_server(flood[0][0], 1.0)  # the oldest idle one made room
-            for _, writer in flood:
+                assert decode(plc, words, "MODBUS_CLOSED_CONNECTIONS", WordOrder.ABCD) == 11
+                for _, writer in slow + flood:
+                    writer.close()
+
+    run(scenario())
+
+
+def test_where_only_priority_clients_are_left_anyone_else_is_refused() -> None:
+    async def scenario() -> None:
+        config = tcp_config(max_connections=1, write_allow=(PLC_IP,), idle_timeout_s=0)
+        async with serving(config) as server:
+            async with tcp_client(server.tcp_port, source_ip=PLC_IP) as plc:
+                reader, writer = await open_raw(server.tcp_port)
+                assert await closed_by_server(reader, 1.0)
+                assert server.counters.refused_connections == 1
+                assert not (await plc.read_input_registers(0, count=1, device_id=1)).isError()
                 writer.close()
 
     run(scenario())
@@ -267,9 +292,10 @@ def test_peer_errors_are_logged_once_per_interval_with_a_count(caplog) -> None:
                 writer.close()
             assert server.counters.rejected_writes == 200
             assert server.counters.rejected_frames == 50
-        async with serving(tcp_config(max_connections=1, write_allow=(), peer_log_interval_s=60)) as server:
-            _, holder = await open_raw(server.tcp_port)
-            for _ in range(50):  # at the limit: refused
+        async with serving(tcp_config(max_connections=1, write_allow=(), priority_clients=(PLC_IP,),
+                                      peer_log_interval_s=60)) as server:
+            _, holder = await open_raw(server.tcp_port, PLC_IP)
+            for _ in range(50):  # at the limit, only a priority client left: refused
                 reader, writer = await open_raw(server.tcp_port)
                 assert await closed_by_server(reader, 1.0)
                 writer.close()
@@ -279,9 +305,29 @@ def test_peer_errors_are_logged_once_per_interval_with_a_count(caplog) -> None:
     with caplog.at_level(logging.DEBUG):
         run(scenario())
     lines = [r for r in caplog.records if r.levelno >= logging.WARNING]
-    # one line per (peer, kind) for a 60 s interval, plus nothing from pymodbus
-    assert len(lines) <= 3, [r.getMessage() for r in lines]
-    assert sum(len(r.getMessage()) for r in lines) < 600
+    # one line per (peer, kind) for a 60 s interval and one with its count when the server
+    # stops, plus nothing from pymodbus
+    assert len(lines) <= 6, [r.getMessage() for r in lines]
+    assert sum(len(r.getMessage()) for r in lines) < 1200
+
+
+def test_a_hint_written_every_cycle_is_logged_once_per_interval(caplog) -> None:
+    """A PLC writes CMD_HINT_AT_REST every cycle, as the register map says: one line, not one per write."""
+    from tests.test_modbus_server import Recorder
+
+    async def scenario() -> None:
+        async with serving(tcp_config(writes_enabled=True, peer_log_interval_s=60), Recorder()) as server:
+            async with tcp_client(server.tcp_port) as plc:
+                for _ in range(50):
+                    assert not (await plc.write_register(BY_NAME["CMD_HINT_AT_REST"].address, 1,
+                                                         device_id=1)).isError()
+            assert server.counters.commands_done == 50
+
+    with caplog.at_level(logging.INFO, logger="drivers.modbus_server"):
+        run(scenario())
+    lines = [r.getMessage() for r in caplog.records if "HINT_AT_REST" in r.getMessage()]
+    # the first at once, the 49 others counted in one line when the server stops
+    assert len(lines) == 2 and "49 times" in lines[1], lines
 
 
 # --------------------------------------------------------------------------- #

@@ -10,16 +10,26 @@ from drivers.modbus_admission import Admission, Connection, address_in, admit, i
 from drivers.peer_log import MAX_TRACKED_PEERS, OTHER_PEERS, PeerLogLimiter
 
 
-def conn(key: str, priority: bool = False, last_s: float = 0.0) -> Connection:
-    return Connection(key=key, priority=priority, last_request_s=last_s)
+def conn(key: str, priority: bool = False, last_s: float = 0.0, requests: int = 1) -> Connection:
+    return Connection(key=key, priority=priority, last_request_s=last_s, requests=requests)
 
 
 def test_below_the_limit_everyone_gets_in() -> None:
     assert admit(False, [conn("a")], 2) == Admission(True)
 
 
-def test_at_the_limit_others_are_refused() -> None:
-    assert admit(False, [conn("a"), conn("b", priority=True)], 2) == Admission(False)
+def test_at_the_limit_a_newcomer_closes_the_connection_that_has_done_least() -> None:
+    # a slowloris (its last request 50 s ago) goes before a PLC polling every cycle
+    others = [conn("plc", False, 99.9), conn("slowloris", False, 50.0), conn("poller", False, 99.0)]
+    assert admit(False, others, 3) == Admission(True, evict="slowloris")
+    # one that never completed a request goes first, however recent (a flood's connection)
+    others.append(conn("idle-new", False, 99.95, requests=0))
+    assert admit(False, others, 4) == Admission(True, evict="idle-new")
+
+
+def test_a_priority_client_is_never_closed_for_a_non_priority_newcomer() -> None:
+    assert admit(False, [conn("a", False, 9.0), conn("b", True, 0.0, requests=0)], 2) == Admission(True, evict="a")
+    assert admit(False, [conn("a", True), conn("b", priority=True)], 2) == Admission(False)
 
 
 def test_a_priority_client_takes_the_place_of_the_longest_idle_ordinary_one() -> None:

@@ -165,8 +165,10 @@ def test_run_with_the_modbus_port_taken_exits_3_naming_the_port(tmp_path: Path) 
         result = run_daemon(tmp_path, f"port = {port}")
     assert result.returncode == 3, result.stderr
     assert "Traceback" not in result.stderr
+    # found by the start's check (preflight, the same as config --check), naming the file and key
     assert error_lines(result.stderr) == [
-        f"adxlgw run: error: Modbus server: port {port} already in use on 127.0.0.1 (another Modbus server or gateway?)"
+        f"adxlgw run: error: {tmp_path / 'gateway.toml'}: modbus.port: port {port} already in use on 127.0.0.1 "
+        "(another Modbus server or gateway?)"
     ]
 
 

@@ -31,14 +31,21 @@ def constraints() -> dict[str, str]:
 
 def test_dependencies_are_ranges_and_constraints_pin_each_inside_its_range():
     pins = constraints()
+    extras = PYPROJECT["project"]["optional-dependencies"]
     runtime = [Requirement(r) for r in PYPROJECT["project"]["dependencies"]]
-    test = [Requirement(r) for r in PYPROJECT["project"]["optional-dependencies"]["test"]]
-    for req in runtime + test:
+    offline = [Requirement(r) for r in extras["offline"]]
+    # the test extra pulls in the offline one (the tests run the offline tools)
+    test = [Requirement(r) for r in extras["test"] if not r.startswith("adxl-gateway[")]
+    assert "adxl-gateway[offline]" in extras["test"]
+    for req in runtime + offline + test:
         assert not any(spec.operator == "==" for spec in req.specifier), f"{req} is pinned in pyproject"
         assert req.name in pins, f"{req.name} has no exact version in constraints.txt"
         assert req.specifier.contains(pins[req.name]), f"constraints.txt {req.name}=={pins[req.name]} outside {req}"
     assert {r.name for r in test} >= TEST_ONLY
-    assert not {r.name for r in runtime} & TEST_ONLY
+    assert not {r.name for r in runtime + offline} & TEST_ONLY
+    # the daemon's install carries none of the offline tools' libraries (tests/test_chi2.py:
+    # the daemon imports none of them)
+    assert not {r.name for r in runtime} & {"scipy", "matplotlib", "pyarrow", "polars", "tqdm", "rich"}
 
 
 def test_the_installed_code_never_imports_the_test_only_libraries():

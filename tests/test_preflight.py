@@ -16,7 +16,9 @@ CLI = [sys.executable, "-m", "gateway.cli"]
 def config(tmp_path, **sections):
     board = tmp_path / "ttyUSB0"
     board.touch()
-    data = {"serial": {"port": str(board)}, "can": {"interface": "virtual", "channel": "pf"}}
+    # Modbus on port 0: the check binds the port, and another gateway may hold 5020 here
+    data = {"serial": {"port": str(board)}, "can": {"interface": "virtual", "channel": "pf"},
+            "modbus": {"port": 0}}
     for name, table in sections.items():
         data.setdefault(name, {}).update(table)
     return validate(data, "gw.toml")
@@ -35,6 +37,8 @@ def test_a_complete_config_has_nothing_but_the_virtual_bus_note(tmp_path):
     ({"estimator": {"drift_model": "/nonexistent/drift.json"}}, "estimator.drift_model", "error",
      "/nonexistent/drift.json: cannot read: No such file or directory"),
     ({"modbus": {"host": "not a host"}}, "modbus.host", "error", "'not a host' does not resolve"),
+    # run would exit 3 at the bind: the check says so first (it used to pass)
+    ({"modbus": {"host": "10.99.99.99"}}, "modbus.host", "error", "not an address of this machine"),
     ({"can": {"interface": "nosuchcan"}}, "can.interface", "error", "python-can has no interface 'nosuchcan'"),
     ({"can": {"interface": "socketcan", "channel": "lo"}}, "can.channel", "error",
      "network interface 'lo' is not a CAN interface"),
@@ -59,6 +63,44 @@ def test_run_refuses_errors_and_starts_despite_a_missing_device(tmp_path):
         refuse_unrunnable(config(tmp_path, modbus={"host": "not a host"}))
     left = refuse_unrunnable(config(tmp_path, serial={"port": "/dev/ttyNOSUCH9"}))
     assert [f.severity for f in left if f.key == "serial.port"] == ["device"]
+
+
+def test_a_taken_modbus_port_is_unusable_at_start_exit_3(tmp_path):
+    import socket
+
+    from gateway.errors import DeviceError
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        cfg = config(tmp_path, modbus={"port": taken.getsockname()[1]})
+        assert by_key(cfg)["modbus.port"][0] == "unusable"
+        with pytest.raises(DeviceError, match="already in use"):
+            refuse_unrunnable(cfg)
+
+
+def test_a_reload_is_checked_only_on_what_it_changes_and_refused_whole(tmp_path):
+    from gateway.daemon.preflight import refuse_reload
+
+    running = config(tmp_path, serial={"port": "/dev/ttyNOSUCH9"})
+    # unchanged wires are not checked again (the running daemon holds them, or waits)
+    refuse_reload(running, running.replace({"can.period_ms": 20}))
+    board = config(tmp_path)
+    with pytest.raises(ConfigError, match="serial.port: /dev/ttyNOSUCH7 does not exist"):
+        refuse_reload(board, board.replace({"serial.port": "/dev/ttyNOSUCH7"}))
+
+
+def test_config_check_and_run_give_the_same_verdict(tmp_path):
+    """One function for both: a file `config --check` passes, run starts with; one it fails, run refuses."""
+    path = tmp_path / "gw.toml"
+    board = tmp_path / "ttyUSB0"
+    board.touch()
+    path.write_text(f'[serial]\nport = "{board}"\n[modbus]\nhost = "10.99.99.99"\nport = 0\n'
+                    f'[can]\nenabled = false\n[state]\npath = "{tmp_path / "state.json"}"\n')
+    check = subprocess.run([*CLI, "config", "--check", str(path)], capture_output=True, text=True, timeout=60)
+    run = subprocess.run([*CLI, "run", "--config", str(path)], capture_output=True, text=True, timeout=60)
+    assert check.returncode == 2 and run.returncode == 2, (check.stderr, run.stderr)
+    assert "not an address of this machine" in check.stderr and "not an address of this machine" in run.stderr
 
 
 def test_run_without_a_port_refuses_in_one_line_naming_the_key(tmp_path):

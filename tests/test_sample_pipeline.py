@@ -270,6 +270,24 @@ def test_tare_references_and_a_reset_keeps_the_position_but_not_the_reference():
     assert not p.referenced and p.latest().untrusted
 
 
+def test_a_start_over_and_a_restored_start_keep_the_position_no_more_certain_than_it_was():
+    """The new estimator starts with a position variance 0; the position it continues from
+    is not exact: its σ before the reset (or a restored position's σ) stays in the published one."""
+    p = pipeline()
+    p.feed(encode_hello(uptime_s=0, **REPORT))
+    seq = at_rest(p, 0, 200)
+    seq = accelerate(p, accelerate(p, seq, 0.3, 50), -0.3, 50)
+    at_rest(p, seq, 300)
+    before = p.latest().pos_std_m
+    assert before > 0.0
+    p.feed(encode_hello(uptime_s=0, **REPORT))
+    at_rest(p, 0, 200)
+    assert p.latest().pos_std_m >= before
+    p.set_start_uncertainty(0.5)  # a restored position, 0.25 s unwatched at 2 m/s
+    assert p.latest().pos_std_m >= 0.5
+    assert p.tare() and p.reference_var_m2 == 0.0  # here is zero by definition
+
+
 def test_bias_reestimation_only_at_standstill_and_flagged_until_the_next_stop():
     p = pipeline()
     p.feed(encode_hello(uptime_s=0, **REPORT))

@@ -166,3 +166,45 @@ def test_any_content_loads_to_finite_numbers_without_raising(tmp_path_factory, c
     state = StateStore(path).load()
     for value in (state.tare_offset_m, state.bias_estimate_mps2, state.last_position_m, state.saved_at_unix_s):
         assert value is None or (type(value) is float and math.isfinite(value))
+
+
+def test_a_fifo_at_the_state_path_does_not_block_the_start(tmp_path: Path, caplog) -> None:
+    """A FIFO would block open() until a writer came: the daemon would never listen."""
+    path = tmp_path / "state.json"
+    os.mkfifo(path)
+    store = StateStore(path)
+    with caplog.at_level(logging.WARNING, logger="gateway.daemon.state_store"):
+        assert store.load() == PersistentState()  # returns at once: no writer ever opens it
+    assert "not a regular file" in caplog.text and not store.found_none
+    # and a directory is not a state file either
+    other = StateStore(tmp_path)
+    assert other.load() == PersistentState() and "not a regular file" in other.last_error
+
+
+def test_a_position_outside_the_travel_is_refused_and_moved_aside(tmp_path: Path) -> None:
+    path = tmp_path / "state.json"
+    path.write_text(state_text(last_position_m=9999.0, saved_at_unix_s=time.time(),
+                               stopped_at_rest_unix_s=time.time()))
+    store = StateStore(path, travel_m=(-10.0, 10.0))
+    assert store.load() == PersistentState()
+    assert "outside the axis's travel" in store.last_error and store.moved_aside is not None
+    path.write_text(state_text(last_position_m=-10.0))
+    assert StateStore(path, travel_m=(-10.0, 10.0)).load().last_position_m == -10.0
+
+
+def test_a_restored_position_is_as_uncertain_as_the_time_it_was_not_watched() -> None:
+    from gateway.daemon.state_store import restored_position_std_m
+
+    travel = (-1.0, 1.0)
+    saved = PersistentState(last_position_m=0.3, saved_at_unix_s=1000.0, stopped_at_rest_unix_s=1000.0)
+    # 0.1 s unwatched at 2 m/s: 0.2 m; a long time: the travel's span at most
+    assert restored_position_std_m(saved, 1000.1, 2.0, travel, still_while_down=False) == pytest.approx(0.2)
+    assert restored_position_std_m(saved, 5000.0, 2.0, travel, still_while_down=False) == 2.0
+    # the config says the axis cannot move while down, and the run stopped in order: exact
+    assert restored_position_std_m(saved, 5000.0, 2.0, travel, still_while_down=True) == 0.0
+    # ... but not after a kill: the position is stale since its save, the axis ran on
+    killed = PersistentState(last_position_m=0.3, saved_at_unix_s=1000.0)
+    assert restored_position_std_m(killed, 1000.5, 2.0, travel, still_while_down=True) == pytest.approx(1.0)
+    # a save time in the future (a clock set back), or no position at all: anywhere in the travel
+    assert restored_position_std_m(saved, 900.0, 2.0, travel, still_while_down=False) == 2.0
+    assert restored_position_std_m(PersistentState(), 1000.0, 2.0, travel, still_while_down=False) == 2.0

@@ -83,9 +83,20 @@ def test_driver_ran_to_the_end(report):
     assert "driver_error" not in report, report["driver_error"]
 
 
-def test_ready_within_the_start_timeout(report):
+def start_failure(report: dict, vm_run: VmResult) -> str:
+    """Why the unit did not start: systemd's result and exit status (e.g. 238/STATE_DIRECTORY),
+    the unit's journal, and PID 1's log."""
     start = report["start"]
-    assert start["rc"] == 0, start
+    pid1 = vm_run.out_files.get("pid1.log", b"").decode()
+    return (f"systemctl start: {start.get('stderr', '').strip()}\n"
+            f"Result={start.get('Result')} ExecMainCode={start.get('ExecMainCode')} "
+            f"ExecMainStatus={start.get('ExecMainStatus')}\n"
+            f"--- the unit's journal ---\n{start.get('journal', '')[-3000:]}\n--- PID 1 ---\n{pid1[-3000:]}")
+
+
+def test_ready_within_the_start_timeout(report, vm_run):
+    start = report["start"]
+    assert start["rc"] == 0, start_failure(report, vm_run)
     assert (start["ActiveState"], start["SubState"]) == ("active", "running"), start
     assert start["seconds"] < START_TIMEOUT_S, start
     assert "board " in start["StatusText"] and "modbus 127.0.0.1:5020" in start["StatusText"], start

@@ -5,7 +5,7 @@ import argparse
 import tempfile
 from pathlib import Path
 
-from gateway.commands.run import add_run_options, load_with_overrides, overrides_from, serve
+from gateway.commands.run import add_run_options, load_overridden, load_with_overrides, overrides_from, serve
 
 # the demo chooses the emulated board and an in-process CAN bus on purpose; nothing of a
 # demo run survives it (its state lives in a temporary directory), so each run starts
@@ -36,5 +36,5 @@ def run(args: argparse.Namespace) -> int:
               f"CAN {cfg.can.interface}:{cfg.can.channel}; Ctrl-C stops", flush=True)
         print(f"  poll it: mbpoll -m tcp -p {cfg.modbus.port} -0 -B -t 3:float -r 4 -c 3 {cfg.modbus.host}"
               f"   (position m, velocity m/s, acceleration m/s²; adxlgw regmap lists every register)", flush=True)
-        reload = lambda: load_with_overrides(args.config, overrides)  # noqa: E731
+        reload = lambda: load_overridden(args.config, overrides)  # noqa: E731
         return serve(cfg, reload)

@@ -23,13 +23,21 @@ from gateway.core.retiming import (Retiming, RetimingError, RetimingSettings, on
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
 from gateway.offline.progress import progress_bar
-from gateway.offline.recording import HINT_COLUMN, MAX_LINE_BYTES, cell_text, line_blocks, write_recording
+from gateway.offline.recording import (
+    HINT_COLUMN, MAX_LINE_BYTES, cell_text, check_output, line_blocks, write_recording,
+)
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}
 TIME_SCALES = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 LENGTH_SCALES = {"m": 1.0, "mm": 1e-3}
 # role → (option, recording column); the reference is along the measured axis, in SI
 REFERENCE_ROLES = {"ref_pos": "ref_pos_m", "ref_vel": "ref_vel_mps", "ref_acc": "ref_acc_mps2"}
+
+
+#: Below this the rows cannot follow a motion: the paper's strokes last 0.4 s, the robot's
+#: moves about a second. What it catches: a millisecond time column read as seconds
+#: (1000× too slow: 0.5 samples/s for a 500 Hz log).
+MIN_RATE_HZ = 1.0
 
 
 def add_parser(sub) -> None:
@@ -53,6 +61,7 @@ def add_parser(sub) -> None:
                    help="with --arrival-col: the sensor's configured sample rate, if known; the period "
                         "is then sought within ±10 %% of it (needed when a start-up backlog is most of "
                         "the file: the arrivals alone cannot tell it from a logger falling behind)")
+    p.add_argument("--delimiter", default=",", help="the cell separator (default: ','; e.g. ';')")
     p.add_argument("--time-unit", choices=sorted(TIME_SCALES), default="s",
                    help="unit of the time or arrival column (default: s)")
     p.add_argument("--check-time-col", metavar="COL",
@@ -198,7 +207,7 @@ def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     limit = csv.field_size_limit(MAX_LINE_BYTES)
     try:
         with progress_bar(size, f"reading {Path(path).name}") as bar:
-            return _read_rows(args, csv.reader(_text_lines(path, bar, end)), end)
+            return _read_rows(args, csv.reader(_text_lines(path, bar, end), delimiter=args.delimiter), end)
     finally:
         csv.field_size_limit(limit)  # the process's setting, as it was
 
@@ -221,9 +230,14 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
         raise _csv_error(path, reader, err) from None
     wanted = _wanted(args)
     index = {}
+    missing = [name for name in wanted.values() if name not in header]
+    if missing:
+        shown = ", ".join(repr(h) for h in header[:20]) + (f", … ({len(header)} in all)" if len(header) > 20 else "")
+        hint = ("; one column only, with ';' in it: a ';'-separated file? give --delimiter ';'"
+                if len(header) == 1 and ";" in header[0] and args.delimiter != ";" else "")
+        raise RecordingError(f"{path}:1: no column {', '.join(map(repr, missing))} in the header; "
+                             f"its columns: {shown}{hint}")
     for role, name in wanted.items():
-        if name not in header:
-            raise RecordingError(f"{path}:1: no column {name!r} in the header")
         index[role] = header.index(name)
     columns = {role: _Column(relative=role in ("time", "check")) for role in wanted}
     lines = array("q")
@@ -308,6 +322,7 @@ def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
+    check_output(args.out)  # before the work
     values, lines, skipped = read_foreign(args)
     time_col = args.arrival_col or args.time_col
     need = RetimingSettings().min_rows if args.arrival_col else 2
@@ -320,6 +335,12 @@ def run(args: argparse.Namespace) -> int:
         if back.size:
             raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: time does not "
                                  "increase")
+        rate_hz = 1.0 / float(np.median(np.diff(t_in)))
+        if rate_hz < MIN_RATE_HZ:
+            raise RecordingError(
+                f"{args.foreign}: column {time_col!r} read in {args.time_unit}: {rate_hz:.3g} samples/s, too slow "
+                f"for an accelerometer's log (a move of the paper or the robot lasts under a second: fewer than "
+                f"{MIN_RATE_HZ:g} sample/s cannot follow it); a time in another unit? give --time-unit")
 
     notes: list[str] = []
     metadata = {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " ")}

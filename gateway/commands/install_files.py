@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write(FILES[args.print_name][1]())
         return 0
     root = Path(args.root)
-    if not root.is_dir():
+    if root.exists() and not root.is_dir():
         raise InputError(f"--root {root}: not a directory")
     for relative, text, overwrite in FILES.values():
         target = root / relative

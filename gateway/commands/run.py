@@ -10,7 +10,6 @@ from typing import NoReturn
 
 from gateway.config import Config, load_config
 from gateway.daemon.preflight import refuse_unrunnable
-from gateway.daemon.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
 
@@ -48,10 +47,17 @@ def overrides_from(args: argparse.Namespace) -> dict:
     return {k: v for k, v in pairs.items() if v is not None}
 
 
-def load_with_overrides(path: str | None, overrides: dict) -> Config:
-    """The config `run` starts (or reloads) with; ConfigError (exit 2) if it cannot run."""
+def load_overridden(path: str | None, overrides: dict) -> Config:
+    """The config file with the command line's overrides (a reload reads it again; the
+    daemon checks it against the running one: preflight.refuse_reload)."""
     cfg = load_config(path)
-    cfg = cfg.replace(overrides) if overrides else cfg
+    return cfg.replace(overrides) if overrides else cfg
+
+
+def load_with_overrides(path: str | None, overrides: dict) -> Config:
+    """The config `run` starts with; ConfigError (exit 2) or DeviceError (exit 3) if it
+    cannot run (the checks of `config --check`: preflight.findings)."""
+    cfg = load_overridden(path, overrides)
     for finding in refuse_unrunnable(cfg):
         log.log(logging.WARNING if finding.severity == "device" else logging.INFO, "%s", finding.line(cfg.source))
     return cfg
@@ -63,6 +69,8 @@ def serve(cfg: Config, reload) -> int:
     logging.getLogger().setLevel(cfg.service.log_level.upper())
     if not cfg.service.view:
         return asyncio.run(Gateway(cfg, reload=reload).run())
+    from gateway.daemon.terminal_view import TerminalView  # rich: the [offline] extra (preflight checks)
+
     with TerminalView() as view:  # log lines above, the view below, until the daemon ends
         return asyncio.run(Gateway(cfg, reload=reload, view=view).run())
 
@@ -70,7 +78,7 @@ def serve(cfg: Config, reload) -> int:
 def run(args: argparse.Namespace) -> NoReturn:
     overrides = overrides_from(args)
     cfg = load_with_overrides(args.config, overrides)
-    reload = (lambda: load_with_overrides(args.config, overrides)) if args.config else None
+    reload = (lambda: load_overridden(args.config, overrides)) if args.config else None
     exit_now(serve(cfg, reload))
 
 

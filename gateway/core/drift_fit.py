@@ -27,8 +27,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincc
 
+from gateway.core.chi2 import chi2_sf
 from gateway.core.drift_model import DriftModel, drift_g
 
 FLICKER_FLOOR_FACTOR = 0.664  # σ_A at the flat minimum = 0.664·B (IEEE Std 952, 1/f noise)
@@ -144,8 +144,8 @@ def ljung_box(x, lags: int | None = None) -> LjungBox:
     h = lags if lags is not None else min(20, n // 5)
     rho = autocorrelation(x, h)[1:]
     q = n * (n + 2) * float(np.sum(rho**2 / (n - np.arange(1, h + 1))))
-    # chi2.sf(q, h), without importing scipy.stats (see the import)
-    return LjungBox(statistic=q, lags=h, p_value=float(gammaincc(0.5 * h, 0.5 * q)), n=n)
+    # chi2.sf(q, h), without scipy (the daemon imports this module: gateway/core/chi2.py)
+    return LjungBox(statistic=q, lags=h, p_value=chi2_sf(q, h), n=n)
 
 
 def octave_taus(n: int, max_fraction: float = 0.25) -> np.ndarray:

@@ -20,10 +20,10 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-# scipy.special, not scipy.stats: the same function (chi2.ppf is 2·gammaincinv(ν/2, q)),
-# bit for bit; scipy.stats alone is ~0.5 s of import (python -X importtime), which the
-# daemon's start (a restart's blind time) need not pay
-from scipy.special import gammaincinv
+
+# not scipy: its import was ~0.6 s of the daemon's start (a restart's blind time) and
+# scipy 143 MB of the daemon's install (gateway/core/chi2.py)
+from gateway.core.chi2 import chi2_isf
 
 from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation, noise_terms
 from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, NOMINAL_DUTY_PER_G, SensorParams, \
@@ -173,7 +173,7 @@ class EstimatorSettings:
     def window_variance_threshold_mps2_sq(self) -> float:
         """Reject standstill above this window variance: σ²·χ²_ν(1 − p)/ν."""
         nu = self.window_dof
-        return self.sample_noise_std_mps2**2 * float(2.0 * gammaincinv(0.5 * nu, 1.0 - self.standstill_false_motion_prob)) / nu
+        return self.sample_noise_std_mps2**2 * chi2_isf(self.standstill_false_motion_prob, nu) / nu
 
     def kernel_params(self) -> np.ndarray:
         """The flat float array the compiled kernel reads (layout: estimator_kernel.P_*)."""

@@ -59,6 +59,7 @@ class LinkHealth:
     lost_after_s: float
     config_reloaded_at_s: float | None = None
     can_send_errors: int = 0
+    can_refused_commands: int = 0
     simulated: bool = False  # the board is the built-in emulated one
 
 
@@ -220,5 +221,6 @@ class BoardIntake:
             lost_samples=c.samples_lost, crc_errors=c.crc_errors,
             board_resets=p.counters.resets_announced + p.counters.resets_inferred,
             can_send_errors=health.can_send_errors,
+            can_refused_commands=health.can_refused_commands,
             status_ext=self._status_ext(health, est),
         )

@@ -4,22 +4,35 @@ The schema (gateway/config.py) decides what a value may be; these checks ask the
 machine: is the board's port set and there, does the drift-model file load, does the
 Modbus host resolve, does the CAN interface exist. Each finding names its key.
 
+One function, `findings`, for both callers: `config --check` fails on exactly what
+`run` would refuse or wait for (the same verdict on the same file), and a reload
+(SIGHUP) is checked by it too, against the running config.
+
 Severity says what `run` does with it:
-  "error"  — run refuses to start (exit 2): no setting could make it work.
-  "device" — run starts and waits for it (the board's port is retried with back-off,
-             CAN every 5 s): a USB adapter may be plugged in later. `config --check`
-             still fails on it, so a fresh install shows what is missing.
-  "note"   — nothing wrong, but worth knowing (simulated values, unchecked URL).
+  "error"    — run refuses to start (exit 2): the config is wrong (a port not set, a
+               Modbus host that is not an address of this machine).
+  "unusable" — run refuses to start (exit 3): the device or port is there but cannot
+               be used now (the Modbus TCP port taken or privileged).
+  "device"   — run starts and waits for it (the board's port is retried with back-off,
+               CAN every 5 s): a USB adapter may be plugged in later. `config --check`
+               still fails on it, so a fresh install shows what is missing.
+  "note"     — nothing wrong, but worth knowing (simulated values, unchecked URL).
+
+A reload is all or nothing: any finding but a note on a wire the reload changes (a
+missing serial port included) refuses it and the running config stays; wires it leaves
+as they are are not checked again (the running daemon holds them).
 """
 from __future__ import annotations
 
+import importlib.util
 import socket
 from dataclasses import dataclass
 
 from drivers.link_checks import check_can_link, check_serial_port
+from drivers.modbus_ports import tcp_listen_check
 from gateway.config import Config
 from gateway.drift_model_file import load_drift_model
-from gateway.errors import ConfigError, InputError
+from gateway.errors import ConfigError, DeviceError, InputError
 
 EMULATED = "emulated"
 
@@ -37,33 +50,58 @@ class Finding:
 _SEVERITY_OF = {"missing": "device", "invalid": "error", "unchecked": "note"}
 
 
-def findings(cfg: Config) -> list[Finding]:
+def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
+    """Every check `run` makes before it serves; with `running` (a reload), only of the
+    wires whose settings differ from it."""
+    def changed(section: str, *names: str) -> bool:
+        return running is None or any(getattr(getattr(running, section), n) != getattr(getattr(cfg, section), n)
+                                      for n in names)
+
     found: list[Finding] = []
     port = cfg.serial.port
-    if port is None:
+    if not changed("serial", "port"):
+        pass
+    elif port is None:
         found.append(Finding("serial.port", "error",
                              "not set: set it to the board's serial device (e.g. /dev/ttyUSB0 or "
                              "/dev/serial/by-id/…), or to \"emulated\" for the built-in virtual board"))
     elif port == EMULATED:
-        found.append(Finding("serial.port", "note", "the built-in emulated board: every value is simulated"))
+        if importlib.util.find_spec("scipy") is None:  # the simulator behind it is an offline tool
+            found.append(Finding("serial.port", "error", "the emulated board needs the offline tools: "
+                                 "pip install 'adxl-gateway[offline]'"))
+        else:
+            found.append(Finding("serial.port", "note", "the built-in emulated board: every value is simulated"))
     else:
         found += _link("serial.port", check_serial_port(port))
-    if cfg.estimator.drift_model:
+    if cfg.service.view and importlib.util.find_spec("rich") is None:
+        found.append(Finding("service.view", "error", "the live view needs the offline tools: "
+                             "pip install 'adxl-gateway[offline]'"))
+    if cfg.estimator.drift_model and changed("estimator", "drift_model"):
         try:
             load_drift_model(cfg.estimator.drift_model)
         except InputError as err:
             found.append(Finding("estimator.drift_model", "error", str(err)))
-    if cfg.modbus.tcp_enabled:
-        try:
-            socket.getaddrinfo(cfg.modbus.host, cfg.modbus.port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
-        except (socket.gaierror, UnicodeError) as err:
-            found.append(Finding("modbus.host", "error", f"{cfg.modbus.host!r} does not resolve ({err})"))
-    if cfg.modbus.rtu_enabled:
+    if cfg.modbus.tcp_enabled and changed("modbus", "tcp_enabled", "host", "port"):
+        found += _modbus_listen(cfg.modbus.host, cfg.modbus.port)
+    if cfg.modbus.rtu_enabled and changed("modbus", "rtu_enabled", "rtu_port"):
         found += _link("modbus.rtu_port", check_serial_port(cfg.modbus.rtu_port))
-    if cfg.can.enabled:
+    if cfg.can.enabled and changed("can", "enabled", "interface", "channel"):
         link = check_can_link(cfg.can.interface, cfg.can.channel)
         found += _link("can.interface" if link.wrong_interface else "can.channel", link)
     return found
+
+
+def _modbus_listen(host: str, port: int) -> list[Finding]:
+    """The Modbus TCP address and port, tried by binding them (what the server will do)."""
+    try:
+        socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as err:
+        return [Finding("modbus.host", "error", f"{host!r} does not resolve ({err})")]
+    problem = tcp_listen_check(host, 0)  # the address alone: is it one of this machine's?
+    if problem:
+        return [Finding("modbus.host", "error", problem)]
+    problem = tcp_listen_check(host, port)
+    return [Finding("modbus.port", "unusable", problem)] if problem else []
 
 
 def _link(key: str, check) -> list[Finding]:
@@ -73,9 +111,19 @@ def _link(key: str, check) -> list[Finding]:
 
 
 def refuse_unrunnable(cfg: Config) -> list[Finding]:
-    """Raise ConfigError (exit 2) on the first finding `run` cannot start with; return the rest."""
+    """At start: ConfigError (exit 2) naming every error, else DeviceError (exit 3) naming
+    every unusable port; returns the rest (what run waits for, notes)."""
     found = findings(cfg)
-    for finding in found:
-        if finding.severity == "error":
-            raise ConfigError(finding.line(cfg.source))
+    for severity, error in (("error", ConfigError), ("unusable", DeviceError)):
+        lines = [f.line(cfg.source) for f in found if f.severity == severity]
+        if lines:
+            raise error("\n".join(lines))
     return found
+
+
+def refuse_reload(running: Config, new: Config) -> None:
+    """At a reload: ConfigError naming every finding but a note on a wire the reload
+    changes — a reload is applied whole or not at all."""
+    lines = [f.line(new.source) for f in findings(new, running) if f.severity != "note"]
+    if lines:
+        raise ConfigError("\n".join(lines))

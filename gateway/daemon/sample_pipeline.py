@@ -20,7 +20,7 @@ function runs as plain Python — one implementation under two runners
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -234,6 +234,15 @@ class SamplePipeline:
         # published = estimator position − offset; a start position (e.g. the last one
         # published before a restart) is a prior to continue from, not a reference
         self.reference_offset_m = -start_position_m
+        #: the variance of that offset, m²: what the position carries from before this
+        #: estimator's start (a restored position, an estimate before a start-over), added to
+        #: the estimator's own in every published σ (set_start_uncertainty, _start_over)
+        self.reference_var_m2 = 0.0
+        # the filter's position variance the last time it moved untrusted (its velocity
+        # lost), and whether the current stop was accepted without evidence (see
+        # _keep_sigma_of_a_stop_on_quiet_alone)
+        self._untrusted_motion_var_m2 = 0.0
+        self._in_stop_on_quiet = False
         self.referenced = False
         self._estimated = False  # a sample went through the estimator since start or reset
         self._result = ChunkResult()
@@ -281,6 +290,7 @@ class SamplePipeline:
             self._estimated = True
         if entry:
             r.entered_standstill = True
+        self._keep_sigma_of_a_stop_on_quiet_alone()
         if fault:
             # numbers that mean nothing are not kept: start over, flagged
             c.estimator_faults += 1
@@ -288,6 +298,29 @@ class SamplePipeline:
             self._start_over()
         # plain ints: run as plain Python (no numba), the run's numbers are numpy's
         return int(end), int(taken), int(last_seq), int(lost_total), int(gaps), int(repeats), int(backwards)
+
+    def _keep_sigma_of_a_stop_on_quiet_alone(self) -> None:
+        """A stop accepted while the position is untrusted (the velocity was lost — a gap,
+        an outage, a restart mid-move — and a quiet stretch outlasted any cruise: estimator
+        quiet_stop_s) says the axis stands now, not where it stopped. The stop's velocity
+        update corrects the position as if the velocity error had stayed constant since the
+        velocity was lost, which an outage or a restart mid-move does not promise (the
+        fault benchmark: 0.2–1.3 m off after such a stop with a σ of 35–65 mm). So the
+        position keeps the σ it had in motion just before that stop, until a tare.
+        (Seen at the end of each run of samples: in the daemon a run is a batch of a few
+        samples, so "just before" is within a batch.)"""
+        out = self.estimator.state.out
+        flags = int(out[K.O_FLAGS])
+        if not flags & K.F_STANDSTILL:
+            self._in_stop_on_quiet = False
+            if flags & K.F_UNTRUSTED:
+                self._untrusted_motion_var_m2 = out[K.O_POS_VAR]
+            return
+        if flags & K.F_UNTRUSTED and not self._in_stop_on_quiet and self._untrusted_motion_var_m2 > 0.0:
+            self._in_stop_on_quiet = True
+            self.reference_var_m2 += self._untrusted_motion_var_m2
+            self._untrusted_motion_var_m2 = 0.0
+            self._latest = None
 
     def on_report(self, frame: Status | Hello) -> None:
         """`SampleSink`: a STATUS or HELLO; a board reset loses time continuity."""
@@ -315,6 +348,7 @@ class SamplePipeline:
         if est is None:
             return False
         self.reference_offset_m += est.pos_m
+        self.reference_var_m2 = 0.0  # here is zero by definition
         self.referenced = True
         self._latest = None
         return True
@@ -327,6 +361,12 @@ class SamplePipeline:
         self.estimator.request_bias_reestimate()
         self._latest = None
         return True
+
+    def set_start_uncertainty(self, std_m: float) -> None:
+        """The start position's own uncertainty (1σ, m): a restored position is a prior whose
+        σ says what the axis could have done while nobody watched (state_store.restored_position_std_m)."""
+        self.reference_var_m2 = std_m * std_m if math.isfinite(std_m) else math.inf
+        self._latest = None
 
     def reset(self) -> None:
         """Start the estimator over (e.g. continuity lost); the position stays continuous
@@ -360,13 +400,18 @@ class SamplePipeline:
     def _start_over(self) -> None:
         est = self.latest()
         if est is not None and math.isfinite(est.pos_m):
-            # keep the published position continuous; it is just no longer trusted
+            # keep the published position continuous; it is just no longer trusted, and no
+            # more certain than it was (the new estimator starts with a position variance 0)
             self.reference_offset_m = -est.pos_m
+            if math.isfinite(est.pos_std_m):
+                self.reference_var_m2 = est.pos_std_m * est.pos_std_m
         self.referenced = False
         self.estimator.restart()  # the axis may be moving: the velocity is not known
         self.set_hint(self.hint)  # the machine's word still holds
         self._estimated = False
         self._latest = None
+        self._untrusted_motion_var_m2 = 0.0
+        self._in_stop_on_quiet = False
         self._st[S_TIMED] = 0.0
         self._st[S_STOP_BY_HINT] = 0.0
 
@@ -384,7 +429,10 @@ class SamplePipeline:
             return None
         state = self.estimator.state
         # one Estimate, built once per change: every wire's snapshot reads it
-        return Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
+        est = Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
+        if self.reference_var_m2 > 0.0:  # the start position's own uncertainty, independent of the filter's
+            est = replace(est, pos_std_m=math.sqrt(est.pos_std_m * est.pos_std_m + self.reference_var_m2))
+        return est
 
     @property
     def stop_by_hint(self) -> bool:

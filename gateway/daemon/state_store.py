@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import os
+import stat
 import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
@@ -109,9 +110,43 @@ def _checked_number(name: str, value: object) -> float | None:
     return number
 
 
+def check_travel(state: PersistentState, travel_m: tuple[float, float]) -> None:
+    """StateFileError if the saved position lies outside the axis's travel: not a place the
+    axis can be, so the file is not this axis's (a restored state, a copy, a hand edit)."""
+    lo, hi = travel_m
+    pos = state.last_position_m
+    if pos is not None and not lo <= pos <= hi:
+        raise StateFileError(f"last_position_m = {pos:g} outside the axis's travel "
+                             f"[{lo:g}, {hi:g}] m (estimator.travel_m)")
+
+
+def restored_position_std_m(state: PersistentState, now_unix_s: float, top_speed_mps: float,
+                            travel_m: tuple[float, float], still_while_down: bool) -> float:
+    """How uncertain a restored position is: what the axis could have done unwatched.
+
+    The position was last known when the state was saved. Since then the axis may have
+    moved at up to the machine's top speed — unless the run stopped in order at rest and
+    the config says nothing moves the axis while the gateway is down (0 then). Never more
+    than the travel's span: the axis cannot leave it. No position saved (a run killed before
+    its first save, a file refused): anywhere in the travel. A save time in the future (a clock
+    set back) or none tells nothing of the time unwatched: the travel's span.
+    """
+    span_m = travel_m[1] - travel_m[0]
+    if state.last_position_m is None:
+        return span_m  # a run before this one, but no position kept (or a bad file): anywhere
+    if still_while_down and state.stopped_at_rest_unix_s is not None:
+        return 0.0
+    saved = state.saved_at_unix_s
+    if saved is None or saved > now_unix_s:
+        return span_m
+    return min(span_m, top_speed_mps * (now_unix_s - saved))
+
+
 class StateStore:
-    def __init__(self, path: str | os.PathLike):
+    def __init__(self, path: str | os.PathLike, travel_m: tuple[float, float] | None = None):
         self.path = Path(path)
+        #: a saved position outside it is refused (check_travel); None: not checked
+        self.travel_m = travel_m
         self.last_error: str | None = None
         #: Where the last bad file was moved (None if none was, or it could not be moved).
         self.moved_aside: Path | None = None
@@ -132,8 +167,7 @@ class StateStore:
         self._remove_stale_temp()
         self.found_none = False
         try:
-            with open(self.path, "rb") as fh:
-                raw = fh.read(MAX_STATE_BYTES + 1)
+            raw = _read_regular_file(self.path, MAX_STATE_BYTES + 1)
         except FileNotFoundError:
             self.found_none = True
             return PersistentState()
@@ -148,7 +182,10 @@ class StateStore:
                 text = raw.decode("utf-8")
             except UnicodeDecodeError as err:
                 raise StateFileError(f"not UTF-8 at byte {err.start}") from err
-            return parse_state(text)
+            state = parse_state(text)
+            if self.travel_m is not None:
+                check_travel(state, self.travel_m)
+            return state
         except StateFileError as err:
             self.moved_aside = self._move_aside()
             where = f"moved to {self.moved_aside.name}" if self.moved_aside else "could not be moved aside"
@@ -211,3 +248,20 @@ class StateStore:
             except OSError:
                 pass  # keeping one too many is harmless
         return target
+
+
+def _read_regular_file(path: Path, limit: int) -> bytes:
+    """At most `limit` bytes of a regular file; OSError for anything else.
+
+    Opened non-blocking and checked before reading: a FIFO at the path would block open()
+    and read() until a writer came (the daemon would never listen), a device could hand
+    out bytes without end."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise OSError(0, "not a regular file")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            return fh.read(limit)
+    finally:
+        os.close(fd)

@@ -29,7 +29,7 @@ import math
 import signal
 import time
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import can
 
@@ -41,11 +41,14 @@ from gateway.config import Config
 from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
 from gateway.daemon.board_port import BoardPort
 from gateway.errors import ConfigError, DeviceError
+from gateway.daemon.preflight import refuse_reload
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
-from gateway.daemon.state_store import PersistentState, StateStore
-from gateway.daemon.terminal_view import TerminalView
+from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
 from gateway.daemon.wires import Wires
+
+if TYPE_CHECKING:  # rich, behind the view, is an offline tool's library (pyproject's [offline])
+    from gateway.daemon.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
 
@@ -67,6 +70,12 @@ class Counters:
     config_reloads: int = 0
     config_reload_errors: int = 0
     watchdog_pings: int = 0
+
+
+def _terminal_view() -> TerminalView:
+    from gateway.daemon.terminal_view import TerminalView
+
+    return TerminalView()
 
 
 class Gateway:
@@ -91,7 +100,7 @@ class Gateway:
         self.clock = clock
         self.publish_tick_s = publish_tick_s  # how often to republish while the board is quiet
         self.counters = Counters()
-        self.state_store = StateStore(cfg.state.path)
+        self.state_store = StateStore(cfg.state.path, travel_m=tuple(cfg.estimator.travel_m))
         saved = self.state_store.load()
         #: start_at_rest believed: configured, and this is a first start (no state file) or
         #: the last run stopped in order while the axis stood. After a crash, kill -9 or
@@ -109,15 +118,21 @@ class Gateway:
         self.pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
                                        start_position_m=saved.last_position_m or 0.0,
                                        start_at_rest=self.starts_at_rest)
+        # the restored position's σ is set at the first estimate: the axis was unwatched
+        # until then (a board that comes late included), not only while the gateway was down
+        # (a first start — no state file — has nothing to restore: its position starts at 0
+        # by definition, unreferenced)
+        self._restored: PersistentState | None = None if self.state_store.found_none else saved
         self._hint_until = math.inf  # when the machine's standstill hint expires
         self.intake = BoardIntake(self.pipeline)
         self.board = BoardPort(lambda: self.cfg)
         self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
-        self.view = view if view is not None else (TerminalView() if cfg.service.view else None)
+        self.view = view if view is not None else (_terminal_view() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
         self._reloaded_at: float | None = None
         self._stop_requested = asyncio.Event()
+        self._sigint = False
         self._ready = asyncio.Event()
         self._started = False
         self._stopped = False
@@ -176,7 +191,7 @@ class Gateway:
     async def run(self) -> int:
         loop = asyncio.get_running_loop()
         loop.add_signal_handler(signal.SIGTERM, self.request_stop)
-        loop.add_signal_handler(signal.SIGINT, self.request_stop)
+        loop.add_signal_handler(signal.SIGINT, self._interrupted)
         loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self._reload_logged())))
         async with self:
             stopper = asyncio.create_task(self._stop_requested.wait())
@@ -184,7 +199,12 @@ class Gateway:
             stopper.cancel()
             if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
                 raise self._board_task.exception()
-        return 0
+        # Ctrl-C is "interrupted" (exit 130, the README's table); SIGTERM an orderly stop (0)
+        return 130 if self._sigint else 0
+
+    def _interrupted(self) -> None:
+        self._sigint = True
+        self.request_stop()
 
     async def stop(self) -> None:
         """Cancel, then gather; close the port and servers; save the state."""
@@ -282,6 +302,8 @@ class Gateway:
                 self.intake.receive(self.clock(), waiting)
         intake = self.intake
         if intake.drain():
+            if self._restored is not None:
+                self._set_restored_uncertainty()
             # as of the newest sample's arrival, as if each chunk had been handled then
             # (_publish written out: this runs at every wakeup)
             intake.publish(intake.events.last_sample_s)
@@ -291,6 +313,19 @@ class Gateway:
             # asyncio timer is a dozen calls); it fires 1–3 ticks after the last sample
             if self._tick_handle is not None and self._tick_due - now < self.publish_tick_s:
                 self._arm_tick(now, QUIET_AFTER_TICKS * self.publish_tick_s)
+
+    def _set_restored_uncertainty(self) -> None:
+        """Once, at the first estimate: the restored position's σ (state_store.restored_position_std_m)."""
+        if self.pipeline.latest() is None:
+            return
+        saved, self._restored = self._restored, None
+        est = self.cfg.estimator
+        std_m = restored_position_std_m(saved, time.time(), self.pipeline.estimator.settings.restart_speed_std_mps,
+                                        tuple(est.travel_m), est.still_while_down)
+        self.pipeline.set_start_uncertainty(std_m)
+        log.info("restored position %s m, σ %.3f m (saved %s s before the first sample)",
+                 "unknown" if saved.last_position_m is None else f"{saved.last_position_m:.4f}", std_m,
+                 "?" if saved.saved_at_unix_s is None else f"{time.time() - saved.saved_at_unix_s:.1f}")
 
     def _publish(self, now: float) -> None:
         """New values as of `now`: the heartbeat moves and every wire will show them
@@ -315,6 +350,7 @@ class Gateway:
             stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
             config_reloaded_at_s=self._reloaded_at,
             can_send_errors=0 if can is None else can.send_errors,
+            can_refused_commands=0 if can is None else can.refused_commands,
             simulated=self.cfg.serial.port == "emulated",
         )
 
@@ -436,6 +472,7 @@ class Gateway:
         self._drain(self.clock())  # the bytes received so far, under the config they came with
         try:
             new = self._reload()
+            refuse_reload(self.cfg, new)  # all or nothing: a changed wire that cannot work refuses it
         except ConfigError as err:
             self.counters.config_reload_errors += 1
             log.error("reload refused, keeping the running config: %s", err)

@@ -33,7 +33,7 @@ import numpy as np
 from gateway.core.chunked_conversion import RawChunkConverter, SequenceReport
 from gateway.core.conversion import AxisCalibration, Calibration
 from gateway.core.sensor_model import SensorParams
-from gateway.errors import RecordingError
+from gateway.errors import InputError, RecordingError
 
 FORMAT_ID = "adxl-recording/1"
 RAW_REQUIRED = ("seq", "t1x", "t1y", "t2")
@@ -61,6 +61,22 @@ DEFAULT_ACC_RANGE_MPS2 = 1000.0
 
 def is_parquet(path: str | os.PathLike) -> bool:
     return str(path).lower().endswith(PARQUET_SUFFIXES)
+
+
+#: what a recording can be written as, by the file's extension
+OUTPUT_SUFFIXES = (".csv",) + PARQUET_SUFFIXES
+
+
+def check_output(path: str | os.PathLike) -> None:
+    """InputError (exit 2) unless a recording can be written at `path`: an extension this
+    format has (a `.xlsx` used to get CSV silently) and a directory that exists — said
+    before any work, not after it."""
+    text = str(path)
+    if not text.lower().endswith(OUTPUT_SUFFIXES):
+        raise InputError(f"--out {text}: not a recording's extension: {', '.join(OUTPUT_SUFFIXES)}")
+    parent = Path(text).parent
+    if not parent.is_dir():
+        raise InputError(f"--out {text}: no directory {parent}")
 
 
 @dataclass
@@ -771,6 +787,7 @@ class ColumnWriter:
                  integer_columns=INTEGER_COLUMNS):
         import pyarrow as pa
 
+        check_output(path)
         self.path = Path(path)
         self.names = list(names)
         self.parquet = is_parquet(path)

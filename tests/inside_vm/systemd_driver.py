@@ -102,8 +102,13 @@ def main(report_path: Path) -> None:
     report: dict = {}
     try:
         report["start"] = run("systemctl", "start", UNIT)  # Type=notify: returns at READY=1
+        # Result and ExecMainStatus (e.g. 238/STATE_DIRECTORY) say why a start failed, and the
+        # unit's own journal what it printed: the test shows them when the start failed
         report["start"].update(show("ActiveState", "SubState", "StatusText", "WatchdogUSec", "MainPID",
-                                    "TimeoutStartUSec", "TimeoutStopUSec", "Environment"))
+                                    "TimeoutStartUSec", "TimeoutStopUSec", "Environment", "Result",
+                                    "ExecMainCode", "ExecMainStatus"))
+        if report["start"]["rc"] != 0:
+            report["start"]["journal"] = run("journalctl", "-u", UNIT, "-o", "cat", "--no-pager")["stdout"]
         watchdog_s = seconds(show("WatchdogUSec")["WatchdogUSec"])
         # pings only once samples flow; then one per WatchdogSec/2
         first = wait_for(watchdog_us, 2 * watchdog_s) or 0
