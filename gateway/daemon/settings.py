@@ -61,7 +61,8 @@ def mqtt_settings_from(cfg: Config) -> SparkplugSettings | None:
         return None
     username = password = None
     if m.credentials_file:
-        username, password = _read_credentials(cfg.source, m.credentials_file)
+        username, password = read_credentials(m.credentials_file,
+                                              f"{cfg.source}: mqtt.credentials_file {m.credentials_file}")
     return SparkplugSettings(
         host=m.host, port=m.port, group_id=m.group_id, edge_node_id=m.edge_node_id or socket.gethostname(),
         device_id=m.device_id, qos=m.qos, rate_hz=m.rate_hz, keepalive_s=m.keepalive_s,
@@ -73,8 +74,9 @@ def mqtt_settings_from(cfg: Config) -> SparkplugSettings | None:
 MAX_CREDENTIALS_BYTES = 4096  # one line of user:password; anything bigger is not that file
 
 
-def _read_credentials(source: str, path: str) -> tuple[str, str]:
-    where = f"{source}: mqtt.credentials_file {path}"
+def read_credentials(path: str, where: str) -> tuple[str, str]:
+    """(username, password) from the first line, username:password, of `path`; ConfigError
+    starting with `where` when it cannot be read or is not that."""
     try:
         with open(path, "rb") as fh:
             raw = fh.read(MAX_CREDENTIALS_BYTES + 1)
