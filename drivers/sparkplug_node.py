@@ -1,12 +1,18 @@
 """The gateway as a Sparkplug B edge node on an MQTT broker (paho-mqtt 2.x).
 
-One node per gateway, one device (the axis). The MQTT client runs in paho's network
-thread; everything Sparkplug (seq, bdSeq, births, the backlog) lives in the event loop:
-paho's callbacks only hand their news over with `call_soon_threadsafe`.
+One node per gateway, one device (the axis). paho-mqtt runs without a thread of its
+own: the node does its socket work from `poll()`, which the daemon calls at every
+publish (once per batch of board samples, and every quiet tick while the board is
+silent) and which does anything only once per 1/rate_hz. So MQTT adds no wakeup of
+its own to the daemon — on a VM each wakeup costs about as much as the MQTT work
+itself (docs/mqtt.md, "Measured"). A node without such a caller (the benchmark's
+simulated ones) drives itself with `drive_itself=True`.
 
-- The sample path never waits for MQTT: `publish()` does nothing; a timer at
-  `rate_hz` reads the newest snapshot, and only the metrics that changed go out as a
-  DDATA (report by exception). paho's publish only queues the packet for its thread.
+- The sample path never waits for MQTT: a poll that is not due is one comparison; a
+  due one reads what the broker sent (acknowledgements, commands), sends one DDATA with
+  the metrics that changed (report by exception) and writes it to the non-blocking
+  socket; what the kernel does not take now stays in paho's queue for the next poll.
+  Only the TCP connect, which can take seconds, runs in a worker thread.
 - While the broker is away the DDATA wait in a bounded backlog (BACKLOG_S of them);
   when it is full the oldest is dropped and counted (`counters.dropped`, the Modbus
   register MQTT_DROPPED, the metric mqtt/dropped). After the rebirth they go out
@@ -48,6 +54,7 @@ BACKLOG_S = 60.0
 #: accepts the connection but stops acknowledging must not grow it without end)
 MAX_PAHO_QUEUE = 1000
 DEATH_FLUSH_S = 1.0  # an orderly stop waits this long for its NDEATH to leave
+READS_PER_POLL = 4  # packets read per poll at most (acknowledgements, a command, a ping answer)
 
 
 class SparkplugError(Exception):
@@ -94,7 +101,7 @@ class SparkplugNode:
 
     def __init__(self, settings: SparkplugSettings, *, values: ValuesSource,
                  on_command: CommandCallback | None = None, version: str = "",
-                 wall_clock: Callable[[], float] = time.time):
+                 wall_clock: Callable[[], float] = time.time, drive_itself: bool = False):
         self.settings = settings
         self._values = values
         self._on_command = on_command
@@ -107,9 +114,13 @@ class SparkplugNode:
         self._bd_seq = -1  # the first CONNECT makes it 0
         self._last_sent: dict[str, Any] | None = None
         self._backlog: collections.deque[tuple[int, dict[str, Any]]] = collections.deque()
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self._drive_itself = drive_itself
+        self._period_s = 1.0 / settings.rate_hz
+        self._due_s = 0.0  # time.monotonic() of the next due poll
         self._client: mqtt.Client | None = None
-        self._timer: asyncio.Task | None = None
+        self._socket_ready = False  # connected at the TCP level, not inside a connect attempt
+        self._reconnect_now = asyncio.Event()
+        self._tasks: list[asyncio.Task] = []
         self._failure_said: str | None = None  # the last failure logged (said once until it changes)
         s = settings
         self.topics = {
@@ -127,7 +138,6 @@ class SparkplugNode:
 
     # ------------------------------------------------------------ lifecycle --
     async def start(self) -> None:
-        self._loop = asyncio.get_running_loop()
         s = self.settings
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"spb-{s.group_id}-{s.edge_node_id}",
                              clean_session=True)  # Sparkplug: edge nodes start clean sessions
@@ -139,61 +149,117 @@ class SparkplugNode:
             except (OSError, ssl.SSLError) as err:
                 raise SparkplugError(f"MQTT TLS CA file {s.tls_ca_file}: {err}") from err
         client.max_queued_messages_set(MAX_PAHO_QUEUE)
-        client.reconnect_delay_set(RECONNECT_MIN_S, RECONNECT_MAX_S)
         client.on_pre_connect = self._pre_connect
-        client.on_connect = self._paho_connected
-        client.on_connect_fail = self._paho_connect_failed
-        client.on_disconnect = self._paho_disconnected
-        client.on_message = self._paho_message
-        self._client = client
+        client.on_connect = self._on_connect
+        client.on_disconnect = self._on_disconnect
+        client.on_message = self._on_message
+        # host, port and keepalive for reconnect(); nothing is sent yet
         client.connect_async(s.host, s.port, keepalive=s.keepalive_s)
-        client.loop_start()
-        self._timer = asyncio.create_task(self._rate_timer(), name="mqtt-ddata")
+        self._client = client
+        self._tasks.append(asyncio.create_task(self._keep_connected(), name="mqtt-connect"))
+        if self._drive_itself:
+            self._tasks.append(asyncio.create_task(self._drive(), name="mqtt-poll"))
         log.info("MQTT edge node %s/%s connecting to %s", s.group_id, s.edge_node_id, self.where)
 
     async def stop(self) -> None:
         client, self._client = self._client, None
-        if self._timer is not None:
-            self._timer.cancel()
-            await asyncio.gather(self._timer, return_exceptions=True)
-            self._timer = None
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
         if client is None:
             return
-        if self.connected:
+        if self.connected and self._socket_ready:
             # an orderly end: say the death ourselves (the broker drops the will on a clean disconnect)
             info = client.publish(self.topics["NDEATH"], spb.node_death(self._bd_seq), qos=1)
-            await asyncio.to_thread(_wait_published, info, DEATH_FLUSH_S)
-        client.disconnect()
-        await asyncio.to_thread(client.loop_stop)
-        self.connected = self._born = False
+            await self._flush(client, info, DEATH_FLUSH_S)
+            client.disconnect()
+        self.connected = self._born = self._socket_ready = False
+        sock = client.socket()
+        if sock is not None:
+            sock.close()
 
-    # ------------------------------------------------ paho's thread: hand over --
+    @staticmethod
+    async def _flush(client: mqtt.Client, info: mqtt.MQTTMessageInfo, timeout_s: float) -> None:
+        """Until the broker acknowledged `info`'s message (or timeout)."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout_s
+        while loop.time() < deadline and client.socket() is not None and not info.is_published():
+            client.loop_write()
+            client.loop_read()
+            await asyncio.sleep(0.01)
+
+    async def _drive(self) -> None:
+        """For a node without a daemon calling poll(): poll at the rate."""
+        while True:
+            await asyncio.sleep(self._period_s)
+            self.poll()
+
+    async def _keep_connected(self) -> None:
+        """Connect, and again after each loss, with back-off; the TCP connect (and TLS
+        handshake) in a worker thread, everything after it in polls."""
+        delay_s = RECONNECT_MIN_S
+        while True:
+            client = self._client
+            if client is None:
+                return
+            self._socket_ready = False
+            self._reconnect_now.clear()
+            try:
+                await asyncio.to_thread(client.reconnect)
+            except (OSError, ssl.SSLError) as err:
+                self._failed(f"cannot reach the broker ({err.strerror or err})"
+                             if isinstance(err, OSError) else f"TLS: {err}")
+            else:
+                self._socket_ready = True
+                self._due_s = 0.0  # the CONNACK is read at the next poll
+                await self._reconnect_now.wait()  # until the connection ends
+                if self.counters.connects and self._failure_said is None:
+                    delay_s = RECONNECT_MIN_S  # it was up: come back soon
+            await asyncio.sleep(delay_s)
+            delay_s = min(2 * delay_s, RECONNECT_MAX_S)
+
+    # ------------------------------------------------------------- the poll --
+    def poll(self) -> None:
+        """Once per 1/rate_hz (else nothing): the broker's news, one DDATA, the socket
+        written, keep-alive kept. Called from the event loop, never blocks."""
+        now = time.monotonic()
+        if now < self._due_s:
+            return
+        self._due_s = max(self._due_s + self._period_s, now) if self._due_s else now + self._period_s
+        client = self._client
+        if client is None:
+            return
+        if self._socket_ready:
+            for _ in range(READS_PER_POLL):
+                if client.loop_read() != mqtt.MQTT_ERR_SUCCESS or not self._socket_ready:
+                    break
+        try:
+            self._tick()
+        except Exception:  # a bug: say it, keep the node (and the daemon) alive
+            log.exception("MQTT data tick failed")
+        if self._socket_ready:
+            client.loop_write()
+            client.loop_misc()
+
+    # ------------------------------------------------ paho's callbacks (in polls) --
     def _pre_connect(self, client: mqtt.Client, userdata: Any) -> None:
         # a new session each CONNECT: the next bdSeq, and the will that ends this session
         self._bd_seq = (self._bd_seq + 1) % spb.SEQ_MODULO
         client.will_set(self.topics["NDEATH"], spb.node_death(self._bd_seq), qos=1, retain=False)
 
-    def _paho_connected(self, client, userdata, flags, reason, properties) -> None:
-        self._call(self._connected, reason.is_failure, str(reason))
+    def _on_connect(self, client, userdata, flags, reason, properties) -> None:
+        self._connected(reason.is_failure, str(reason))
 
-    def _paho_connect_failed(self, client, userdata) -> None:
-        self._call(self._failed, "cannot reach the broker")
+    def _on_disconnect(self, client, userdata, flags, reason, properties) -> None:
+        self._socket_ready = False
+        self._reconnect_now.set()
+        self._disconnected(str(reason))
 
-    def _paho_disconnected(self, client, userdata, flags, reason, properties) -> None:
-        self._call(self._disconnected, str(reason))
+    def _on_message(self, client, userdata, message: mqtt.MQTTMessage) -> None:
+        self._message(message.topic, message.payload)
 
-    def _paho_message(self, client, userdata, message: mqtt.MQTTMessage) -> None:
-        self._call(self._message, message.topic, message.payload)
-
-    def _call(self, fn, *args) -> None:
-        loop = self._loop
-        if loop is not None and not loop.is_closed():
-            try:
-                loop.call_soon_threadsafe(fn, *args)
-            except RuntimeError:  # the loop closed meanwhile: nobody left to tell
-                pass
-
-    # ------------------------------------------------ the event loop: Sparkplug --
+    # ------------------------------------------------------------- Sparkplug --
     def _failed(self, why: str) -> None:
         if self._client is None:
             return
@@ -257,20 +323,6 @@ class SparkplugNode:
             self.counters.dropped += 1
             return False
         return True
-
-    async def _rate_timer(self) -> None:
-        period_s = 1.0 / self.settings.rate_hz
-        loop = asyncio.get_running_loop()
-        due = loop.time()
-        while True:
-            due += period_s
-            await asyncio.sleep(max(0.0, due - loop.time()))
-            if loop.time() - due > period_s:
-                due = loop.time()  # fell behind (a stalled loop): no burst to catch up
-            try:
-                self._tick()
-            except Exception:  # a bug: say it, keep the node alive
-                log.exception("MQTT data tick failed")
 
     def _tick(self) -> None:
         """One rate period: a DDATA with what changed, or into the backlog while away."""
@@ -340,8 +392,3 @@ class SparkplugNode:
             self.counters.commands_refused += 1
 
 
-def _wait_published(info: mqtt.MQTTMessageInfo, timeout_s: float) -> None:
-    try:
-        info.wait_for_publish(timeout_s)
-    except (RuntimeError, ValueError):  # not connected any more, or the queue refused it
-        pass

@@ -18,6 +18,7 @@ Conventions, said once:
 from __future__ import annotations
 
 import enum
+import functools
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -100,8 +101,8 @@ _MEASURED: tuple[MetricDef, ...] = (
 
 
 def _bit_metric(prefix: str, bit: enum.IntFlag, word: str) -> MetricDef:
-    return MetricDef(f"{prefix}/{bit.name}", DataType.BOOLEAN, "", f"Bit {bit.value.bit_length() - 1} of {word}.",
-                     lambda v, b=bit, w=word: bool(getattr(v, w) & b))
+    # read through _bits(): one dict per status pair, not 23 flag operations per snapshot
+    return MetricDef(f"{prefix}/{bit.name}", DataType.BOOLEAN, "", f"Bit {bit.value.bit_length() - 1} of {word}.")
 
 
 _BITS: tuple[MetricDef, ...] = tuple(_bit_metric("status", b, "status") for b in StatusBits) + tuple(
@@ -168,9 +169,24 @@ def parse_topic(topic: str) -> Topic | None:
 
 
 # --------------------------------------------------------------- payloads --
+_STATUS_MASKS = tuple((f"status/{b.name}", int(b)) for b in StatusBits)
+_EXT_MASKS = tuple((f"status_ext/{b.name}", int(b)) for b in StatusExtBits)
+
+
+@functools.lru_cache(maxsize=256)
+def _bits(status: int, status_ext: int) -> dict[str, bool]:
+    """The status bits as metrics; few distinct words in a run, so made once each
+    (the node reads a snapshot rate_hz times a second, in the daemon's event loop)."""
+    bits = {name: bool(status & mask) for name, mask in _STATUS_MASKS}
+    bits.update((name, bool(status_ext & mask)) for name, mask in _EXT_MASKS)
+    return bits
+
+
 def device_row(values: PublishedValues) -> dict[str, Any]:
     """The readable device metrics of one snapshot (commands and the node's counters aside)."""
-    return {m.name: m.read(values) for m in _READABLE}
+    row = {m.name: m.read(values) for m in _READABLE}
+    row.update(_bits(row["status"], row["status_ext"]))
+    return row
 
 
 def _set(metric, definition: MetricDef, value: Any) -> None:
@@ -187,7 +203,7 @@ def _add(payload, name: str, value: Any, *, birth: bool, timestamp_ms: int | Non
     metric = payload.metrics.add()
     if birth or name == BDSEQ:
         metric.name = name  # births name every metric; NDEATH's bdSeq goes by name
-    if name != BDSEQ:
+    if birth or name != BDSEQ:
         metric.alias = ALIASES[name]
     if timestamp_ms is not None:
         metric.timestamp = timestamp_ms
@@ -267,10 +283,12 @@ def metrics_markdown() -> str:
     """The metrics table of docs/mqtt.md."""
     lines = ["| metric | alias | message | type | unit | meaning |", "| --- | --- | --- | --- | --- | --- |"]
 
+    special = {BDSEQ: "NBIRTH, NDEATH", REBIRTH: "NBIRTH, NCMD", **{name: "DBIRTH, DCMD" for name in COMMANDS}}
+
     def rows(defs: Iterable[MetricDef], where: str) -> None:
         for m in defs:
-            lines.append(f"| `{m.name}` | {ALIASES[m.name]} | {where} | {m.datatype.name.title()} | "
-                         f"{m.unit} | {m.description} |")
+            lines.append(f"| `{m.name}` | {ALIASES[m.name]} | {special.get(m.name, where)} | "
+                         f"{m.datatype.name.title()} | {m.unit} | {m.description} |")
 
     rows(NODE_METRICS, "NBIRTH")
     rows(DEVICE_METRICS, "DBIRTH, DDATA")

@@ -43,7 +43,7 @@ class Broker:
         else:
             lines.append("allow_anonymous true")
         if persistence:
-            lines += ["persistence true", f"persistence_location {self.folder}/", "autosave_interval 1"]
+            lines += ["persistence true", f"persistence_location {self.folder}/"]
         if bridge_to is not None:
             lines += [f"connection to-{bridge_to.folder.name}", f"address 127.0.0.1:{bridge_to.port}",
                       "topic spBv1.0/# both 1", "cleansession true", "restart_timeout 1 5",

@@ -253,7 +253,9 @@ class MqttWire:
             await self.node.start()
 
     def publish(self) -> None:
-        pass  # the node reads the values at its own rate (mqtt.rate_hz), off the sample path
+        if self.node is not None:
+            # does anything only once per 1/rate_hz: MQTT rides on the daemon's wakeups
+            self.node.poll()
 
     async def apply(self, settings: SparkplugSettings | None) -> None:
         # a new session either way: the old one says NDEATH, the new one is born
