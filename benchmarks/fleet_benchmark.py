@@ -25,8 +25,9 @@ again 2 s later. Printed:
 Part 2, daemon CPU at 500 samples/s. Two `adxlgw run` daemons at once, each with a
 writer process playing the board on a real pty at 500 samples/s (as
 benchmarks/daemon_benchmark.py does), one with [mqtt] on (20 Hz, QoS 1, to the
-broker), one off; CPU % of one core from /proc over the run; `--cpu-rounds` rounds, the
-roles' order swapped each round; the difference per round and its median.
+broker), one off; CPU % of one core from /proc over the run; `--cpu-rounds` rounds per
+QoS (`--cpu-qos`, default 0 and 1), the roles' start order swapped each round; the
+difference per round and its median.
 
 Numbers go in commit messages and docs/mqtt.md with the command, date and machine line.
 """
@@ -117,11 +118,12 @@ def simulated_nodes(port: int, first: int, count: int, rate_hz: float, seconds: 
     asyncio.run(main())
 
 
-def real_daemon(tmp: Path, port: int, name: str, rate_hz: float, board: str = "emulated") -> subprocess.Popen:
+def real_daemon(tmp: Path, port: int, name: str, rate_hz: float, board: str = "emulated",
+                qos: int = 1) -> subprocess.Popen:
     folder = tmp / name
     folder.mkdir(parents=True, exist_ok=True)
     config = folder / "gw.toml"
-    mqtt = (f'[mqtt]\nenabled = true\nport = {port}\ngroup_id = "{GROUP}"\nedge_node_id = "{name}"\nqos = 1\n'
+    mqtt = (f'[mqtt]\nenabled = true\nport = {port}\ngroup_id = "{GROUP}"\nedge_node_id = "{name}"\nqos = {qos}\n'
             f'rate_hz = {rate_hz}\n') if port else ""
     config.write_text(f'[serial]\nport = "{board}"\n[modbus]\nport = 0\n[can]\nenabled = false\n'
                       f'[state]\npath = "{folder / "state.json"}"\n[service]\nlog_level = "warning"\n{mqtt}')
@@ -234,12 +236,12 @@ def fleet_run(args) -> dict:
 
 
 # ----------------------------------------------------------------- part 2 --
-def cpu_round(broker_port: int, seconds: float, mqtt_first: bool) -> dict:
+def cpu_round(broker_port: int, seconds: float, mqtt_first: bool, qos: int) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-cpu-"))
     ptys = {role: PtyPort(tmp / f"board-{role}") for role in ("on", "off")}
     roles = ("on", "off") if mqtt_first else ("off", "on")
     daemons = {role: real_daemon(tmp, broker_port if role == "on" else 0, f"cpu-{role}", 20.0,
-                                 board=str(ptys[role].link)) for role in roles}
+                                 board=str(ptys[role].link), qos=qos) for role in roles}
     for role, pty in ptys.items():
         if not pty.wait_for_reader(60):
             raise SystemExit(f"daemon {role} never opened its board port")
@@ -273,13 +275,15 @@ def cpu_round(broker_port: int, seconds: float, mqtt_first: bool) -> dict:
 
 def cpu_compare(args) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-cpu-"))
+    results = {}
     with Broker(tmp) as broker, FleetListener("127.0.0.1", broker.port, group=GROUP) as host:
-        rounds = [cpu_round(broker.port, args.cpu_seconds, mqtt_first=k % 2 == 0) for k in range(args.cpu_rounds)]
+        for qos in args.cpu_qos:
+            rounds = [cpu_round(broker.port, args.cpu_seconds, k % 2 == 0, qos) for k in range(args.cpu_rounds)]
+            diffs = [r["on"] - r["off"] for r in rounds]
+            results[f"qos{qos}"] = {"rounds": rounds, "diff_points": diffs, "diff_median": float(np.median(diffs))}
         with host.lock:
-            heard = sum(d.ddata for n in host.view.nodes.values() for d in n.devices.values())
-    diffs = [r["on"] - r["off"] for r in rounds]
-    return {"rounds": rounds, "diff_points": diffs, "diff_median": float(np.median(diffs)),
-            "ddata_heard": heard}
+            results["ddata_heard"] = sum(d.ddata for n in host.view.nodes.values() for d in n.devices.values())
+    return results
 
 
 def main() -> None:
@@ -291,6 +295,8 @@ def main() -> None:
     ap.add_argument("--restart-at-s", type=float, default=15.0)
     ap.add_argument("--cpu-seconds", type=float, default=20.0)
     ap.add_argument("--cpu-rounds", type=int, default=3)
+    ap.add_argument("--cpu-qos", type=lambda t: [int(x) for x in t.split(",")], default=[0, 1],
+                    help="the MQTT QoS values to compare, e.g. 0,1")
     ap.add_argument("--skip-fleet", action="store_true")
     ap.add_argument("--skip-cpu", action="store_true")
     ap.add_argument("--json", default=None, help="also write the results here")
@@ -318,10 +324,14 @@ def main() -> None:
               f"(mqtt.keepalive_s 10: the bound is 15 s)")
     if not args.skip_cpu:
         c = results["cpu"] = cpu_compare(args)
-        print(f"\ndaemon CPU at 500 samples/s, % of one core, MQTT on (20 Hz, QoS 1) vs off, side by side:")
-        for k, r in enumerate(c["rounds"]):
-            print(f"  round {k + 1}: on {r['on']:.2f} %, off {r['off']:.2f} %, difference {r['on'] - r['off']:+.2f} points")
-        print(f"  median difference {c['diff_median']:+.2f} points (DDATA heard by the host: {c['ddata_heard']})")
+        print("\ndaemon CPU at 500 samples/s, % of one core, MQTT on (20 Hz) vs off, side by side:")
+        for qos in args.cpu_qos:
+            q = c[f"qos{qos}"]
+            for k, r in enumerate(q["rounds"]):
+                print(f"  QoS {qos} round {k + 1}: on {r['on']:.2f} %, off {r['off']:.2f} %, "
+                      f"difference {r['on'] - r['off']:+.2f} points")
+            print(f"  QoS {qos}: median difference {q['diff_median']:+.2f} points")
+        print(f"  (DDATA heard by the host from the 'on' daemons: {c['ddata_heard']})")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
 

@@ -54,7 +54,11 @@ BACKLOG_S = 60.0
 #: accepts the connection but stops acknowledging must not grow it without end)
 MAX_PAHO_QUEUE = 1000
 DEATH_FLUSH_S = 1.0  # an orderly stop waits this long for its NDEATH to leave
-READS_PER_POLL = 4  # packets read per poll at most (acknowledgements, a command, a ping answer)
+#: How often a poll reads the socket (acknowledgements, commands, the keep-alive's answer):
+#: each read is several system calls (paho reads a packet's header byte by byte), on a VM
+#: ~40 µs each; a command waits at most this long, and QoS 1 acknowledgements are read
+#: in batches (paho keeps up to 20 messages in flight).
+READ_EVERY_S = 0.25
 
 
 class SparkplugError(Exception):
@@ -117,6 +121,7 @@ class SparkplugNode:
         self._drive_itself = drive_itself
         self._period_s = 1.0 / settings.rate_hz
         self._due_s = 0.0  # time.monotonic() of the next due poll
+        self._read_due_s = 0.0  # and of the next read of the socket
         self._client: mqtt.Client | None = None
         self._socket_ready = False  # connected at the TCP level, not inside a connect attempt
         self._reconnect_now = asyncio.Event()
@@ -230,10 +235,9 @@ class SparkplugNode:
         client = self._client
         if client is None:
             return
-        if self._socket_ready:
-            for _ in range(READS_PER_POLL):
-                if client.loop_read() != mqtt.MQTT_ERR_SUCCESS or not self._socket_ready:
-                    break
+        if self._socket_ready and (now >= self._read_due_s or not self.connected):
+            self._read_due_s = now + READ_EVERY_S
+            client.loop_read()  # every packet waiting; callbacks run here
         try:
             self._tick()
         except Exception:  # a bug: say it, keep the node (and the daemon) alive
