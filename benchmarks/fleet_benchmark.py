@@ -29,6 +29,11 @@ broker), one off; CPU % of one core from /proc over the run; `--cpu-rounds` roun
 QoS (`--cpu-qos`, default 0 and 1), the roles' start order swapped each round; the
 difference per round and its median.
 
+Part 3, the node's own cost without a daemon's noise: an asyncio loop woken 100 times a
+second (as the daemon is, once per batch of board samples), calling the node's poll()
+at each wakeup or not, each in a fresh process; CPU % and µs per DDATA.
+
+The machine is small and shared: the load average is printed at the start and the end.
 Numbers go in commit messages and docs/mqtt.md with the command, date and machine line.
 """
 from __future__ import annotations
@@ -134,19 +139,21 @@ def real_daemon(tmp: Path, port: int, name: str, rate_hz: float, board: str = "e
 # ----------------------------------------------------------------- part 1 --
 def fleet_run(args) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-"))
-    broker = Broker(tmp, persistence=True).start()
+    # a plant's broker for a historian: sessions kept across a restart, and room to queue
+    # what arrives for the host while it reconnects (mosquitto's default: 1000 messages)
+    broker = Broker(tmp, persistence=True, max_queued_messages=100_000).start()
     latencies: list[float] = []
     late: list[float] = []
     received: dict[str, int] = {}
     window = {"steady": False}
 
-    def probe(topic, payload, arrived_s):
-        if topic.kind != "DDATA":
+    def probe(message, arrived_s):
+        if message.topic.kind != "DDATA":
             return
-        p, metrics = spb.decode(payload)
-        received[topic.node] = received.get(topic.node, 0) + 1
-        delay_ms = arrived_s * 1000 - p.timestamp
-        if any(m.historical for m in metrics):
+        node = message.topic.node
+        received[node] = received.get(node, 0) + 1
+        delay_ms = arrived_s * 1000 - message.payload.timestamp
+        if any(m.historical for m in message.metrics):
             late.append(delay_ms)
         elif window["steady"]:
             latencies.append(delay_ms)
@@ -158,11 +165,15 @@ def fleet_run(args) -> dict:
         raise SystemExit("the host could not connect")
     simulated = args.nodes - args.real
     ctx = mp.get_context("fork")
-    sim_recv, sim_send = ctx.Pipe(False)
     snaps = estimate_snapshots(args.rate_hz)
-    sim = ctx.Process(target=simulated_nodes, args=(broker.port, args.real, simulated, args.rate_hz,
-                                                   args.seconds, snaps, sim_send))
-    sim.start()
+    sims = []
+    per = -(-simulated // args.sim_processes)
+    for first in range(args.real, args.real + simulated, per):
+        r, w = ctx.Pipe(False)
+        p = ctx.Process(target=simulated_nodes, args=(broker.port, first, min(per, args.real + simulated - first),
+                                                      args.rate_hz, args.seconds, snaps, w))
+        p.start()
+        sims.append((p, r))
     daemons = [real_daemon(tmp, broker.port, f"real{i}", args.rate_hz) for i in range(args.real)]
     start = time.monotonic()
 
@@ -183,10 +194,12 @@ def fleet_run(args) -> dict:
     window["steady"] = True
     wait_until(args.seconds - 1.0)
     window["steady"] = False
-    if not sim_recv.poll(60):
-        raise SystemExit(f"the simulated nodes did not report (exit code {sim.exitcode})")
-    sim_counts = sim_recv.recv()
-    sim.join()
+    sim_counts = {}
+    for p, r in sims:
+        if not r.poll(60):
+            raise SystemExit(f"simulated nodes did not report (exit code {p.exitcode})")
+        sim_counts.update(r.recv())
+        p.join()
     real_counts = {}
     death_seen_s = float("nan")
     for i, d in enumerate(daemons):
@@ -286,6 +299,67 @@ def cpu_compare(args) -> dict:
     return results
 
 
+# ----------------------------------------------------------------- part 3 --
+def probe_process(port: int, poll: bool, qos: int, seconds: float, conn) -> None:
+    """An asyncio loop woken 100 times a second (as the daemon is, per batch of samples),
+    calling the node's poll() at each wakeup or not; its CPU over `seconds`."""
+    import resource
+
+    from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
+
+    snaps = estimate_snapshots(20.0)
+
+    async def main():
+        k = {"i": 0}
+
+        def values():
+            k["i"] += 1
+            return snaps[k["i"] % len(snaps)]
+
+        node = SparkplugNode(SparkplugSettings(port=port, group_id=GROUP, edge_node_id=f"probe-{poll}", qos=qos),
+                             values=values)
+        await node.start()
+
+        async def wakeups():
+            while True:
+                await asyncio.sleep(0.01)
+                if poll:
+                    node.poll()
+
+        task = asyncio.create_task(wakeups())
+        await asyncio.sleep(3.0)
+        r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.monotonic()
+        sent0 = node.counters.ddata_sent
+        await asyncio.sleep(seconds)
+        r1, t1 = resource.getrusage(resource.RUSAGE_SELF), time.monotonic()
+        cpu_s = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+        conn.send((100 * cpu_s / (t1 - t0), node.counters.ddata_sent - sent0))
+        task.cancel()
+        await node.stop()
+
+    asyncio.run(main())
+
+
+def node_probe(args) -> dict:
+    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-probe-"))
+    ctx = mp.get_context("fork")
+    out = {}
+    with Broker(tmp) as broker:
+        for qos in args.cpu_qos:
+            pairs = []
+            for _ in range(2):
+                row = {}
+                for poll in (False, True):
+                    r, w = ctx.Pipe(False)
+                    p = ctx.Process(target=probe_process, args=(broker.port, poll, qos, args.probe_seconds, w))
+                    p.start()
+                    row["on" if poll else "off"] = r.recv()
+                    p.join()
+                pairs.append(row)
+            out[f"qos{qos}"] = pairs
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--nodes", type=int, default=50)
@@ -297,13 +371,17 @@ def main() -> None:
     ap.add_argument("--cpu-rounds", type=int, default=3)
     ap.add_argument("--cpu-qos", type=lambda t: [int(x) for x in t.split(",")], default=[0, 1],
                     help="the MQTT QoS values to compare, e.g. 0,1")
+    ap.add_argument("--sim-processes", type=int, default=2, help="processes the simulated nodes share")
+    ap.add_argument("--probe-seconds", type=float, default=20.0)
     ap.add_argument("--skip-fleet", action="store_true")
+    ap.add_argument("--skip-probe", action="store_true")
     ap.add_argument("--skip-cpu", action="store_true")
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
     print(f"command: nice .venv/bin/python benchmarks/fleet_benchmark.py {' '.join(sys.argv[1:])}")
     print(f"date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; machine: {machine()}; "
-          f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}")
+          f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
+          f"load average (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     results = {}
     if not args.skip_fleet:
         f = results["fleet"] = fleet_run(args)
@@ -332,6 +410,16 @@ def main() -> None:
                       f"difference {r['on'] - r['off']:+.2f} points")
             print(f"  QoS {qos}: median difference {q['diff_median']:+.2f} points")
         print(f"  (DDATA heard by the host from the 'on' daemons: {c['ddata_heard']})")
+    if not args.skip_probe:
+        pr = results["probe"] = node_probe(args)
+        print("\nthe node alone: an asyncio loop woken 100 times a second, polling the node (20 Hz) or not, "
+              "% of one core:")
+        for qos in args.cpu_qos:
+            for row in pr[f"qos{qos}"]:
+                (on, sent), (off, _) = row["on"], row["off"]
+                print(f"  QoS {qos}: on {on:.2f} % ({sent} DDATA), off {off:.2f} %, difference {on - off:+.2f} points"
+                      f" ({1e4 * (on - off) / max(1, sent / args.probe_seconds):.0f} µs per DDATA)")
+    print(f"\nload average at the end (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))
 

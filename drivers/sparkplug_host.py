@@ -46,6 +46,15 @@ class NodeState:
 
 
 @dataclass(frozen=True, slots=True)
+class Message:
+    """A Sparkplug B message as the view took it."""
+
+    topic: spb.Topic
+    payload: Any  # the decoded protobuf Payload
+    metrics: list[spb.DecodedMetric]
+
+
+@dataclass(frozen=True, slots=True)
 class FleetRow:
     """One device as `adxlgw fleet` shows it."""
 
@@ -77,8 +86,8 @@ class FleetView:
             self.nodes[key] = NodeState(group, node)
         return self.nodes[key]
 
-    def handle(self, topic: str, data: bytes, arrived_unix_s: float) -> spb.Topic | None:
-        """Take one message; the topic's parts when it was Sparkplug B, else None."""
+    def handle(self, topic: str, data: bytes, arrived_unix_s: float) -> Message | None:
+        """Take one message; what it was when it was Sparkplug B, else None."""
         t = spb.parse_topic(topic)
         if t is None or t.kind in ("NCMD", "DCMD"):
             return None
@@ -87,6 +96,10 @@ class FleetView:
         except ValueError:
             self.bad_payloads += 1
             return None
+        self._apply(t, payload, metrics, arrived_unix_s)
+        return Message(t, payload, metrics)
+
+    def _apply(self, t: spb.Topic, payload, metrics: list[spb.DecodedMetric], arrived_unix_s: float) -> None:
         n = self.node(t.group, t.node)
         by_name = {m.name: m for m in metrics}
         if t.kind == "NDEATH":
@@ -94,17 +107,17 @@ class FleetView:
             if bd is not None and bd.value == n.bd_seq:  # else the death of a session already over
                 n.online = False
                 n.deaths += 1
-            return t
+            return
         n.last_seen_unix_s = arrived_unix_s
         if t.kind == "NBIRTH":
             n.online, n.births, n.last_seq = True, n.births + 1, payload.seq
             n.bd_seq = by_name[spb.BDSEQ].value if spb.BDSEQ in by_name else None
             version = by_name.get("Properties/version")
             n.version = version.value if version is not None else ""
-            return t
+            return
         self._check_seq(n, payload.seq)
         if t.device is None:
-            return t
+            return
         d = n.devices.setdefault(t.device, DeviceState())
         if t.kind == "DBIRTH":
             d.values = {m.name: m.value for m in metrics}
@@ -113,7 +126,7 @@ class FleetView:
             self._data(d, metrics)
         elif t.kind == "DDEATH":
             d.values = {}
-        return t
+        return
 
     @staticmethod
     def _check_seq(n: NodeState, seq: int) -> None:
@@ -147,13 +160,13 @@ class FleetView:
 
 class FleetListener:
     """A FleetView kept up to date from a broker by paho's network thread. `on_message`,
-    if given, also sees each message after the view took it (topic parts, payload bytes,
+    if given, also sees each message after the view took it (the decoded Message, its
     arrival time) — the benchmark's latency probe."""
 
     def __init__(self, host: str, port: int, *, group: str = "+", username: str | None = None,
                  password: str | None = None, tls_ca_file: str | None = None, client_id: str = "",
                  persistent: bool = False, ask_rebirth: bool = True,
-                 on_message: Callable[[spb.Topic, bytes, float], None] | None = None):
+                 on_message: Callable[[Message, float], None] | None = None):
         self.view = FleetView()
         self.lock = threading.Lock()
         self.connected = threading.Event()
@@ -194,9 +207,10 @@ class FleetListener:
     def _message(self, client, userdata, message: mqtt.MQTTMessage) -> None:
         arrived = time.time()
         with self.lock:
-            topic = self.view.handle(message.topic, message.payload, arrived)
-            if topic is None:
+            handled = self.view.handle(message.topic, message.payload, arrived)
+            if handled is None:
                 return
+            topic = handled.topic
             node = self.view.nodes[(topic.group, topic.node)]
             if self._ask_rebirth and node.births == 0 and topic.kind != "NDEATH":
                 key = (topic.group, topic.node)
@@ -204,7 +218,7 @@ class FleetListener:
                     self._rebirth_asked.add(key)
                     client.publish(spb.node_topic(topic.group, "NCMD", topic.node), write_true(spb.REBIRTH), qos=0)
         if self._on_message is not None:
-            self._on_message(topic, message.payload, arrived)
+            self._on_message(handled, arrived)
 
     def rows(self) -> list[FleetRow]:
         with self.lock:

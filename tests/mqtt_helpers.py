@@ -22,10 +22,11 @@ def free_port() -> int:
 class Broker:
     """mosquitto on 127.0.0.1:`port`. `users`: {name: password} (anonymous refused then);
     `bridge_to`: another Broker whose every Sparkplug topic this one carries both ways;
-    `persistence`: keep sessions and queued QoS 1 messages across a restart."""
+    `persistence`: keep sessions and queued QoS 1 messages across a restart;
+    `max_queued_messages`: per client while it is away (mosquitto's default 1000)."""
 
     def __init__(self, folder: Path, *, users: dict[str, str] | None = None, bridge_to: Broker | None = None,
-                 persistence: bool = False, name: str = "broker"):
+                 persistence: bool = False, max_queued_messages: int | None = None, name: str = "broker"):
         self.folder = Path(folder) / name
         self.folder.mkdir(parents=True, exist_ok=True)
         self.port = free_port()
@@ -44,6 +45,8 @@ class Broker:
             lines.append("allow_anonymous true")
         if persistence:
             lines += ["persistence true", f"persistence_location {self.folder}/"]
+        if max_queued_messages is not None:
+            lines.append(f"max_queued_messages {max_queued_messages}")
         if bridge_to is not None:
             lines += [f"connection to-{bridge_to.folder.name}", f"address 127.0.0.1:{bridge_to.port}",
                       "topic spBv1.0/# both 1", "cleansession true", "restart_timeout 1 5",

@@ -54,8 +54,10 @@ async def until(predicate, what: str, timeout_s: float = WAIT_S):
 
 def test_births_data_by_exception_and_the_death_on_a_stop(tmp_path):
     raw: list[tuple[spb.Topic, bytes]] = []
-    with Broker(tmp_path) as broker, FleetListener("127.0.0.1", broker.port,
-                                                   on_message=lambda t, p, _: raw.append((t, p))) as host:
+    def keep(message, _arrived_s):
+        raw.append((message.topic, message.payload.SerializeToString()))
+
+    with Broker(tmp_path) as broker, FleetListener("127.0.0.1", broker.port, on_message=keep) as host:
         assert host.connected.wait(WAIT_S)
         cfg = mqtt_config(tmp_path, broker.port)
 
