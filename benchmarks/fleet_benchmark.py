@@ -96,8 +96,9 @@ def estimate_snapshots(rate_hz: float) -> list[PublishedValues]:
 
 
 # ------------------------------------------------------------- simulated nodes --
-def simulated_nodes(port: int, first: int, count: int, rate_hz: float, seconds: float, snaps, conn) -> None:
-    """`count` SparkplugNodes in this process, each replaying the snapshots from its own offset."""
+def simulated_nodes(port: int, first: int, count: int, rate_hz: float, snaps, conn) -> None:
+    """`count` SparkplugNodes in this process, each replaying the snapshots from its own
+    offset, until told to stop through `conn` (then their counts go back through it)."""
     from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
 
     async def main():
@@ -114,7 +115,7 @@ def simulated_nodes(port: int, first: int, count: int, rate_hz: float, seconds: 
                                  drive_itself=True)
             await node.start()
             nodes.append(node)
-        await asyncio.sleep(seconds)
+        await asyncio.to_thread(conn.recv)
         for node in nodes:
             await node.stop()
         conn.send({n.settings.edge_node_id: (n.counters.ddata_made, n.counters.dropped, n.counters.births)
@@ -169,19 +170,29 @@ def fleet_run(args) -> dict:
     sims = []
     per = -(-simulated // args.sim_processes)
     for first in range(args.real, args.real + simulated, per):
-        r, w = ctx.Pipe(False)
+        r, w = ctx.Pipe()
         p = ctx.Process(target=simulated_nodes, args=(broker.port, first, min(per, args.real + simulated - first),
-                                                      args.rate_hz, args.seconds, snaps, w))
+                                                      args.rate_hz, snaps, w))
         p.start()
         sims.append((p, r))
     daemons = [real_daemon(tmp, broker.port, f"real{i}", args.rate_hz) for i in range(args.real)]
+
+    def online() -> int:
+        with host.lock:
+            return sum(n.online for n in host.view.nodes.values())
+
+    deadline = time.monotonic() + 180
+    while online() < args.nodes:  # the real daemons take seconds to start on a loaded machine
+        if time.monotonic() > deadline:
+            raise SystemExit(f"only {online()} of {args.nodes} nodes born within 180 s")
+        time.sleep(0.1)
     start = time.monotonic()
 
     def wait_until(t_s):
         while time.monotonic() - start < t_s:
             time.sleep(0.05)
 
-    wait_until(5.0)  # every node connected and born
+    wait_until(2.0)
     window["steady"] = True
     cpu0, msgs0, t0 = cpu_seconds(broker.proc.pid), sum(received.values()), time.monotonic()
     wait_until(args.restart_at_s)
@@ -195,6 +206,8 @@ def fleet_run(args) -> dict:
     wait_until(args.seconds - 1.0)
     window["steady"] = False
     sim_counts = {}
+    for _, r in sims:
+        r.send("stop")
     for p, r in sims:
         if not r.poll(60):
             raise SystemExit(f"simulated nodes did not report (exit code {p.exitcode})")
@@ -209,7 +222,7 @@ def fleet_run(args) -> dict:
             d.wait(timeout=20)
             while time.monotonic() - killed < 60:
                 with host.lock:
-                    if not host.view.nodes[(GROUP, "real0")].online:
+                    if not host.view.nodes[(GROUP, "real0")].online:  # (online before: all were born)
                         death_seen_s = time.monotonic() - killed
                         break
                 time.sleep(0.01)

@@ -105,7 +105,8 @@ class SparkplugNode:
 
     def __init__(self, settings: SparkplugSettings, *, values: ValuesSource,
                  on_command: CommandCallback | None = None, version: str = "",
-                 wall_clock: Callable[[], float] = time.time, drive_itself: bool = False):
+                 wall_clock: Callable[[], float] = time.time, drive_itself: bool = False,
+                 first_bd_seq: int = 0):
         self.settings = settings
         self._values = values
         self._on_command = on_command
@@ -115,7 +116,9 @@ class SparkplugNode:
         self.connected = False
         self._born = False
         self._seq = 0
-        self._bd_seq = -1  # the first CONNECT makes it 0
+        # each CONNECT takes the next; a node that replaces another (a reload) goes on from its
+        # last, so that a late NDEATH of the old session never matches the new birth
+        self._bd_seq = (first_bd_seq - 1) % spb.SEQ_MODULO
         self._last_sent: dict[str, Any] | None = None
         self._backlog: collections.deque[tuple[int, dict[str, Any]]] = collections.deque()
         self._drive_itself = drive_itself
@@ -136,6 +139,11 @@ class SparkplugNode:
             "DDATA": spb.device_topic(s.group_id, "DDATA", s.edge_node_id, s.device_id),
             "DCMD": spb.device_topic(s.group_id, "DCMD", s.edge_node_id, s.device_id),
         }
+
+    @property
+    def bd_seq(self) -> int:
+        """The current (or last) session's bdSeq."""
+        return self._bd_seq
 
     @property
     def where(self) -> str:

@@ -263,3 +263,40 @@ def test_a_broker_that_refuses_or_is_missing_costs_one_log_line_and_modbus_and_c
     assert len(errors) == 1, errors
     assert f"127.0.0.1:{port}" in errors[0]
     assert ("refused" in errors[0]) if case == "wrong credentials" else ("cannot reach" in errors[0])
+
+
+def test_a_reload_of_mqtt_is_a_new_session_and_one_that_cannot_start_is_refused_whole(tmp_path):
+    """All or nothing across the wires: a reload whose MQTT cannot start (its TLS CA file
+    is missing) keeps the Modbus change from happening too, and the old session."""
+    with Broker(tmp_path) as broker, FleetListener("127.0.0.1", broker.port) as host:
+        assert host.connected.wait(WAIT_S)
+        cfg = mqtt_config(tmp_path, broker.port)
+
+        class Reloadable:
+            def __init__(self):
+                self.cfg = cfg
+
+            def __call__(self):
+                return self.cfg
+
+        source = Reloadable()
+
+        async def scenario():
+            async with running_gateway(cfg, reload=source) as gw:
+                await until(lambda: node_of(host) is not None and node_of(host).online, "the first birth")
+                first_bd = node_of(host).bd_seq
+                source.cfg = cfg.replace({"mqtt.rate_hz": 10.0})
+                await gw.reload()
+                assert gw.counters.config_reloads == 1
+                await until(lambda: node_of(host).bd_seq == (first_bd + 1) % 256 and node_of(host).online,
+                            "the new session's birth, with the next bdSeq")
+                node = gw.mqtt
+                source.cfg = cfg.replace({"mqtt.rate_hz": 10.0, "mqtt.tls_ca_file": str(tmp_path / "missing.pem"),
+                                          "can.period_ms": 20})
+                await gw.reload()
+                assert gw.counters.config_reload_errors == 1
+                assert gw.cfg.mqtt.rate_hz == 10.0 and gw.can.config.period_ms == 10  # nothing of it taken
+                await until(lambda: gw.mqtt is not None and gw.mqtt.connected, "MQTT back with the old settings")
+                assert gw.mqtt is not node or node.connected
+
+        run(scenario())

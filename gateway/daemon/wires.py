@@ -28,7 +28,7 @@ import can
 from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherConfig, CanPublisherError
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import CommandCallback, ValuesSource
-from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
+from drivers.sparkplug_node import SparkplugError, SparkplugNode, SparkplugSettings
 from gateway.config import Config
 from gateway.daemon.settings import can_config_from, modbus_config_from, mqtt_settings_from
 from gateway.errors import DeviceError
@@ -243,14 +243,21 @@ class MqttWire:
         self._ctx = ctx
         self.node: SparkplugNode | None = None
 
-    def _new_node(self, settings: SparkplugSettings) -> SparkplugNode:
+    def _new_node(self, settings: SparkplugSettings, first_bd_seq: int = 0) -> SparkplugNode:
         return SparkplugNode(settings, values=self._ctx.values, on_command=self._ctx.on_command,
-                             version=self._ctx.version)
+                             version=self._ctx.version, first_bd_seq=first_bd_seq)
+
+    async def _start_node(self, settings: SparkplugSettings, first_bd_seq: int) -> SparkplugNode:
+        node = self._new_node(settings, first_bd_seq)
+        try:
+            await node.start()
+        except SparkplugError as err:
+            raise DeviceError(str(err)) from err
+        return node
 
     async def start(self) -> None:
         if self.settings is not None:
-            self.node = self._new_node(self.settings)
-            await self.node.start()
+            self.node = await self._start_node(self.settings, 0)
 
     def publish(self) -> None:
         if self.node is not None:
@@ -258,15 +265,22 @@ class MqttWire:
             self.node.poll()
 
     async def apply(self, settings: SparkplugSettings | None) -> None:
-        # a new session either way: the old one says NDEATH, the new one is born
-        replacement = None
-        if settings is not None:
-            replacement = self._new_node(settings)
-        if self.node is not None:
-            await stop_within_timeout(self.node)
-        self.node, self.settings = replacement, settings
-        if replacement is not None:
-            await replacement.start()
+        # a new session either way: the old one says its NDEATH, the new one is born with
+        # the next bdSeq; a new one that cannot start (its TLS file) gives the old one back
+        old_settings, old_node = self.settings, self.node
+        next_bd_seq = 0
+        if old_node is not None:
+            await stop_within_timeout(old_node)
+            next_bd_seq = old_node.bd_seq + 1
+        self.node = None
+        try:
+            if settings is not None:
+                self.node = await self._start_node(settings, next_bd_seq)
+        except DeviceError as err:
+            if old_settings is not None:
+                self.node = await self._start_node(old_settings, next_bd_seq)
+            raise DeviceError(f"MQTT with the new settings: {err}") from err
+        self.settings = settings
 
     async def stop(self) -> None:
         if self.node is not None:
