@@ -59,6 +59,7 @@ DEATH_FLUSH_S = 1.0  # an orderly stop waits this long for its NDEATH to leave
 #: ~40 µs each; a command waits at most this long, and QoS 1 acknowledgements are read
 #: in batches (paho keeps up to 20 messages in flight).
 READ_EVERY_S = 0.25
+REFUSAL_LOG_EVERY_S = 10.0  # refused commands: one log line per this interval at most
 
 
 class SparkplugError(Exception):
@@ -125,6 +126,7 @@ class SparkplugNode:
         self._period_s = 1.0 / settings.rate_hz
         self._due_s = 0.0  # time.monotonic() of the next due poll
         self._read_due_s = 0.0  # and of the next read of the socket
+        self._refusal_said_s = -REFUSAL_LOG_EVERY_S
         self._client: mqtt.Client | None = None
         self._socket_ready = False  # connected at the TCP level, not inside a connect attempt
         self._reconnect_now = asyncio.Event()
@@ -396,7 +398,11 @@ class SparkplugNode:
     def _command(self, command: Command, topic: str) -> None:
         if not self.settings.commands_enabled or self._on_command is None:
             self.counters.commands_refused += 1
-            log.warning("MQTT command %s refused: mqtt.commands_enabled is false", command.name)
+            now = time.monotonic()
+            if now - self._refusal_said_s >= REFUSAL_LOG_EVERY_S:  # a host that insists: bounded log
+                self._refusal_said_s = now
+                log.warning("MQTT command %s refused: mqtt.commands_enabled is false (%d refused so far)",
+                            command.name, self.counters.commands_refused)
             return
         if self._on_command(command, f"mqtt:{topic}"):
             self.counters.commands_done += 1

@@ -73,6 +73,8 @@ def test_births_data_by_exception_and_the_death_on_a_stop(tmp_path):
                 client.close()
                 assert StatusExtBits.MQTT_DOWN not in StatusExtBits(regs["STATUS_EXT"])
                 assert regs["MQTT_DROPPED"] == 0
+                # a PLC on Modbus, a CAN tool and a Sparkplug host read the same gateway at once
+                await until(lambda: gw.can.counters.frames_sent > 5, "CAN frames")
             await until(lambda: not node_of(host).online, "NDEATH after an orderly stop")
 
         run(scenario())
