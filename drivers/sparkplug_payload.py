@@ -141,6 +141,8 @@ BY_ALIAS: dict[int, MetricDef] = {ALIASES[m.name]: m for m in NODE_METRICS + DEV
 #: DCMD metric name → the command it carries.
 COMMANDS: dict[str, Command] = {f"{COMMAND_PREFIX}{c.name}": c for c in Command}
 _READABLE = tuple(m for m in DEVICE_METRICS if m.read is not None and not m.name.startswith(COMMAND_PREFIX))
+#: Every row key but the status bits.
+_WORD_KEYS = tuple(m.name for m in _READABLE) + (DDATA_COUNT, MQTT_DROPPED)
 
 
 # ------------------------------------------------------------------ topics --
@@ -245,10 +247,14 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
 
 
 def changes(previous: Mapping[str, Any] | None, row: Mapping[str, Any]) -> dict[str, Any]:
-    """The metrics of `row` whose value differs from `previous` (all of them without one)."""
+    """The metrics of `row` whose value differs from `previous` (all of them without one).
+    The status bits follow from the two status words: compared only when a word changed
+    (most ticks it did not, and they are 23 of the 40 metrics)."""
     if previous is None:
         return dict(row)
-    return {k: v for k, v in row.items() if previous.get(k, _MISSING) != v}
+    words_same = previous.get("status") == row.get("status") and previous.get("status_ext") == row.get("status_ext")
+    keys = _WORD_KEYS if words_same else row.keys()
+    return {k: row[k] for k in keys if k in row and previous.get(k, _MISSING) != row[k]}
 
 
 _MISSING = object()

@@ -95,3 +95,9 @@ def test_a_gap_in_the_ddata_count_is_lost_and_a_seq_skip_is_counted():
     view.handle(DEVICE.format(kind="DDATA"),
                 spb.device_data(4, 5, {spb.DDATA_COUNT: 5, "position_m": 9.0}, historical=True), 4.0)
     assert view.rows()[0].position_m == 0.5 and view.rows()[0].lost == 2
+
+
+def test_a_status_bit_that_changes_is_sent_and_unchanged_bits_are_not():
+    a = spb.device_row(PublishedValues(position_m=0.1, status=StatusBits.VALID))
+    b = spb.device_row(PublishedValues(position_m=0.1, status=StatusBits.VALID | StatusBits.STANDSTILL))
+    assert spb.changes(a, b) == {"status": int(StatusBits.VALID | StatusBits.STANDSTILL), "status/STANDSTILL": True}
