@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import atexit
 import datetime
 import json
 import multiprocessing as mp
@@ -67,6 +68,18 @@ from drivers.sparkplug_host import FleetListener  # noqa: E402
 from tests.mqtt_helpers import Broker  # noqa: E402
 
 GROUP = "bench"
+#: Every daemon and broker this run started: ended at exit, whatever ended the run
+STARTED: list = []
+
+
+@atexit.register
+def _end_what_was_started() -> None:
+    for thing in STARTED:
+        if isinstance(thing, Broker):
+            thing.stop()
+        elif thing.poll() is None:
+            thing.kill()
+            thing.wait()
 
 
 # ------------------------------------------------------------------ estimates --
@@ -133,8 +146,10 @@ def real_daemon(tmp: Path, port: int, name: str, rate_hz: float, board: str = "e
             f'rate_hz = {rate_hz}\n') if port else ""
     config.write_text(f'[serial]\nport = "{board}"\n[modbus]\nport = 0\n[can]\nenabled = false\n'
                       f'[state]\npath = "{folder / "state.json"}"\n[service]\nlog_level = "warning"\n{mqtt}')
-    return subprocess.Popen([sys.executable, "-m", "gateway.cli", "run", "--config", str(config)], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "run", "--config", str(config)], cwd=ROOT,
                             stdout=subprocess.DEVNULL, stderr=open(folder / "stderr.log", "w"))
+    STARTED.append(proc)
+    return proc
 
 
 # ----------------------------------------------------------------- part 1 --
@@ -143,6 +158,7 @@ def fleet_run(args) -> dict:
     # a plant's broker for a historian: sessions kept across a restart, and room to queue
     # what arrives for the host while it reconnects (mosquitto's default: 1000 messages)
     broker = Broker(tmp, persistence=True, max_queued_messages=100_000).start()
+    STARTED.append(broker)
     latencies: list[float] = []
     late: list[float] = []
     received: dict[str, int] = {}
@@ -171,8 +187,9 @@ def fleet_run(args) -> dict:
     per = -(-simulated // args.sim_processes)
     for first in range(args.real, args.real + simulated, per):
         r, w = ctx.Pipe()
-        p = ctx.Process(target=simulated_nodes, args=(broker.port, first, min(per, args.real + simulated - first),
-                                                      args.rate_hz, snaps, w))
+        count = min(per, args.real + simulated - first)
+        p = ctx.Process(daemon=True, target=simulated_nodes,
+                        args=(broker.port, first, count, args.rate_hz, snaps, w))
         p.start()
         sims.append((p, r))
     daemons = [real_daemon(tmp, broker.port, f"real{i}", args.rate_hz) for i in range(args.real)]
