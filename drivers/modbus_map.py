@@ -236,11 +236,15 @@ REGISTERS: tuple[Register, ...] = (
              "byte), NUL-padded; all zero when not configured.", "server.device_name"),
     Register("STATUS_EXT", _I, 66, _BITS, "", 1,
              "Second status word (StatusExtBits): 0 SIMULATED, 1 HINT_AT_REST, 2 HINT_MOVING, "
-             "3 HINT_CONFLICT, 4 OFFSET_STEP, 5 STOP_BY_HINT.", "status_ext"),
+             "3 HINT_CONFLICT, 4 OFFSET_STEP, 5 STOP_BY_HINT, 6 MQTT_DOWN.", "status_ext"),
     Register("CAN_REFUSED_COMMANDS", _I, 67, _U32, "count", 1,
              "CAN command frames refused since start: commands disabled, a CRC or length error, an "
              "unknown code, a counter not 1..3 ahead of the last accepted one (a replay).",
              "can_refused_commands", wraps=True),
+    Register("MQTT_DROPPED", _I, 69, _U32, "count", 1,
+             "DDATA messages the MQTT edge node dropped since start: its queue was full (the broker "
+             "away longer than the backlog holds). Connected or not: STATUS_EXT bit 6.",
+             "mqtt_dropped", wraps=True),
     Register("CMD_TARE", _H, 0, _U16, "", 1,
              "Write 1: position := 0 here (tare). Reads 0 (auto-clear). Writing 0 does nothing.",
              "command.TARE"),

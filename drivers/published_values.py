@@ -93,6 +93,9 @@ class StatusExtBits(enum.IntFlag):
     OFFSET_STEP = 1 << 4
     #: The current standstill was accepted on the machine's hint.
     STOP_BY_HINT = 1 << 5
+    #: The MQTT (Sparkplug B) edge node is on but not connected to its broker; it keeps
+    #: reconnecting, and the fleet's host sees this gateway as dead meanwhile.
+    MQTT_DOWN = 1 << 6
 
 
 #: Bits that say "do not use the numbers"; VALID must be clear when any is set.
@@ -162,6 +165,9 @@ class PublishedValues:
     can_refused_commands: int = 0
     #: The second status word (StatusExtBits).
     status_ext: StatusExtBits = StatusExtBits(0)
+    #: DDATA the MQTT edge node dropped since start (its queue was full), copied by the
+    #: daemon like can_send_errors.
+    mqtt_dropped: int = 0
 
     def with_status(self, status: StatusBits) -> PublishedValues:
         """The same snapshot with another status (publishers add SCALED_CLAMPED)."""

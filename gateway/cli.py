@@ -27,6 +27,7 @@ COMMAND_MODULES = {
     "fit-drift": "fit_drift",
     "estimate": "estimate",
     "diagnose": "diagnose",
+    "fleet": "fleet",
     "config": "config_cmd",
     "regmap": "regmap",
     "dbc": "dbc",

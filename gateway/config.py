@@ -83,6 +83,19 @@ def _nonempty(v):
     return None if v.strip() else "must not be empty"
 
 
+def _sparkplug_id(v):
+    # Sparkplug B: a topic level, so none of MQTT's separators or wildcards
+    if not v.strip():
+        return "must not be empty"
+    if any(c in v for c in "/+#") or not v.isprintable():
+        return "must be printable and hold none of / + #"
+    return None
+
+
+def _sparkplug_id_or_empty(v):
+    return None if v == "" else _sparkplug_id(v)
+
+
 SCHEMA: tuple[Key, ...] = (
     # --- the board ---------------------------------------------------------
     Key("serial", "port", None, str,
@@ -162,6 +175,32 @@ SCHEMA: tuple[Key, ...] = (
         "11-bit identifier of the position frame; velocity is base_id + 1, the command base_id + 0x10, its "
         "acknowledgement base_id + 0x11 (two gateways on one bus: base IDs at least 0x12 apart). "
         "`adxlgw dbc --config FILE` writes the DBC for these identifiers.", _range(0, 0x7FF - 0x11)),
+    # --- MQTT: a Sparkplug B edge node (docs/mqtt.md) ------------------------
+    Key("mqtt", "enabled", False, bool,
+        "Publish as a Sparkplug B edge node to an MQTT broker (birth, data by exception, death)."),
+    Key("mqtt", "host", "127.0.0.1", str, "The broker's address.", _nonempty),
+    Key("mqtt", "port", 1883, int, "The broker's port (1883 plain, 8883 with TLS by convention).", _range(1, 65535)),
+    Key("mqtt", "group_id", "adxl-gateway", str,
+        "Sparkplug group: the plant's line or cell. Topic spBv1.0/<group_id>/<type>/<edge_node_id>[/<device_id>].",
+        _sparkplug_id),
+    Key("mqtt", "edge_node_id", "", str,
+        "Sparkplug edge node: this gateway, unique in its group. Empty: the host's name.", _sparkplug_id_or_empty),
+    Key("mqtt", "device_id", "axis", str, "Sparkplug device: the axis this gateway measures.", _sparkplug_id),
+    Key("mqtt", "qos", 0, int,
+        "MQTT QoS of births and data: 0 as Sparkplug 3.0 says (a broker restart loses what was in flight), "
+        "1 to have the broker acknowledge each message (the death is always QoS 1).", _one_of(0, 1)),
+    Key("mqtt", "rate_hz", 20.0, float,
+        "Data by exception at most this often: a DDATA with the metrics that changed since the last one.",
+        _range(0.1, 100)),
+    Key("mqtt", "keepalive_s", 10, int,
+        "MQTT keep-alive: a broker that hears nothing for 1.5 × this publishes the node's death.", _range(2, 3600)),
+    Key("mqtt", "credentials_file", "", str,
+        "A file whose first line is username:password (keep it readable by the gateway only). Empty: none."),
+    Key("mqtt", "tls_ca_file", "", str,
+        "Connect with TLS, trusting the broker certificates this CA file signs. Empty: plain TCP."),
+    Key("mqtt", "commands_enabled", False, bool,
+        "Accept commands as DCMD (tare, the machine's standstill hint, bias re-estimation); else refused and "
+        "counted, as over Modbus and CAN."),
     # --- estimator ---------------------------------------------------------
     Key("estimator", "start_at_rest", False, bool,
         "true: the axis is known to stand when the gateway starts (homed before it), so the first quiet "
@@ -284,8 +323,9 @@ def validate(data: dict[str, Any], source: str) -> Config:
     if values["serial"]["stale_after_ms"] > values["serial"]["lost_after_ms"]:
         # a lost board whose values are not yet stale would be published as fresh
         problems.append("serial.stale_after_ms must not exceed serial.lost_after_ms")
-    if not (values["modbus"]["tcp_enabled"] or values["modbus"]["rtu_enabled"] or values["can"]["enabled"]):
-        problems.append("no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled or can.enabled")
+    if not (values["modbus"]["tcp_enabled"] or values["modbus"]["rtu_enabled"] or values["can"]["enabled"]
+            or values["mqtt"]["enabled"]):
+        problems.append("no output enabled: set modbus.tcp_enabled, modbus.rtu_enabled, can.enabled or mqtt.enabled")
     if problems:
         raise ConfigError("\n".join(f"{source}: {p}" for p in problems))
     return Config(values, source)

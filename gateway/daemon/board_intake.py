@@ -34,6 +34,7 @@ _HINT_MOVING = int(StatusExtBits.HINT_MOVING)
 _HINT_CONFLICT = int(StatusExtBits.HINT_CONFLICT)
 _OFFSET_STEP = int(StatusExtBits.OFFSET_STEP)
 _STOP_BY_HINT = int(StatusExtBits.STOP_BY_HINT)
+_MQTT_DOWN = int(StatusExtBits.MQTT_DOWN)
 
 
 @dataclass(slots=True)
@@ -61,6 +62,8 @@ class LinkHealth:
     can_send_errors: int = 0
     can_refused_commands: int = 0
     simulated: bool = False  # the board is the built-in emulated one
+    mqtt_down: bool = False  # the MQTT edge node is on but not connected to its broker
+    mqtt_dropped: int = 0  # DDATA the edge node dropped (its queue full)
 
 
 class BoardIntake:
@@ -185,6 +188,8 @@ class BoardIntake:
 
     def _status_ext(self, health: LinkHealth, est: Estimate | None) -> StatusExtBits:
         bits = _SIMULATED if health.simulated else 0
+        if health.mqtt_down:
+            bits |= _MQTT_DOWN
         hint = self.pipeline.hint
         if hint is not None:
             bits |= _HINT_AT_REST if hint else _HINT_MOVING
@@ -222,5 +227,6 @@ class BoardIntake:
             board_resets=p.counters.resets_announced + p.counters.resets_inferred,
             can_send_errors=health.can_send_errors,
             can_refused_commands=health.can_refused_commands,
+            mqtt_dropped=health.mqtt_dropped,
             status_ext=self._status_ext(health, est),
         )

@@ -3,11 +3,14 @@ the estimator's settings. Pure functions of a validated `Config` (one place to r
 when a config key seems to have no effect)."""
 from __future__ import annotations
 
+import socket
+
 from drivers.board_protocol import SAMPLE_FRAME_LENGTH
 from drivers.can_frames import frame_table
 from drivers.can_publisher import CanPublisherConfig
 from drivers.modbus_server import ModbusServerConfig
 from drivers.serial_source import SerialSettings
+from drivers.sparkplug_node import SparkplugSettings
 from gateway.config import Config
 from gateway.core.conversion import AxisCalibration, Calibration
 from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
@@ -34,8 +37,11 @@ def modbus_config_from(cfg: Config) -> ModbusServerConfig:
     )
 
 
-def can_config_from(cfg: Config) -> CanPublisherConfig:
+def can_config_from(cfg: Config) -> CanPublisherConfig | None:
+    """The CAN publisher's settings; None when [can] is off."""
     c = cfg.can
+    if not c.enabled:
+        return None
     return CanPublisherConfig(
         interface=c.interface, channel=c.channel,
         bitrate=None if c.interface == "socketcan" else c.bitrate,
@@ -45,6 +51,47 @@ def can_config_from(cfg: Config) -> CanPublisherConfig:
         commands_enabled=c.commands_enabled,
         frames=frame_table(c.base_id),
     )
+
+
+def mqtt_settings_from(cfg: Config) -> SparkplugSettings | None:
+    """The Sparkplug B edge node's settings; None when [mqtt] is off. Reads the
+    credentials file (ConfigError naming it when it cannot be read or has no user)."""
+    m = cfg.mqtt
+    if not m.enabled:
+        return None
+    username = password = None
+    if m.credentials_file:
+        username, password = read_credentials(m.credentials_file,
+                                              f"{cfg.source}: mqtt.credentials_file {m.credentials_file}")
+    return SparkplugSettings(
+        host=m.host, port=m.port, group_id=m.group_id, edge_node_id=m.edge_node_id or socket.gethostname(),
+        device_id=m.device_id, qos=m.qos, rate_hz=m.rate_hz, keepalive_s=m.keepalive_s,
+        username=username, password=password, tls_ca_file=m.tls_ca_file or None,
+        commands_enabled=m.commands_enabled,
+    )
+
+
+MAX_CREDENTIALS_BYTES = 4096  # one line of user:password; anything bigger is not that file
+
+
+def read_credentials(path: str, where: str) -> tuple[str, str]:
+    """(username, password) from the first line, username:password, of `path`; ConfigError
+    starting with `where` when it cannot be read or is not that."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_CREDENTIALS_BYTES + 1)
+    except OSError as err:
+        raise ConfigError(f"{where}: cannot read: {err.strerror or err}") from err
+    if len(raw) > MAX_CREDENTIALS_BYTES:
+        raise ConfigError(f"{where}: larger than {MAX_CREDENTIALS_BYTES} bytes; not a credentials file")
+    try:
+        first = raw.decode("utf-8").splitlines()[0] if raw.strip() else ""
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{where}: not UTF-8") from err
+    username, sep, password = first.partition(":")
+    if not sep or not username:
+        raise ConfigError(f"{where}: the first line must be username:password")
+    return username, password
 
 
 def batch_frames_for(cfg: Config) -> int:

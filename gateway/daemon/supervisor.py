@@ -1,4 +1,4 @@
-"""The gateway's supervisor: board (serial) → realtime estimator → Modbus and CAN.
+"""The gateway's supervisor: board (serial) → realtime estimator → its wires (Modbus, CAN, MQTT).
 
 One asyncio task tree under one supervisor coroutine. Signals: SIGTERM/SIGINT stop
 (cancel, then gather; well within 2 s), SIGHUP reloads the config. systemd hears
@@ -34,8 +34,10 @@ from typing import TYPE_CHECKING, Callable
 import can
 
 from drivers.can_publisher import BusFactory, CanPublisher
+from drivers.modbus_identity import package_version
 from drivers.modbus_server import ModbusServer
 from drivers.published_values import Command, PublishedValues, StatusBits
+from drivers.sparkplug_node import SparkplugNode
 from gateway.daemon.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
 from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
@@ -45,7 +47,7 @@ from gateway.daemon.preflight import refuse_reload
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
-from gateway.daemon.wires import Wires
+from gateway.daemon.wires import WireContext, WireSet
 
 if TYPE_CHECKING:  # rich, behind the view, is an offline tool's library (pyproject's [offline])
     from gateway.daemon.terminal_view import TerminalView
@@ -126,7 +128,8 @@ class Gateway:
         self._hint_until = math.inf  # when the machine's standstill hint expires
         self.intake = BoardIntake(self.pipeline)
         self.board = BoardPort(lambda: self.cfg)
-        self.wires = Wires(self.fresh_values, self.on_command, self._drain_now, can_bus_factory)
+        self.wires = WireSet(cfg, WireContext(self.fresh_values, self.on_command, self._drain_now,
+                                              can_bus_factory, version=package_version()))
         self.view = view if view is not None else (_terminal_view() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
@@ -160,7 +163,7 @@ class Gateway:
         self._started = True
         self._loop = asyncio.get_running_loop()
         await asyncio.to_thread(self.state_store.save, self._state_while_running)
-        await self.wires.start(self.cfg)
+        await self.wires.start()
         self._arm_tick(self.clock(), self.publish_tick_s)
         self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
         self._board_task = asyncio.create_task(self._board_supervisor(), name="board")
@@ -227,11 +230,15 @@ class Gateway:
 
     @property
     def modbus(self) -> ModbusServer | None:
-        return self.wires.modbus
+        return self.wires["modbus"].server
 
     @property
     def can(self) -> CanPublisher | None:
-        return self.wires.can
+        return self.wires["can"].publisher
+
+    @property
+    def mqtt(self) -> SparkplugNode | None:
+        return self.wires["mqtt"].node
 
     # ------------------------------------------------------------- commands --
     def on_command(self, command: Command, source: str) -> bool:
@@ -276,7 +283,7 @@ class Gateway:
         intake = self.intake
         intake.receive(now, data)
         if (self._kernel_batches or now - intake.waiting_since_s >= MAX_DEFER_S
-                or intake.waiting_chunks >= MAX_DEFER_CHUNKS or (self.can is not None and self.can.update_due())):
+                or intake.waiting_chunks >= MAX_DEFER_CHUNKS or self.wires.update_due()):
             # the port was just read dry: the CAN cycle's values need not read it again
             self._port_just_read = True
             try:
@@ -343,14 +350,15 @@ class Gateway:
     def _health(self) -> LinkHealth:
         source = self.board.source  # (the port itself: read per snapshot, one hop fewer)
         serial = self.cfg.serial
-        can = self.wires.can
+        can = self.wires.health("can")
+        mqtt = self.wires.health("mqtt")
         return LinkHealth(
             port_open=source is not None and source.is_open,
             last_byte_s=None if source is None else source.last_data_monotonic_s,
             stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
             config_reloaded_at_s=self._reloaded_at,
-            can_send_errors=0 if can is None else can.send_errors,
-            can_refused_commands=0 if can is None else can.refused_commands,
+            can_send_errors=can.dropped, can_refused_commands=can.refused,
+            mqtt_down=mqtt.enabled and not mqtt.up, mqtt_dropped=mqtt.dropped,
             simulated=self.cfg.serial.port == "emulated",
         )
 
@@ -422,8 +430,9 @@ class Gateway:
         self._tasks.append(asyncio.create_task(self._watchdog_task(), name="watchdog"))
         self.notifier.ready(f"board {self.board.path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         self._ready.set()
-        log.info("ready: board %s, Modbus TCP %s:%s, CAN %s", self.board.path, self.cfg.modbus.host,
-                 self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off")
+        log.info("ready: board %s, Modbus TCP %s:%s, CAN %s, MQTT %s", self.board.path, self.cfg.modbus.host,
+                 self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off",
+                 self.mqtt.where if self.mqtt else "off")
         await self.board.serve(self._receive_from_port)
 
     async def _housekeeping_task(self) -> None:
@@ -441,6 +450,8 @@ class Gateway:
             parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         if self.can:
             parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} ({self.can.counters.frames_sent} frames)")
+        if self.mqtt:
+            parts.append(f"mqtt {self.mqtt.where} ({'connected' if self.mqtt.connected else 'not connected'})")
         return "  ".join(parts)
 
     async def _watchdog_task(self) -> None:

@@ -1,27 +1,36 @@
-"""The wires the daemon publishes on: the Modbus server and the CAN publisher.
+"""The wires the daemon publishes on, as a list: Modbus, CAN, MQTT (Sparkplug B).
 
-Started together (Modbus must come up: without it the daemon has no point; CAN that
-cannot start is retried every CAN_RETRY_S in the background while Modbus serves) and
-stopped together. A reload changes only the wire whose settings changed, all or
-nothing (`apply`): the new server is started before the old one is let go where it
-can be (another address or interface); where it must take the old one's place (same
-address), the old one comes back if the new one fails. Clients of a wire whose settings
-did not change stay connected.
+Each wire is one `Wire`: built from its typed settings (the driver's frozen dataclass,
+made from its config section by `gateway/daemon/settings.py`; None where the section
+says the wire is off), started, told when new values exist, given new settings on a
+reload, stopped, and asked for its health. The supervisor holds a `WireSet` and loops
+over it; it knows no wire by its kind except for the few numbers the status words
+carry (`WireSet.health`). Adding an output is one driver module, its config keys and
+its row in `WIRE_KINDS`.
+
+Start: Modbus must come up (without it the daemon has no point: DeviceError); CAN that
+cannot start is retried every CAN_RETRY_S in the background while Modbus serves; the
+MQTT edge node connects, and reconnects, by itself. A reload changes only the wires
+whose settings changed, all or nothing (`WireSet.apply`): each wire's own `apply`
+leaves it as it was when it fails, and the wires already changed are given their old
+settings back. Clients of a wire whose settings did not change stay connected.
 """
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import logging
-from typing import Callable
+from dataclasses import dataclass
+from typing import Any, Callable, Protocol
 
 import can
 
-from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherError
-from drivers.modbus_server import ModbusServer, ModbusServerError
+from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherConfig, CanPublisherError
+from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import CommandCallback, ValuesSource
+from drivers.sparkplug_node import SparkplugError, SparkplugNode, SparkplugSettings
 from gateway.config import Config
-from gateway.daemon.settings import can_config_from, modbus_config_from
+from gateway.daemon.settings import can_config_from, modbus_config_from, mqtt_settings_from
 from gateway.errors import DeviceError
 
 log = logging.getLogger("adxlgw")
@@ -30,132 +39,333 @@ CAN_RETRY_S = 5.0
 STOP_TIMEOUT_S = 1.0
 
 
-class Wires:
-    def __init__(self, values: ValuesSource, on_command: CommandCallback, before_read: Callable[[], None],
-                 can_bus_factory: BusFactory = can.Bus):
-        self._values = values  # every reader gets the numbers through this
-        self._on_command = on_command
-        self._before_read = before_read
-        self._can_bus_factory = can_bus_factory
-        self.modbus: ModbusServer | None = None
-        self.can: CanPublisher | None = None
-        self.can_start_failures = 0
-        self._retry: asyncio.Task | None = None
+@dataclass(frozen=True, slots=True)
+class WireHealth:
+    """What the status surfaces say of a wire (Modbus registers, CAN quality frame, log)."""
 
-    async def start(self, cfg: Config) -> None:
-        """Modbus listening (DeviceError if it cannot), CAN started or being retried."""
-        self.modbus = ModbusServer(modbus_config_from(cfg), on_command=self._on_command,
-                                   before_read=self._before_read)
+    name: str
+    enabled: bool
+    #: Serving (Modbus listening, CAN bus open, MQTT connected to its broker).
+    up: bool
+    #: Messages this wire could not send since start (CAN send errors, MQTT queue drops).
+    dropped: int = 0
+    #: Commands this wire refused since start (CAN: disabled, malformed, stale or replayed frames).
+    refused: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class WireContext:
+    """What every wire gets from the supervisor."""
+
+    values: ValuesSource  # the newest snapshot, built only when a wire reads it
+    on_command: CommandCallback
+    before_read: Callable[[], None]  # take the bytes waiting in the board's port first
+    can_bus_factory: BusFactory = can.Bus
+    version: str = ""  # the gateway's version, for the wires that announce it
+
+
+class Wire(Protocol):
+    """One output. Every method runs in the event loop and returns quickly; `publish`
+    runs once per batch of board samples (the 500 samples/s path) and must never wait."""
+
+    name: str
+
+    async def start(self) -> None:
+        """Serving, or retrying by itself; DeviceError only where the daemon must not run without it."""
+
+    def publish(self) -> None:
+        """New values exist (read them through the context's values source when needed)."""
+
+    async def apply(self, settings: Any) -> None:
+        """Serve with these settings from now on — or DeviceError and everything as it was."""
+
+    async def stop(self) -> None:
+        """Idempotent; nothing left running."""
+
+    def health(self) -> WireHealth: ...
+
+
+async def stop_within_timeout(component) -> None:
+    with contextlib.suppress(Exception):
+        await asyncio.wait_for(component.stop(), timeout=STOP_TIMEOUT_S)
+
+
+class ModbusWire:
+    """The Modbus TCP (and RTU) server. A new address: the new server starts before the
+    old one is let go; the same address: the old one comes back if the new one fails."""
+
+    name = "modbus"
+
+    def __init__(self, settings: ModbusServerConfig, ctx: WireContext):
+        self.settings = settings
+        self._ctx = ctx
+        self.server: ModbusServer | None = None
+
+    def _new_server(self, settings: ModbusServerConfig) -> ModbusServer:
+        return ModbusServer(settings, on_command=self._ctx.on_command, before_read=self._ctx.before_read)
+
+    async def start(self) -> None:
+        server = self._new_server(self.settings)
         try:
-            await self.modbus.start()
+            await server.start()
         except ModbusServerError as err:
-            self.modbus = None
             raise DeviceError(f"Modbus server: {err}") from err
-        self.modbus.update(self._values)  # from the first read on, what the gateway knows
-        if cfg.can.enabled:
-            try:
-                self.can = await self._start_can(cfg)
-            except CanPublisherError as err:
-                self.can_start_failures += 1
-                log.error("%s; retrying every %g s", err, CAN_RETRY_S)
-                self._retry = asyncio.create_task(self._retry_can(cfg), name="can-retry")
+        server.update(self._ctx.values)  # from the first read on, what the gateway knows
+        self.server = server
 
-    async def _start_can(self, cfg: Config) -> CanPublisher:
-        publisher = CanPublisher(can_config_from(cfg), on_command=self._on_command,
-                                 bus_factory=self._can_bus_factory)
-        await publisher.start()
-        publisher.update(self._values)
-        return publisher
+    def publish(self) -> None:
+        if self.server is not None:
+            self.server.update(self._ctx.values)
 
-    async def _retry_can(self, cfg: Config) -> None:
-        while self.can is None:
-            await asyncio.sleep(CAN_RETRY_S)
-            try:
-                self.can = await self._start_can(cfg)
-                log.info("CAN publisher started")
-            except CanPublisherError as err:
-                self.can_start_failures += 1
-                log.debug("%s", err)
-
-    async def apply(self, old: Config, new: Config) -> None:
-        """Reload: the wires whose settings changed, with the new settings — or, when a
-        new one cannot start, DeviceError and everything as it was."""
-        modbus_changed = old.modbus.as_tuple() != new.modbus.as_tuple()
-        can_changed = old.can.as_tuple() != new.can.as_tuple()
-        if modbus_changed:
-            await self._replace_modbus(old, new)
-        if can_changed:
-            try:
-                await self._replace_can(old, new)
-            except DeviceError:
-                if modbus_changed:  # all or nothing: Modbus back to the old settings
-                    await self._replace_modbus(new, old)
-                raise
-
-    async def _replace_modbus(self, old: Config, new: Config) -> None:
-        previous = self.modbus
-        same_place = (old.modbus.host, old.modbus.port, old.modbus.rtu_port) == \
-                     (new.modbus.host, new.modbus.port, new.modbus.rtu_port) and new.modbus.port != 0
+    async def apply(self, settings: ModbusServerConfig) -> None:
+        old, previous = self.settings, self.server
+        same_place = (old.host, old.port, old.rtu_port) == (settings.host, settings.port, settings.rtu_port) \
+            and settings.port != 0
         if same_place and previous is not None:
-            await self._stop_one(previous)
-        replacement = ModbusServer(modbus_config_from(new), on_command=self._on_command,
-                                   before_read=self._before_read)
+            await stop_within_timeout(previous)
+        replacement = self._new_server(settings)
         try:
             await replacement.start()
         except ModbusServerError as err:
             if same_place and previous is not None:  # the old one back where it was
-                restored = ModbusServer(modbus_config_from(old), on_command=self._on_command,
-                                        before_read=self._before_read)
+                restored = self._new_server(old)
                 await restored.start()
-                restored.update(self._values)
-                self.modbus = restored
+                restored.update(self._ctx.values)
+                self.server = restored
             raise DeviceError(f"Modbus server with the new settings: {err}") from err
-        replacement.update(self._values)
-        self.modbus = replacement
+        replacement.update(self._ctx.values)
+        self.server, self.settings = replacement, settings
         if not same_place and previous is not None:
-            await self._stop_one(previous)
+            await stop_within_timeout(previous)
 
-    async def _replace_can(self, old: Config, new: Config) -> None:
-        previous, self.can = self.can, None
+    async def stop(self) -> None:
+        if self.server is not None:
+            await stop_within_timeout(self.server)
+        self.server = None
+
+    def health(self) -> WireHealth:
+        return WireHealth(self.name, enabled=True, up=self.server is not None)
+
+
+class CanWire:
+    """The CAN publisher (None settings: off). A bus that cannot open at start is retried
+    every CAN_RETRY_S while the other wires serve."""
+
+    name = "can"
+
+    def __init__(self, settings: CanPublisherConfig | None, ctx: WireContext):
+        self.settings = settings
+        self._ctx = ctx
+        self.publisher: CanPublisher | None = None
+        self.start_failures = 0
+        self._retry: asyncio.Task | None = None
+
+    async def _open(self, settings: CanPublisherConfig) -> CanPublisher:
+        publisher = CanPublisher(settings, on_command=self._ctx.on_command, bus_factory=self._ctx.can_bus_factory)
+        await publisher.start()
+        publisher.update(self._ctx.values)
+        return publisher
+
+    async def start(self) -> None:
+        if self.settings is None:
+            return
+        try:
+            self.publisher = await self._open(self.settings)
+        except CanPublisherError as err:
+            self.start_failures += 1
+            log.error("%s; retrying every %g s", err, CAN_RETRY_S)
+            self._retry = asyncio.create_task(self._retry_open(self.settings), name="can-retry")
+
+    async def _retry_open(self, settings: CanPublisherConfig) -> None:
+        while self.publisher is None:
+            await asyncio.sleep(CAN_RETRY_S)
+            try:
+                self.publisher = await self._open(settings)
+                log.info("CAN publisher started")
+            except CanPublisherError as err:
+                self.start_failures += 1
+                log.debug("%s", err)
+
+    async def _cancel_retry(self) -> None:
         if self._retry is not None:
             self._retry.cancel()
             await asyncio.gather(self._retry, return_exceptions=True)
             self._retry = None
+
+    def publish(self) -> None:
+        if self.publisher is not None:
+            self.publisher.update(self._ctx.values)
+
+    def update_due(self) -> bool:
+        """A CAN cycle is due: the numbers are wanted now (see Gateway.receive)."""
+        return self.publisher is not None and self.publisher.update_due()
+
+    async def apply(self, settings: CanPublisherConfig | None) -> None:
+        old = self.settings
+        previous, self.publisher = self.publisher, None
+        await self._cancel_retry()
         if previous is not None:
             # a CAN channel can have several users: the new one may start beside the old
-            await self._stop_one(previous)
-        if not new.can.enabled:
+            await stop_within_timeout(previous)
+        if settings is None:
+            self.settings = None
             return
         try:
-            self.can = await self._start_can(new)
+            self.publisher = await self._open(settings)
         except CanPublisherError as err:
             if previous is not None:
                 try:
                     await previous.start()
-                    self.can = previous
+                    self.publisher = previous
                 except CanPublisherError:
-                    self._retry = asyncio.create_task(self._retry_can(old), name="can-retry")
+                    self._retry = asyncio.create_task(self._retry_open(old), name="can-retry")
             raise DeviceError(f"CAN with the new settings: {err}") from err
+        self.settings = settings
 
-    @staticmethod
-    async def _stop_one(component) -> None:
-        with contextlib.suppress(Exception):
-            await asyncio.wait_for(component.stop(), timeout=STOP_TIMEOUT_S)
+    async def stop(self) -> None:
+        await self._cancel_retry()
+        if self.publisher is not None:
+            await stop_within_timeout(self.publisher)
+        self.publisher = None
+
+    def health(self) -> WireHealth:
+        p = self.publisher
+        return WireHealth(self.name, enabled=self.settings is not None, up=p is not None,
+                          dropped=0 if p is None else p.send_errors,
+                          refused=0 if p is None else p.refused_commands)
+
+
+class MqttWire:
+    """The Sparkplug B edge node (None settings: off). It connects and reconnects by
+    itself; a broker that is missing or refuses it never stops the other wires."""
+
+    name = "mqtt"
+
+    def __init__(self, settings: SparkplugSettings | None, ctx: WireContext):
+        self.settings = settings
+        self._ctx = ctx
+        self.node: SparkplugNode | None = None
+
+    def _new_node(self, settings: SparkplugSettings, first_bd_seq: int = 0) -> SparkplugNode:
+        return SparkplugNode(settings, values=self._ctx.values, on_command=self._ctx.on_command,
+                             version=self._ctx.version, first_bd_seq=first_bd_seq)
+
+    async def _start_node(self, settings: SparkplugSettings, first_bd_seq: int) -> SparkplugNode:
+        node = self._new_node(settings, first_bd_seq)
+        try:
+            await node.start()
+        except SparkplugError as err:
+            raise DeviceError(str(err)) from err
+        return node
+
+    async def start(self) -> None:
+        if self.settings is not None:
+            self.node = await self._start_node(self.settings, 0)
+
+    def publish(self) -> None:
+        if self.node is not None:
+            # does anything only once per 1/rate_hz: MQTT rides on the daemon's wakeups
+            self.node.poll()
+
+    async def apply(self, settings: SparkplugSettings | None) -> None:
+        # a new session either way: the old one says its NDEATH, the new one is born with
+        # the next bdSeq; a new one that cannot start (its TLS file) gives the old one back
+        old_settings, old_node = self.settings, self.node
+        next_bd_seq = 0
+        if old_node is not None:
+            await stop_within_timeout(old_node)
+            next_bd_seq = old_node.bd_seq + 1
+        self.node = None
+        try:
+            if settings is not None:
+                self.node = await self._start_node(settings, next_bd_seq)
+        except DeviceError as err:
+            if old_settings is not None:
+                self.node = await self._start_node(old_settings, next_bd_seq)
+            raise DeviceError(f"MQTT with the new settings: {err}") from err
+        self.settings = settings
+
+    async def stop(self) -> None:
+        if self.node is not None:
+            await stop_within_timeout(self.node)
+        self.node = None
+
+    def health(self) -> WireHealth:
+        n = self.node
+        return WireHealth(self.name, enabled=self.settings is not None, up=n is not None and n.connected,
+                          dropped=0 if n is None else n.counters.dropped)
+
+
+@dataclass(frozen=True)
+class WireKind:
+    """How a wire is made: its typed settings from the config, and its class."""
+
+    settings_from: Callable[[Config], Any]
+    build: Callable[[Any, WireContext], Wire]
+
+
+#: Every output, in start order (Modbus first: it must come up).
+WIRE_KINDS: tuple[WireKind, ...] = (
+    WireKind(modbus_config_from, ModbusWire),
+    WireKind(can_config_from, CanWire),
+    WireKind(mqtt_settings_from, MqttWire),
+)
+
+
+class WireSet:
+    """The daemon's wires, started and stopped together, reloaded all or nothing."""
+
+    def __init__(self, cfg: Config, ctx: WireContext, kinds: tuple[WireKind, ...] = WIRE_KINDS):
+        self._kinds = kinds
+        self.wires: list[Wire] = [kind.build(kind.settings_from(cfg), ctx) for kind in kinds]
+        self._by_name = {w.name: w for w in self.wires}
+        self._due_checks = [w.update_due for w in self.wires if hasattr(w, "update_due")]
+
+    def __getitem__(self, name: str) -> Wire:
+        return self._by_name[name]
+
+    async def start(self) -> None:
+        started: list[Wire] = []
+        try:
+            for wire in self.wires:
+                await wire.start()
+                started.append(wire)
+        except BaseException:
+            for wire in reversed(started):
+                await wire.stop()
+            raise
 
     def published(self) -> None:
         """New values: each wire sends or serves them as its schedule says."""
-        if self.modbus is not None:
-            self.modbus.update(self._values)
-        if self.can is not None:
-            self.can.update(self._values)
+        for wire in self.wires:
+            wire.publish()
+
+    def update_due(self) -> bool:
+        """Some wire wants the numbers now (a CAN cycle is due)."""
+        return any(due() for due in self._due_checks)
+
+    async def apply(self, old: Config, new: Config) -> None:
+        """Reload: the wires whose settings changed, with the new settings — or, when
+        one cannot take them, DeviceError and every wire as it was."""
+        changed: list[tuple[Wire, Any]] = []
+        for kind, wire in zip(self._kinds, self.wires):
+            before, after = kind.settings_from(old), kind.settings_from(new)
+            if before == after:
+                continue
+            try:
+                await wire.apply(after)
+            except DeviceError:
+                for done, settings in reversed(changed):  # all or nothing: back to the old settings
+                    try:
+                        await done.apply(settings)
+                    except DeviceError as err:
+                        log.error("%s could not go back to its old settings: %s", done.name, err)
+                raise
+            changed.append((wire, before))
 
     async def stop(self) -> None:
-        if self._retry is not None:
-            self._retry.cancel()
-            await asyncio.gather(self._retry, return_exceptions=True)
-            self._retry = None
-        for component in (self.can, self.modbus):
-            if component is not None:
-                await self._stop_one(component)
-        self.can = None
-        self.modbus = None
+        for wire in reversed(self.wires):
+            await wire.stop()
+
+    def health(self, name: str) -> WireHealth:
+        return self._by_name[name].health()

@@ -1,0 +1,301 @@
+"""Sparkplug B on the wire: the topic namespace, the metrics table, payloads in and out.
+
+`NODE_METRICS` and `DEVICE_METRICS` are the single source: the edge node encodes from
+them, the host view decodes with them, and docs/mqtt.md embeds `metrics_markdown()`
+(a test keeps them equal). The payload is Eclipse Tahu's `sparkplug_b.proto`
+(drivers/sparkplug/, EPL-2.0), compiled once into `sparkplug_b_pb2`.
+
+Conventions, said once:
+- Topics: ``spBv1.0/<group>/<NBIRTH|NDATA|NDEATH|NCMD>/<edge node>`` and
+  ``spBv1.0/<group>/<DBIRTH|DDATA|DDEATH|DCMD>/<edge node>/<device>``.
+- A birth carries every metric with its name and alias; DATA carries aliases only, and
+  only the metrics whose value changed since the last DATA (report by exception).
+- A number the gateway does not have (NaN, no temperature sensor) is sent with
+  ``is_null`` set, never as a made-up value.
+- seq counts every NBIRTH/DBIRTH/DDATA of a session modulo 256 (NBIRTH is 0); bdSeq
+  counts MQTT sessions modulo 256 and ties an NDEATH (the MQTT will) to its NBIRTH.
+"""
+from __future__ import annotations
+
+import enum
+import functools
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .published_values import Command, PublishedValues, StatusBits, StatusExtBits
+from .sparkplug import sparkplug_b_pb2
+
+NAMESPACE = "spBv1.0"
+SEQ_MODULO = 256  # seq and bdSeq are 0..255
+Payload = sparkplug_b_pb2.Payload
+
+
+class DataType(enum.IntEnum):
+    """Sparkplug B metric data types (the numbers of Tahu's DataType enum) used here."""
+
+    INT64 = 4
+    UINT32 = 7
+    UINT64 = 8
+    DOUBLE = 10
+    BOOLEAN = 11
+    STRING = 12
+
+
+_VALUE_FIELD = {DataType.INT64: "long_value", DataType.UINT32: "int_value", DataType.UINT64: "long_value",
+                DataType.DOUBLE: "double_value", DataType.BOOLEAN: "boolean_value",
+                DataType.STRING: "string_value"}
+
+
+@dataclass(frozen=True, slots=True)
+class MetricDef:
+    name: str
+    datatype: DataType
+    unit: str
+    description: str
+    #: The value in a snapshot (None: null); None for the metrics the node fills itself.
+    read: Callable[[PublishedValues], Any] | None = None
+
+
+def _finite(x: float | None) -> float | None:
+    return x if x is not None and math.isfinite(x) else None
+
+
+#: Node metrics: in NBIRTH (and bdSeq in NDEATH). "Node Control/Rebirth" is the host's way
+#: to ask for the births again (an NCMD with it true).
+BDSEQ = "bdSeq"
+REBIRTH = "Node Control/Rebirth"
+NODE_METRICS: tuple[MetricDef, ...] = (
+    MetricDef(BDSEQ, DataType.INT64, "", "MQTT session of this node (0–255); the NDEATH with the same bdSeq ends it."),
+    MetricDef(REBIRTH, DataType.BOOLEAN, "",
+              "Write true (NCMD): the node publishes NBIRTH and DBIRTH again. Reads false."),
+    MetricDef("Properties/version", DataType.STRING, "", "The gateway's software version."),
+)
+
+DDATA_COUNT = "mqtt/ddata_count"
+MQTT_DROPPED = "mqtt/dropped"
+COMMAND_PREFIX = "Commands/"
+
+_MEASURED: tuple[MetricDef, ...] = (
+    MetricDef("position_m", DataType.DOUBLE, "m", "Position since the tare (null: no estimate).",
+              lambda v: _finite(v.position_m)),
+    MetricDef("velocity_mps", DataType.DOUBLE, "m/s", "Velocity.", lambda v: _finite(v.velocity_mps)),
+    MetricDef("acceleration_mps2", DataType.DOUBLE, "m/s²", "Acceleration along the axis, bias removed.",
+              lambda v: _finite(v.acceleration_mps2)),
+    MetricDef("position_std_m", DataType.DOUBLE, "m", "1σ of the position estimate.",
+              lambda v: _finite(v.position_std_m)),
+    MetricDef("bias_estimate_mps2", DataType.DOUBLE, "m/s²", "The accelerometer bias the estimator removes.",
+              lambda v: _finite(v.bias_estimate_mps2)),
+    MetricDef("board_temp_c", DataType.DOUBLE, "°C", "Board temperature (null: no sensor or no STATUS yet).",
+              lambda v: _finite(v.board_temp_c)),
+    MetricDef("last_sample_age_ms", DataType.DOUBLE, "ms", "Age of the newest sample (null: none yet).",
+              lambda v: _finite(v.last_sample_age_ms)),
+    MetricDef("usable", DataType.BOOLEAN, "", "VALID set and no bit against it: the numbers may be acted on.",
+              lambda v: v.usable),
+    MetricDef("status", DataType.UINT32, "", "The status word (StatusBits), as in Modbus STATUS.",
+              lambda v: int(v.status)),
+    MetricDef("status_ext", DataType.UINT32, "", "The second status word (StatusExtBits), as in Modbus STATUS_EXT.",
+              lambda v: int(v.status_ext)),
+)
+
+
+def _bit_metric(prefix: str, bit: enum.IntFlag, word: str) -> MetricDef:
+    # read through _bits(): one dict per status pair, not 23 flag operations per snapshot
+    return MetricDef(f"{prefix}/{bit.name}", DataType.BOOLEAN, "", f"Bit {bit.value.bit_length() - 1} of {word}.")
+
+
+_BITS: tuple[MetricDef, ...] = tuple(_bit_metric("status", b, "status") for b in StatusBits) + tuple(
+    _bit_metric("status_ext", b, "status_ext") for b in StatusExtBits)
+
+_COUNTERS: tuple[MetricDef, ...] = (
+    MetricDef("sample_counter", DataType.UINT64, "count", "Board samples processed since start.",
+              lambda v: v.sample_counter),
+    MetricDef("lost_samples", DataType.UINT64, "count", "Samples missing on the serial line since start.",
+              lambda v: v.lost_samples),
+    MetricDef("crc_errors", DataType.UINT64, "count", "Board frames dropped for a CRC mismatch since start.",
+              lambda v: v.crc_errors),
+    MetricDef("board_resets", DataType.UINT64, "count", "Board resets seen since start.", lambda v: v.board_resets),
+    MetricDef("can_send_errors", DataType.UINT64, "count", "CAN frames that could not be sent since start.",
+              lambda v: v.can_send_errors),
+    MetricDef(DDATA_COUNT, DataType.UINT64, "count",
+              "DDATA messages this node made since start, sent or not: a host that sees it jump has lost "
+              "messages (the node's own drops are in mqtt/dropped)."),
+    MetricDef(MQTT_DROPPED, DataType.UINT64, "count",
+              "DDATA messages this node dropped since start: its queue was full (a broker away for longer "
+              "than the backlog holds, or slower than the rate)."),
+)
+
+_COMMANDS: tuple[MetricDef, ...] = tuple(
+    MetricDef(f"{COMMAND_PREFIX}{c.name}", DataType.BOOLEAN, "",
+              f"Write true (DCMD): the command {c.name}, as over Modbus and CAN; refused unless "
+              "mqtt.commands_enabled. Reads false.", lambda v: False) for c in Command)
+
+#: Device metrics: in DBIRTH, and those that changed in each DDATA.
+DEVICE_METRICS: tuple[MetricDef, ...] = _MEASURED + _BITS + _COUNTERS + _COMMANDS
+
+#: Aliases: fixed by the tables' order (node metrics first), the same in every birth.
+ALIASES: dict[str, int] = {m.name: i + 1 for i, m in enumerate(NODE_METRICS + DEVICE_METRICS)}
+BY_NAME: dict[str, MetricDef] = {m.name: m for m in NODE_METRICS + DEVICE_METRICS}
+BY_ALIAS: dict[int, MetricDef] = {ALIASES[m.name]: m for m in NODE_METRICS + DEVICE_METRICS}
+#: DCMD metric name → the command it carries.
+COMMANDS: dict[str, Command] = {f"{COMMAND_PREFIX}{c.name}": c for c in Command}
+_READABLE = tuple(m for m in DEVICE_METRICS if m.read is not None and not m.name.startswith(COMMAND_PREFIX))
+#: Every row key but the status bits.
+_WORD_KEYS = tuple(m.name for m in _READABLE) + (DDATA_COUNT, MQTT_DROPPED)
+
+
+# ------------------------------------------------------------------ topics --
+def node_topic(group: str, kind: str, node: str) -> str:
+    return f"{NAMESPACE}/{group}/{kind}/{node}"
+
+
+def device_topic(group: str, kind: str, node: str, device: str) -> str:
+    return f"{NAMESPACE}/{group}/{kind}/{node}/{device}"
+
+
+@dataclass(frozen=True, slots=True)
+class Topic:
+    group: str
+    kind: str  # NBIRTH, DDATA, ...
+    node: str
+    device: str | None = None
+
+
+def parse_topic(topic: str) -> Topic | None:
+    """A Sparkplug B topic's parts; None for anything else (STATE, other namespaces)."""
+    parts = topic.split("/")
+    if len(parts) not in (4, 5) or parts[0] != NAMESPACE:
+        return None
+    return Topic(parts[1], parts[2], parts[3], parts[4] if len(parts) == 5 else None)
+
+
+# --------------------------------------------------------------- payloads --
+_STATUS_MASKS = tuple((f"status/{b.name}", int(b)) for b in StatusBits)
+_EXT_MASKS = tuple((f"status_ext/{b.name}", int(b)) for b in StatusExtBits)
+
+
+@functools.lru_cache(maxsize=256)
+def _bits(status: int, status_ext: int) -> dict[str, bool]:
+    """The status bits as metrics; few distinct words in a run, so made once each
+    (the node reads a snapshot rate_hz times a second, in the daemon's event loop)."""
+    bits = {name: bool(status & mask) for name, mask in _STATUS_MASKS}
+    bits.update((name, bool(status_ext & mask)) for name, mask in _EXT_MASKS)
+    return bits
+
+
+def device_row(values: PublishedValues) -> dict[str, Any]:
+    """The readable device metrics of one snapshot (commands and the node's counters aside)."""
+    row = {m.name: m.read(values) for m in _READABLE}
+    row.update(_bits(row["status"], row["status_ext"]))
+    return row
+
+
+def _set(metric, definition: MetricDef, value: Any) -> None:
+    metric.datatype = int(definition.datatype)
+    if value is None:
+        metric.is_null = True
+    else:
+        setattr(metric, _VALUE_FIELD[definition.datatype], value)
+
+
+def _add(payload, name: str, value: Any, *, birth: bool, timestamp_ms: int | None = None,
+         historical: bool = False) -> None:
+    definition = BY_NAME[name]
+    metric = payload.metrics.add()
+    if birth or name == BDSEQ:
+        metric.name = name  # births name every metric; NDEATH's bdSeq goes by name
+    if birth or name != BDSEQ:
+        metric.alias = ALIASES[name]
+    if timestamp_ms is not None:
+        metric.timestamp = timestamp_ms
+    if historical:
+        metric.is_historical = True
+    _set(metric, definition, value)
+
+
+def node_birth(timestamp_ms: int, seq: int, bd_seq: int, version: str) -> bytes:
+    p = Payload(timestamp=timestamp_ms, seq=seq)
+    _add(p, BDSEQ, bd_seq, birth=True)
+    _add(p, REBIRTH, False, birth=True)
+    _add(p, "Properties/version", version, birth=True)
+    return p.SerializeToString()
+
+
+def node_death(bd_seq: int) -> bytes:
+    p = Payload()
+    _add(p, BDSEQ, bd_seq, birth=False)
+    return p.SerializeToString()
+
+
+def device_birth(timestamp_ms: int, seq: int, row: Mapping[str, Any]) -> bytes:
+    p = Payload(timestamp=timestamp_ms, seq=seq)
+    for name, value in row.items():
+        _add(p, name, value, birth=True)
+    for name in COMMANDS:
+        _add(p, name, False, birth=True)
+    return p.SerializeToString()
+
+
+def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, historical: bool = False) -> bytes:
+    """DDATA with the changed metrics; historical: values of a moment ago sent late (kept
+    while the broker was away), flagged so that no host takes them as the current ones."""
+    p = Payload(timestamp=timestamp_ms, seq=seq)
+    for name, value in changed.items():
+        _add(p, name, value, birth=False, timestamp_ms=timestamp_ms if historical else None, historical=historical)
+    return p.SerializeToString()
+
+
+def changes(previous: Mapping[str, Any] | None, row: Mapping[str, Any]) -> dict[str, Any]:
+    """The metrics of `row` whose value differs from `previous` (all of them without one).
+    The status bits follow from the two status words: compared only when a word changed
+    (most ticks it did not, and they are 23 of the 40 metrics)."""
+    if previous is None:
+        return dict(row)
+    words_same = previous.get("status") == row.get("status") and previous.get("status_ext") == row.get("status_ext")
+    keys = _WORD_KEYS if words_same else row.keys()
+    return {k: row[k] for k in keys if k in row and previous.get(k, _MISSING) != row[k]}
+
+
+_MISSING = object()
+
+
+@dataclass(frozen=True, slots=True)
+class DecodedMetric:
+    name: str
+    value: Any  # None when null
+    historical: bool
+
+
+def decode(data: bytes) -> tuple[Payload, list[DecodedMetric]]:
+    """A payload and its metrics by name (aliases resolved through the table). Raises
+    ValueError for bytes that are no Sparkplug B payload; unknown metrics are skipped."""
+    try:
+        payload = Payload.FromString(data)
+    except Exception as err:  # protobuf's DecodeError, and whatever a hostile payload raises
+        raise ValueError(f"not a Sparkplug B payload: {err}") from err
+    metrics = []
+    for m in payload.metrics:
+        definition = BY_NAME.get(m.name) if m.name else BY_ALIAS.get(m.alias)
+        if definition is None:
+            continue
+        value = None if m.is_null else getattr(m, _VALUE_FIELD[definition.datatype])
+        metrics.append(DecodedMetric(definition.name, value, m.is_historical))
+    return payload, metrics
+
+
+# ------------------------------------------------------------------- docs --
+def metrics_markdown() -> str:
+    """The metrics table of docs/mqtt.md."""
+    lines = ["| metric | alias | message | type | unit | meaning |", "| --- | --- | --- | --- | --- | --- |"]
+
+    special = {BDSEQ: "NBIRTH, NDEATH", REBIRTH: "NBIRTH, NCMD", **{name: "DBIRTH, DCMD" for name in COMMANDS}}
+
+    def rows(defs: Iterable[MetricDef], where: str) -> None:
+        for m in defs:
+            lines.append(f"| `{m.name}` | {ALIASES[m.name]} | {special.get(m.name, where)} | "
+                         f"{m.datatype.name.title()} | {m.unit} | {m.description} |")
+
+    rows(NODE_METRICS, "NBIRTH")
+    rows(DEVICE_METRICS, "DBIRTH, DDATA")
+    return "\n".join(lines) + "\n"
