@@ -14,7 +14,7 @@ from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
 from gateway.core.evaluation import ErrorSummary, summarise_errors
 from gateway.core.evaluation_stream import StreamedErrors
-from gateway.core.reference_point import NoRestError, find_initial_rest
+from gateway.core.reference_point import NoRestError, find_initial_rest, quiet_part
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
 from gateway.offline.figures import save_figure
@@ -137,7 +137,9 @@ def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: 
     if len(series) < 2:  # the streamed estimate's first chunk: a file of one row
         raise NoRestError(f"only {len(series)} sample: no sample period, no rest to measure the noise on")
     period = float(np.median(np.diff(series.t_s)))
-    rest = find_initial_rest(series.acc_mps2, series.valid, period)
+    # the noise is measured where the rest is quiet on its own noise's scale (quiet_part)
+    rest = quiet_part(series.acc_mps2, series.valid, find_initial_rest(series.acc_mps2, series.valid, period),
+                      period)
     try:
         return from_rest(series.acc_mps2[rest.start:rest.stop], period)
     except ValueError as err:  # e.g. a noise-free rest: a rest, but no noise to set the filter from
