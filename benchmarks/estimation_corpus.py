@@ -2,7 +2,7 @@
 
     PYTHONPATH=. nice .venv/bin/python benchmarks/estimation_corpus.py [--seeds 3] [--json OUT.json]
 
-One instrument for every design choice of the estimator (docs/estimation.md, "Corpus"):
+One instrument for every design choice of the estimator (docs/estimation.md, "The corpus"):
 judged on the median and the worst over the corpus, never on one file.
 
 Cases
