@@ -147,7 +147,9 @@ F_TIME_ERROR = 64  # the sample time did not increase: not propagated
 F_ROLLBACK = 128  # a standstill ended: the zero-acceleration updates of the last window were undone
 F_UNTRUSTED = 256  # position not trustworthy now: a quiet stretch may be a cruise or a stop (held until
 # a stop is accepted on evidence: the velocity test passing decisively, or the hint)
-F_HINT_CONFLICT = 512  # "at rest" hinted, but a whole window of the accelerometer shows motion: not obeyed
+# "at rest" hinted and the accelerometer disagrees: a whole hinted window shows motion (not obeyed),
+# or a hinted stop's velocity is beyond chance (obeyed, position flagged 256, σ covering both answers)
+F_HINT_CONFLICT = 512
 F_OFFSET_STEP = 1024  # a quiet stretch after a move sits off the bias: the offset may have stepped
 F_HINT_REST = 2048  # this sample's standstill was accepted on the machine's hint
 F_FAULT = 4096  # the state is not finite or has diverged: the numbers mean nothing (reset it)

@@ -30,6 +30,11 @@ standstill is decided by tests 1–2 alone — a 10 m/s² start fails both on it
 sample. A window with fewer than 80 % valid samples decides nothing: the previous
 regime is held and the health flags say so.
 
+A machine's "at rest" hint is a gate (hint_gate_open): a whole window inside the hinted
+rest whose mean sits at the bias within its own spread is a standstill, whatever the
+filter's velocity; velocity_consistent_with_rest then says whether the stop's velocity is
+chance (χ²₁ at the detector's false-alarm rate) or a disagreement the kernel flags.
+
 A machine's "at rest" hint over a rest shorter than the window, or while the mount rings
 after the stop (the variance test failing on a swing above standstill_vibration_mps), is
 no standstill these tests can accept — yet it still says the axis stands: its velocity
