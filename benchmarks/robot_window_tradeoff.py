@@ -3,7 +3,7 @@
     PYTHONPATH=. .venv/bin/python benchmarks/robot_window_tradeoff.py [--windows-s 0.05 0.07 0.1 0.15]
 
 The realtime estimate's worst move on the design file is set by the 0.08 s stop, which no
-0.1 s window fits inside (docs/estimation.md, "What limits the realtime estimate"). The
+0.1 s window fits inside (docs/estimation.md, "Limits"). The
 window is an application choice (`EstimatorSettings.standstill_window_s`); this runs the
 design file read as `estimate_benchmark.robot_run` reads it with other windows, every
 other setting as `adxlgw estimate` picks it, and prints per window and method the

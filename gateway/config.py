@@ -202,13 +202,13 @@ SCHEMA: tuple[Key, ...] = (
         "Accept commands as DCMD (tare, the machine's standstill hint, bias re-estimation); else refused and "
         "counted, as over Modbus and CAN."),
     # --- estimator ---------------------------------------------------------
-    Key("estimator", "start_at_rest", False, bool,
-        "true: the axis is known to stand when the gateway starts (homed before it), so the first quiet "
-        "window is taken as a rest. false (safe): the gateway may start mid-move, so the position is "
-        "POSITION_UNTRUSTED until a stop is seen on evidence (the machine's rest hint, or quiet_stop_s of "
-        "quiet). A board reset always counts as possibly mid-move, and the setting is believed only on a "
-        "first start (no state file) or after an orderly stop at rest: after a crash, kill -9 or watchdog "
-        "abort the axis may be mid-move (docs/daemon.md, Faults, scored)."),
+    Key("estimator", "start_at_rest", True, bool,
+        "true (default): the axis stands when the gateway is first started (commissioned at a homed, "
+        "resting axis), so the first quiet window is taken as a rest. Believed only on a first start (no "
+        "state file) or after an orderly stop at a trusted standstill: after a crash, kill -9, watchdog "
+        "abort or a board reset the axis may be mid-move, and the position is POSITION_UNTRUSTED until a "
+        "stop is seen on evidence (the machine's rest hint, or quiet_stop_s of quiet). false: never "
+        "believed (a gateway that may be started mid-move) (docs/decisions/0001-start-at-rest.md)."),
     Key("estimator", "hint_timeout_ms", 1000, int,
         "How long the machine's standstill hint (Modbus CMD_HINT_*, CAN command codes 3-5) stays in "
         "force after it was written; a PLC writes it every cycle while it holds.", _range(10, 600_000)),

@@ -258,3 +258,23 @@ def test_move_errors_take_each_move_from_rest_end_to_rest_end():
     assert [(m.start, m.end) for m in moves] == [(1, 5), (7, 10)]
     assert moves[0].error_m == pytest.approx(0.05) and moves[0].percent == pytest.approx(10.0)
     assert moves[1].ref_m == pytest.approx(-0.4) and moves[1].error_m == pytest.approx(-0.04)
+
+
+@pytest.mark.parametrize("method", ["realtime", "smoothed"])
+def test_arrival_times_are_refused_with_the_way_out(tmp_path, capsys, method):
+    """A logger's arrival times (a backlog flushed at 2.5 ms spacing, then bursts) are no
+    sample clock: every path of `adxlgw estimate` checks its time axis and refuses it in one
+    line that names the re-timing command, exit 2 — never a confidently wrong estimate."""
+    rng = np.random.default_rng(29)
+    n = 600
+    true_t = np.arange(n) * 0.01
+    burst = np.repeat(np.arange(0, n, 4) * 0.01 + 0.03, 4)[:n] + np.tile([0.0, 0.0025, 0.005, 0.0075], n // 4 + 1)[:n]
+    acc = rng.normal(0.0, 0.02, n)
+    path = tmp_path / "arrivals.csv"
+    _write_acc(path, np.maximum.accumulate(burst), acc)
+    assert true_t.size == n
+    code = main(["estimate", str(path), "--method", method, "--out", str(tmp_path / "out.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert "arrival times" in err[-1] and "adxlgw import --arrival-col" in err[-1] and str(path) in err[-1]
+    assert not (tmp_path / "out.csv").exists()

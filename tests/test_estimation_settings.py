@@ -79,3 +79,27 @@ def test_estimate_command_prints_errors_at_every_stop_and_plots(tmp_path, capsys
     assert data.size == len(run.seq)
     assert abs(data["pos_m"][-1] - run.ref_pos_m[-1]) < 3e-3
     assert plot.stat().st_size > 10_000
+
+
+def test_the_noise_is_measured_on_the_quiet_part_of_the_initial_rest():
+    """A sensor whose axis stands while its mount vibrates (another axis moving): the
+    initial rest (8σ off its start ends it) runs on through the vibration; the noise
+    settings come from its quiet part only (reference_point.quiet_part: windowed F and t
+    tests against the rest's own baseline). A rest of white noise alone is kept whole."""
+    from gateway.core.reference_point import find_initial_rest, quiet_part
+
+    rng = np.random.default_rng(29)
+    period = 0.01
+    # bounded noise (uniform, σ = 0.029 m/s²), so that no sample of the vibration comes 8σ off
+    quiet = rng.uniform(-0.05, 0.05, 400)  # 4 s at rest
+    # 6 s of a 13 Hz vibration of 0.12 m/s² on top: three times the noise's σ, at most 6σ off
+    shaking = 0.12 * np.sin(2 * np.pi * 13.0 * period * np.arange(600)) + rng.uniform(-0.05, 0.05, 600)
+    acc = np.concatenate([quiet, shaking])
+    ok = np.ones(acc.size, dtype=bool)
+    rest = find_initial_rest(acc, ok, period)
+    assert rest.stop > 900  # the whole record is "the rest"
+    part = quiet_part(acc, ok, rest, period)
+    assert 380 <= part.stop <= 410
+    assert abs(part.sample_std_mps2 - 0.1 / np.sqrt(12)) < 0.004
+    plain = find_initial_rest(quiet, ok[:400], period)
+    assert quiet_part(quiet, ok[:400], plain, period) == plain

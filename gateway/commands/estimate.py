@@ -14,7 +14,8 @@ from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
 from gateway.core.evaluation import ErrorSummary, summarise_errors
 from gateway.core.evaluation_stream import StreamedErrors
-from gateway.core.reference_point import NoRestError, find_initial_rest
+from gateway.core.reference_point import NoRestError, find_initial_rest, quiet_part
+from gateway.core.retiming import RetimingError, retime
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
 from gateway.offline.figures import save_figure
@@ -127,6 +128,33 @@ def _no_rest(args: argparse.Namespace, err: NoRestError) -> InputError:
     return InputError(f"{args.recording}: cannot estimate ({args.method}): {err}{hint}")
 
 
+# rows of the time axis judged at a time (the re-timing's memory stays bounded on a 12-hour file)
+TIME_CHECK_ROWS = 1 << 17
+
+
+def check_time_axis(path: str, t_s: np.ndarray) -> None:
+    """Refuse a time axis that is a logger's arrival times: the filter integrates over the
+    times it is given, and a bursty or backlogged axis makes every stop's velocity wrong
+    with nothing in the samples to show it (confidently wrong). Judged by the importer's
+    re-timing (gateway/core/retiming.py, written once): runs of rows arriving less than half
+    a sensor period apart (bursts), or a backlog flushed faster than the sensor samples. A
+    sample clock's jitter makes neither. The way out is named: `adxlgw import --arrival-col`
+    re-times such an axis onto the sensor's regular clock."""
+    for start in range(0, t_s.size, TIME_CHECK_ROWS):
+        block = t_s[start:start + TIME_CHECK_ROWS]
+        try:
+            r = retime(block)
+        except RetimingError:  # too short, or times that do not advance: the filter flags those
+            continue
+        flushed = [e for e in r.late if e.arrival_interval_s < 0.5 * r.period_s]
+        if r.bursts >= 3 or flushed:
+            what = (f"{r.bursts} bursts of rows less than half a period ({r.period_s * 1e3:.3g} ms) apart"
+                    if r.bursts >= 3 else f"a backlog flushed at {flushed[0].arrival_interval_s * 1e3:.3g} ms "
+                                          f"spacing (rows {start + flushed[0].start}–{start + flushed[0].stop - 1})")
+            raise InputError(f"{path}: the time axis shows {what}: these are arrival times, not sample times — "
+                             "re-time them with 'adxlgw import --arrival-col' first")
+
+
 def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: FittedDrift | None) -> EstimatorSettings:
     """The filter's settings for this recording (see estimator_settings for each source)."""
     source = noise_from if noise_from != "auto" else ("sensor" if form == "raw" else "rest")
@@ -137,7 +165,9 @@ def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: 
     if len(series) < 2:  # the streamed estimate's first chunk: a file of one row
         raise NoRestError(f"only {len(series)} sample: no sample period, no rest to measure the noise on")
     period = float(np.median(np.diff(series.t_s)))
-    rest = find_initial_rest(series.acc_mps2, series.valid, period)
+    # the noise is measured where the rest is quiet on its own noise's scale (quiet_part)
+    rest = quiet_part(series.acc_mps2, series.valid, find_initial_rest(series.acc_mps2, series.valid, period),
+                      period)
     try:
         return from_rest(series.acc_mps2[rest.start:rest.stop], period)
     except ValueError as err:  # e.g. a noise-free rest: a rest, but no noise to set the filter from
@@ -254,6 +284,7 @@ def run(args: argparse.Namespace) -> int:
     _warn_input(series)
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
+    check_time_axis(args.recording, series.t_s)
     drift = load_drift_model(args.drift_model) if args.drift_model else None
     settings = None
     try:
@@ -333,6 +364,7 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
                 series = skip(series)
                 if args.skip_s and not len(series):
                     continue
+                check_time_axis(args.recording, series.t_s)
                 if runner is None:
                     settings = settings_for(series, source.form, args.noise_from, drift)
                     runner = RealtimeChunks(settings)

@@ -378,6 +378,19 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     K.add_scale_error(cols["pos_var"], cols["pos"], prm)
     K.add_scale_error(cols["vel_var"], cols["vel"], prm)
     K.add_reading_instant_error(cols["pos_var"], cols["acc"], t, prm)
+    _add_disagreement(cols["pos_var"], flags, zupt_index[:n_zupt], zupt_data[:n_zupt])
+
+
+def _add_disagreement(pos_var, flags, zupt_index, zupt_data) -> None:
+    """The realtime estimate's disagreement term (estimator_kernel.disagreement_var) over a
+    smoothed track: from each stop taken on the hint against the integrated velocity on,
+    the square of the position its update moved — σ covers both answers."""
+    conflicted = (flags[zupt_index] & (K.F_ENTRY | K.F_HINT_CONFLICT)) == (K.F_ENTRY | K.F_HINT_CONFLICT)
+    if not conflicted.any():
+        return
+    step = np.zeros(pos_var.size)
+    np.add.at(step, zupt_index[conflicted], K.disagreement_var(zupt_data[conflicted, 2], zupt_data[conflicted, 0]))
+    pos_var += np.cumsum(step)
 
 
 def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool, notes) -> EstimateTrack:

@@ -32,8 +32,9 @@ from typing import NamedTuple
 import numpy as np
 
 from gateway.core.jit import jit
-from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_fits, mean_velocity_offset, standstill_tests, \
-    stopping_within_a_window, velocity_decidable, velocity_swing, window_statistics
+from gateway.core.standstill import MIN_WINDOW_SAMPLES, hint_gate_open, hinted_rest_fits, mean_velocity_offset, \
+    standstill_tests, stopping_within_a_window, velocity_consistent_with_rest, velocity_decidable, velocity_swing, \
+    window_statistics
 
 # ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
 P_QV = 0  # velocity process noise density N²/2
@@ -58,7 +59,8 @@ P_RESTART_VEL_VAR = 18  # velocity variance (m/s)² after a restart with the axi
 P_HINT_LATENCY = 19  # how long a machine's "moving" may lead the sensor's motion (s): unknown for that long
 P_SCALE_VAR = 20  # the sensitivity's variance (fraction²): the reported σ carries s·p and s·v
 P_READING_INSTANT = 21  # S/2g (s²/m) for a duty-cycle part whose reading instant is not known, else 0
-N_PARAMS = 22
+P_ZUPT_CHI2 = 22  # χ²₁ quantile at 1 − standstill_false_motion_prob: a stop's velocity beyond it is no chance
+N_PARAMS = 23
 
 # ---- misc state layout ----------------------------------------------------------------
 M_T_PREV = 0
@@ -89,7 +91,10 @@ M_LAST_REST_HINT_T = 22  # time of the latest sample hinted "at rest" (−inf: n
 M_QUIET_FROM_V = 23  # velocity where the current quiet stretch in motion began above the floor (NaN: none)
 M_QUIET_FROM_T = 24  # and its time
 M_READING_DRIFT = 25  # position a modulator reading at its edge would have added since the tare (m)
-N_MISC = 26
+# Σ (position correction)² of the stops the machine's hint and the integrated accelerometer
+# disagreed on (since the tare): the reported σ covers both answers (step 2, the hint gate)
+M_DISAGREE_VAR = 26
+N_MISC = 27
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before
@@ -142,7 +147,9 @@ F_TIME_ERROR = 64  # the sample time did not increase: not propagated
 F_ROLLBACK = 128  # a standstill ended: the zero-acceleration updates of the last window were undone
 F_UNTRUSTED = 256  # position not trustworthy now: a quiet stretch may be a cruise or a stop (held until
 # a stop is accepted on evidence: the velocity test passing decisively, or the hint)
-F_HINT_CONFLICT = 512  # "at rest" hinted, but a whole window of the accelerometer shows motion: not obeyed
+# "at rest" hinted and the accelerometer disagrees: a whole hinted window shows motion (not obeyed),
+# or a hinted stop's velocity is beyond chance (obeyed, position flagged 256, σ covering both answers)
+F_HINT_CONFLICT = 512
 F_OFFSET_STEP = 1024  # a quiet stretch after a move sits off the bias: the offset may have stepped
 F_HINT_REST = 2048  # this sample's standstill was accepted on the machine's hint
 F_FAULT = 4096  # the state is not finite or has diverged: the numbers mean nothing (reset it)
@@ -169,6 +176,15 @@ def undo_sensor_lag(pos, vel, y_edge, lag):
     smoother) alike.
     """
     return pos + lag * vel, vel + lag * y_edge
+
+
+@jit
+def disagreement_var(gain_pos, innovation):
+    """A stop taken on the machine's hint against the integrated velocity (beyond chance):
+    the position with the stop and without it differ by the update's position correction
+    K_p·y; the reported variance adds its square, so that σ covers both answers."""
+    d = gain_pos * innovation
+    return d * d
 
 
 @jit
@@ -490,6 +506,8 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     m[M_RING_FILL] = fill
     # the window: slots 0 … fill − 1 (the ring fills from slot 0; once full, all of it)
     n_valid, mean, var = window_statistics(ring_z, ring_ok, 0, fill)
+    var_raw = var
+    zaru_ok = True  # the window's samples are the bias plus noise (not a ringing mount's swing)
     vibrating = False
     # (not worth its loop while the filter decisively moves above the floor: no stop follows)
     if regime_prev != UNINITIALISED and fill >= w and n_valid >= 2 and var > prm[P_VAR_MAX] and (
@@ -518,6 +536,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     if regime_prev == MOTION:
         m[M_PEAK_SPEED] = max(m[M_PEAK_SPEED], abs(x[1]))
     trusted_entry = False
+    disagree = False  # a stop taken on the hint against the integrated velocity (step 2)
     if decided:
         initialised = regime_prev != UNINITIALISED
         var_ok, mean_ok, vel_ok, decidable = standstill_tests(
@@ -583,17 +602,28 @@ def step(state, prm, t_s, z, z_valid, lost_before):
                 trusted_entry = False
         else:
             m[M_QUIET_FROM_V] = math.nan
-        # A rest hint is contradicted by a window that moves, or whose mean is off the bias
-        # (beyond the offset step just opened, if any: the axis is still decelerating), or
-        # while the filter knows, decisively, that it moves (a cruise above the floor).
-        hint_fits = var_ok and mean_ok and not (decidable and abs(x[1]) > floor)
+        # The machine's "at rest" is a gate, not an order (hint_gate_open): obeyed once a
+        # whole window lies inside the hinted rest and the accelerometer agrees there.
         if hint > 0.0:
-            if hint_fits:
-                # evidence, not an order: obeyed while the accelerometer does not contradict it
+            if hint_gate_open(m[M_HINT_RUN], w, n_valid, mean, var_raw, x[2], P[2, 2], prm[P_R],
+                              prm[P_MEAN_SIGMAS]):
                 if not still:
                     flags |= F_HINT_REST
                 still = True
                 trusted_entry = True
+                # a hinted rest over a ringing mount: v = 0, but its samples are not the bias
+                # plus noise (the variance test fails): no zero-acceleration update there
+                zaru_ok = var_raw <= prm[P_VAR_MAX]
+                if regime_prev == MOTION and not velocity_consistent_with_rest(
+                        x[1] + (prm[P_LAG] * (z - x[2]) if ok else 0.0), P[1, 1], prm[P_SCALE_VAR],
+                        prm[P_R_ZUPT], prm[P_ZUPT_CHI2]):
+                    # the machine and the integrated accelerometer disagree beyond chance:
+                    # the stop is taken (the machine knows where its axis stands), the
+                    # position is flagged until a stop both agree on
+                    flags |= F_HINT_CONFLICT
+                    trusted_entry = False
+                    disagree = True
+                    m[M_UNTRUSTED] = 1.0
             elif m[M_HINT_RUN] >= w:
                 flags |= F_HINT_CONFLICT  # a whole window inside the hinted rest shows motion
         elif hint < 0.0:
@@ -758,11 +788,16 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             m[M_ZUPT_INNOV] = zupt_y
             m[M_ZUPT_NIS] = zupt_y * zupt_y / zupt_s
             m[M_BIAS_REQUESTED] = 0.0  # this standstill measures the bias anew
+            if disagree:
+                # the two answers — the hint's stop and the integrated motion — differ by the
+                # position this update moved: the reported σ covers both (disagreement_var)
+                m[M_DISAGREE_VAR] += disagreement_var(k0, zupt_y)
             flags |= F_ENTRY
-        zaru_y = z - x[2]
-        zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
-        innov = zaru_y
-        nis = zaru_y * zaru_y / zaru_s
+        if zaru_ok:
+            zaru_y = z - x[2]
+            zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
+            innov = zaru_y
+            nis = zaru_y * zaru_y / zaru_s
         if regime_prev != STANDSTILL:
             m[M_STILL_START] = count
             if regime_prev == UNINITIALISED or trusted_entry:
@@ -854,7 +889,8 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
         out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, lag)
         out[O_BIAS] = x[2]
-        out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm) + reading_instant_var(m[M_READING_DRIFT])
+        out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm) + reading_instant_var(m[M_READING_DRIFT]) \
+            + m[M_DISAGREE_VAR]
         out[O_VEL_VAR] = with_scale_error(P[1, 1], out[O_VEL], prm)
         out[O_BIAS_VAR] = P[2, 2]
     if regime == UNINITIALISED or m[M_BIAS_REQUESTED] > 0.0:
@@ -900,6 +936,7 @@ def tare(state: KernelState) -> None:
     state.P[0, :] = 0.0
     state.P[:, 0] = 0.0
     state.misc[M_READING_DRIFT] = 0.0
+    state.misc[M_DISAGREE_VAR] = 0.0
 
 
 def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:

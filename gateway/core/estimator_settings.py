@@ -175,6 +175,12 @@ class EstimatorSettings:
         nu = self.window_dof
         return self.sample_noise_std_mps2**2 * chi2_isf(self.standstill_false_motion_prob, nu) / nu
 
+    @property
+    def zupt_chi2_threshold(self) -> float:
+        """A stop's velocity innovation beyond this χ² (1 dof) at the same false-alarm rate as
+        the variance test is no chance: the stop and the integrated motion disagree."""
+        return float(2.0 * gammaincinv(0.5, 1.0 - self.standstill_false_motion_prob))
+
     def kernel_params(self) -> np.ndarray:
         """The flat float array the compiled kernel reads (layout: estimator_kernel.P_*)."""
         from gateway.core import estimator_kernel as k
@@ -203,6 +209,7 @@ class EstimatorSettings:
         p[k.P_SCALE_VAR] = self.sensitivity_std_frac**2
         # per second of T2 (the kernel multiplies by each sample's period)
         p[k.P_READING_INSTANT] = edge_reading_gain_s2_per_m(1.0) if self.duty_cycle_reading_unknown else 0.0
+        p[k.P_ZUPT_CHI2] = self.zupt_chi2_threshold
         return p
 
     def with_known_bias(self) -> "EstimatorSettings":

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+# scipy.special, not scipy.stats (the daemon's start: see estimator_settings)
+from scipy.special import fdtri, stdtrit
 
 MOTION_RUN = 3  # samples in a row a step off the rest that end it (see find_initial_rest)
 RESOLUTION_SAMPLES = 200_000  # enough to see a logger's step, bounded for a 12-hour file
@@ -83,3 +85,49 @@ def find_initial_rest(acc_mps2, valid, period_s: float, min_rest_s: float = 0.2,
             f"{min_rest_s:g} s is needed at its start", moves_after_s=(end - start) * period_s)
     rest = a[start:stop][ok[start:stop]]
     return Rest(start=start, stop=stop, offset_mps2=float(np.mean(rest)), sample_std_mps2=float(np.std(rest)))
+
+
+# One false "motion" per this many windows of a true rest (each of the two tests), as the
+# standstill detector's (EstimatorSettings.standstill_false_motion_prob)
+QUIET_FALSE_MOTION_PROB = 1e-4
+QUIET_WINDOW_S = 0.1  # the standstill detector's window (EstimatorSettings.standstill_window_s)
+
+
+def quiet_part(acc_mps2, valid, rest: Rest, period_s: float, baseline_s: float = 0.2,
+               window_s: float = QUIET_WINDOW_S, false_motion_prob: float = QUIET_FALSE_MOTION_PROB) -> Rest:
+    """The part of an initial rest where every window of the recording is quiet on the scale
+    of the recording's own noise — what the noise settings may be measured on.
+
+    find_initial_rest ends a rest at the first sample far (8σ) off its start: a sensor whose
+    other axes move while this one stands (cross-axis coupling, a mount that vibrates) stays
+    "at rest" for seconds while its noise grows threefold, and the noise measured there is
+    the motion's. Here each window of W samples (window_s) after the baseline (the rest's
+    first baseline_s, n samples) is compared with the baseline by the two tests of a
+    standstill detector, each at false-alarm probability p per window:
+    - variance: s_w² / s_0² beyond the F(W − 1, n − 1) quantile at 1 − p (the ratio of two
+      sample variances: the baseline's own uncertainty is in the test);
+    - mean: |m_w − m_0| / (s_0·√(1/W + 1/n)) beyond Student's t(n − 1) at 1 − p/2.
+    The quiet part ends at the first window that fails either. Never shorter than the
+    baseline (the rest was found on it)."""
+    a = np.asarray(acc_mps2, dtype=float)[rest.start:rest.stop]
+    a = a[np.asarray(valid, dtype=bool)[rest.start:rest.stop] & np.isfinite(a)]
+    n0 = max(8, int(round(baseline_s / period_s)))
+    w = max(4, int(round(window_s / period_s)))
+    if a.size < n0 + w:
+        return rest
+    head = a[:n0]
+    m0, s0 = float(np.mean(head)), float(np.std(head, ddof=1))
+    if s0 == 0.0:
+        return rest  # a noise-free (quantised) baseline: no scale to test against
+    windows = np.lib.stride_tricks.sliding_window_view(a[n0:], w)
+    var_max = s0 * s0 * float(fdtri(w - 1, n0 - 1, 1.0 - false_motion_prob))
+    mean_max = float(stdtrit(n0 - 1, 1.0 - 0.5 * false_motion_prob)) * s0 * np.sqrt(1.0 / w + 1.0 / n0)
+    loud = (windows.var(axis=1, ddof=1) > var_max) | (np.abs(windows.mean(axis=1) - m0) > mean_max)
+    if not loud.any():
+        return rest
+    kept = a[:n0 + int(np.argmax(loud))]
+    # (indices of valid samples only: the stop is where the kept samples end in the recording)
+    ok = np.flatnonzero(np.asarray(valid, dtype=bool)[rest.start:rest.stop] & np.isfinite(
+        np.asarray(acc_mps2, dtype=float)[rest.start:rest.stop]))
+    stop = rest.start + int(ok[kept.size - 1]) + 1
+    return Rest(start=rest.start, stop=stop, offset_mps2=float(np.mean(kept)), sample_std_mps2=float(np.std(kept)))

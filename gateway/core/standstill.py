@@ -30,6 +30,11 @@ standstill is decided by tests 1–2 alone — a 10 m/s² start fails both on it
 sample. A window with fewer than 80 % valid samples decides nothing: the previous
 regime is held and the health flags say so.
 
+A machine's "at rest" hint is a gate (hint_gate_open): a whole window inside the hinted
+rest whose mean sits at the bias within its own spread is a standstill, whatever the
+filter's velocity; velocity_consistent_with_rest then says whether the stop's velocity is
+chance (χ²₁ at the detector's false-alarm rate) or a disagreement the kernel flags.
+
 A machine's "at rest" hint over a rest shorter than the window, or while the mount rings
 after the stop (the variance test failing on a swing above standstill_vibration_mps), is
 no standstill these tests can accept — yet it still says the axis stands: its velocity
@@ -180,3 +185,27 @@ def mean_velocity_offset(ring_z, ring_ok, oldest, count, bias, period_s):
     j = (oldest + count - 1) % size
     now = c - ((ring_z[j] - bias) * period_s if ring_ok[j] > 0.0 else 0.0)
     return now - total / count, 0.5 * (hi - lo)
+
+
+@jit
+def hint_gate_open(hint_run, window, n_valid, mean, var, bias, bias_var, sample_var_white, mean_sigmas):
+    """The machine's "at rest" and the accelerometer agree: a whole window lies inside the
+    hinted rest (the word may lead the sensor's stop by a PLC cycle and a servo's settling:
+    the samples before it are not judged) and the window's mean sits at the bias within
+    mean_sigmas of the mean's own uncertainty — its spread (at least the noise's) over the
+    samples, and the bias's. A ringing mount swings about the bias (a wide spread, a mean at
+    the bias); a deceleration sits off it by more than its spread allows. The filter's own
+    velocity is not asked: it is what the stop corrects (velocity_consistent_with_rest says
+    whether the two agree)."""
+    if hint_run < window or n_valid < 2:
+        return False
+    spread = max(var, sample_var_white)
+    return abs(mean - bias) <= mean_sigmas * math.sqrt(spread / n_valid + bias_var)
+
+
+@jit
+def velocity_consistent_with_rest(vel, vel_var, scale_var, zupt_var, chi2_max):
+    """A stop's velocity innovation is chance: v²/(σ_v² + s²·v² + R) ≤ χ²₁(1 − p) — the
+    filter's velocity variance, the sensitivity's share of the velocity (a reading (1 + s)·a
+    is off by s·v), the update's own noise."""
+    return vel * vel <= chi2_max * (vel_var + scale_var * vel * vel + zupt_var)
