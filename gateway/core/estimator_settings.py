@@ -179,7 +179,7 @@ class EstimatorSettings:
     def zupt_chi2_threshold(self) -> float:
         """A stop's velocity innovation beyond this χ² (1 dof) at the same false-alarm rate as
         the variance test is no chance: the stop and the integrated motion disagree."""
-        return float(2.0 * gammaincinv(0.5, 1.0 - self.standstill_false_motion_prob))
+        return float(chi2_isf(self.standstill_false_motion_prob, 1))
 
     def kernel_params(self) -> np.ndarray:
         """The flat float array the compiled kernel reads (layout: estimator_kernel.P_*)."""
