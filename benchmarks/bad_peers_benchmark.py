@@ -66,14 +66,14 @@ async def one_read(port: int, source: str) -> float | None:
     try:
         reader, writer = await asyncio.wait_for(
             asyncio.open_connection("127.0.0.1", port, local_addr=(source, 0)), ANSWER_WITHIN_S)
-    except (OSError, asyncio.TimeoutError):
+    except (TimeoutError, OSError):
         return None
     try:
         writer.write(READ)
         left = ANSWER_WITHIN_S - (time.monotonic() - started)
         answer = await asyncio.wait_for(reader.readexactly(11), max(left, 0.01))
         return time.monotonic() - started if answer else None
-    except (OSError, asyncio.TimeoutError, asyncio.IncompleteReadError):
+    except (TimeoutError, OSError, asyncio.IncompleteReadError):
         return None
     finally:
         writer.close()
@@ -91,7 +91,7 @@ async def attack(port: int, kind: str) -> tuple[int, float | None]:
             writer.write(READ)
             try:
                 await asyncio.wait_for(reader.readexactly(11), 2.0)
-            except (OSError, asyncio.TimeoutError, asyncio.IncompleteReadError):
+            except (TimeoutError, OSError, asyncio.IncompleteReadError):
                 pass
         held.append(writer)
     await asyncio.sleep(0.5)
@@ -114,7 +114,7 @@ def main() -> None:
     resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))  # the attacker's own sockets
     print("command: PYTHONPATH=. .venv/bin/python benchmarks/bad_peers_benchmark.py "
           + " ".join(f"--root {r}" for r in args.root or []))
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     print(f"| daemon | attack | PLC reads answered within {ANSWER_WITHIN_S:g} s | slowest answer, s |")
     print("| --- | --- | --- | --- |")
     for root in roots:

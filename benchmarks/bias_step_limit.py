@@ -91,7 +91,7 @@ def main() -> None:
           "or flagged within 2 s and flagged at the end) |")
     print("|" + " --- |" * 10)
     for i, step_mg in enumerate(STEPS_MG):
-        col = list(zip(*[r[i] for r in results]))
+        col = list(zip(*[r[i] for r in results], strict=False))
         delays = np.array(col[4])
         flagged = np.isfinite(delays)
         print(f"| {step_mg:g} mg | {np.median(col[1]) * 1e3:.1f} mm | {np.median(col[2]) * 1e3:.1f} mm "

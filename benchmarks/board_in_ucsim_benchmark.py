@@ -94,7 +94,7 @@ def main() -> None:
     p.add_argument("--t2-error-frac", type=lambda v: None if v == "default" else float(v), nargs="*",
                    default=[None], help="part 2 once per value: the part's T2 error, or 'default' (the simulator's)")
     args = p.parse_args()
-    print(f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}")
+    print(f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; {machine()}")
     for seed in args.seeds:
         firmware_on_paper(seed)
     if args.pty_seconds > 0:

@@ -88,7 +88,7 @@ def main() -> None:
     board.join()
     pty.close(remove_link=True)
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/call_count.py --checkout {args.checkout}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     per_batch = BATCH / max(samples, 1)
     print(f"{samples} samples in {COUNT_S:g} s; calls per batch of {BATCH} samples: "
           f"{sum(counts.values()) * per_batch:.0f}")

@@ -59,8 +59,8 @@ sys.path.insert(0, str(ROOT))
 from drivers.board_protocol import encode_hello, encode_sample_records, encode_status  # noqa: E402
 from drivers.modbus_map import INPUT_SIZE, REGISTERS  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
-from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
 from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
+from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
 from gateway.core.simulator import simulate  # noqa: E402
 
 SAMPLE_COUNTER_ADDR = next(r.address for r in REGISTERS if r.name == "SAMPLE_COUNTER")
@@ -375,7 +375,7 @@ def main() -> None:
     if args.cpu_only:
         print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_benchmark.py --cpu-only "
               f"--seconds {args.seconds:g} --repeat {args.repeat}")
-        print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
+        print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
         print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
         runs, floors = [], []
         for _ in range(args.repeat):  # interleaved: the machine's load drifts between runs
@@ -392,7 +392,7 @@ def main() -> None:
     clients = [int(c) for c in args.clients.split(",")]
     print(f"command: .venv/bin/python benchmarks/daemon_benchmark.py --seconds {args.seconds:g} "
           f"--clients {args.clients}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
     print()
     print("latency from the last byte of a SAMPLE on the pty (500 samples/s):")

@@ -100,9 +100,9 @@ def main() -> None:
         for name, venv in venvs.items():
             times[name].append(one_start(venv, tmp))
     load_after = os.getloadavg()
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_footprint.py "
+    print("command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_footprint.py "
           + " ".join(f"--venv {v}" for v in args.venv) + f" --runs {args.runs}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; "
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
           f"machine: {machine()}; load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
     print("| venv | install, MB | spawn → first Modbus answer, s (median, range) | daemon CPU by then, s (median) |")
     print("| --- | --- | --- | --- |")

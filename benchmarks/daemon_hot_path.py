@@ -17,8 +17,8 @@ a free port, CAN on the python-can virtual bus):
 from __future__ import annotations
 
 import argparse
-import datetime
 import asyncio
+import datetime
 import multiprocessing as mp
 import sys
 import tempfile
@@ -31,13 +31,13 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.daemon_benchmark import board_frames, writer  # noqa: E402
 from benchmarks.machine_info import machine  # noqa: E402
 from drivers.board_protocol import encode_hello  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
 from drivers.can_frames import CyclicEncoder  # noqa: E402
-from gateway.daemon.board_intake import BoardIntake, LinkHealth  # noqa: E402
+from drivers.pty_port import PtyPort  # noqa: E402
 from gateway.config import validate  # noqa: E402
 from gateway.core.conversion import Calibration  # noqa: E402
 from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
 from gateway.daemon import Gateway  # noqa: E402
+from gateway.daemon.board_intake import BoardIntake, LinkHealth  # noqa: E402
 from gateway.daemon.sample_pipeline import SamplePipeline  # noqa: E402
 
 HELLO = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
@@ -111,7 +111,7 @@ def main() -> None:
     pty.close(remove_link=True)
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_hot_path.py --seconds {args.seconds:g}"
           " (ADXLGW_NO_JIT=1 in front: the same code as plain Python)")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     print(f"hot:         SamplePipeline.feed {hot_sample_us:.1f} µs per sample one by one, {hot_batched_us:.1f} µs "
           f"in fives; snapshot + CAN frames encoded {hot_cycle_us:.1f} µs per cycle")
     print(f"in the flow: main-thread CPU {flow_cpu_us:.0f} µs per sample ({samples} samples at 500/s; "

@@ -14,7 +14,6 @@ import argparse
 import datetime
 import os
 import platform
-import sys
 import time
 
 import numpy as np
@@ -78,7 +77,7 @@ def main() -> None:
 
     print(f"command: .venv/bin/python benchmarks/decoder_benchmark.py "
           f"--minutes {args.minutes:g} --repeats {args.repeats}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     print(f"python: {platform.python_implementation()} {platform.python_version()}")
     print(f"machine: {platform.platform()} {platform.machine()}, "
           f"nproc {len(os.sched_getaffinity(0))} (cpu_count {os.cpu_count()}), "

@@ -43,8 +43,9 @@ from gateway.core.runs import true_runs  # noqa: E402
 from gateway.offline.recording import read_recording, to_acceleration  # noqa: E402
 from tests.diagnosis_cases import SENSOR, STROKES, make_case, part_within_tolerance, run_diagnosis  # noqa: E402
 from tests.robot_like_cases import robot_case  # noqa: E402
-from tests.test_estimation_hint import SETTINGS as HINT_SETTINGS, _short_stop_case  # noqa: E402
 from tests.test_diagnosis_walk_at_rest import LONG_DWELLS  # noqa: E402
+from tests.test_estimation_hint import SETTINGS as HINT_SETTINGS  # noqa: E402
+from tests.test_estimation_hint import _short_stop_case
 
 
 def timing() -> None:
@@ -81,7 +82,7 @@ def robot_like() -> None:
         tr = estimate_series(t, z, method="realtime", settings=settings)
         ends = [b - 1 for a, b in true_runs(resting) if a > 0]
         ratios += [abs(tr.pos_m[i] - ref[i]) / (3 * tr.pos_std_m[i]) for i in ends]
-    print(f"3. robot-like 100 Hz, 0.1 m/s², 5 mg, seeds 0–2: |error| / 3σ at the rest ends "
+    print("3. robot-like 100 Hz, 0.1 m/s², 5 mg, seeds 0–2: |error| / 3σ at the rest ends "
           + ", ".join(f"{r:.2f}" for r in ratios))
     # why: the filter's bias against the final rest's mean (the offset after the step), in
     # its own σ, and the smallest offset error one window's mean test can see

@@ -26,11 +26,11 @@ import argparse
 import contextlib
 import csv
 import datetime
+import multiprocessing
 import os
 import sys
 import tempfile
 import time
-import multiprocessing
 from pathlib import Path
 
 import numpy as np
@@ -40,10 +40,10 @@ sys.path.insert(0, str(REPO))
 
 from benchmarks.machine_info import machine  # noqa: E402
 from gateway.cli import main as adxlgw  # noqa: E402
+from gateway.commands.estimate import settings_for  # noqa: E402
 from gateway.core.drift_model import drift_g  # noqa: E402
 from gateway.core.estimator import EstimateTrack, estimate_series  # noqa: E402
 from gateway.core.estimator_settings import from_rest, from_sensor_model  # noqa: E402
-from gateway.commands.estimate import settings_for  # noqa: E402
 from gateway.core.evaluation import move_errors, summarise_errors  # noqa: E402
 from gateway.core.reference_point import find_initial_rest  # noqa: E402
 from gateway.core.sensor_model import SensorParams  # noqa: E402
@@ -97,8 +97,8 @@ def run_seed(seed: int) -> dict:
 
 
 def table(results: list[dict]) -> list[str]:
-    head = (f"| method | median abs. error at 1st stop | at 10th stop | % of distance travelled (10th stop) "
-            f"| position RMS | velocity RMS | max. position error in motion |")
+    head = ("| method | median abs. error at 1st stop | at 10th stop | % of distance travelled (10th stop) "
+            "| position RMS | velocity RMS | max. position error in motion |")
     lines = [head, "|" + " --- |" * 7]
     for name in METHODS:
         first = np.median([r[name]["stops"][0] for r in results])

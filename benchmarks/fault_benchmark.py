@@ -66,10 +66,9 @@ from benchmarks.daemon_benchmark import RATE_HZ, free_port, writer  # noqa: E402
 from benchmarks.machine_info import machine  # noqa: E402
 from drivers.board_protocol import encode_hello, encode_sample_records  # noqa: E402
 from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register  # noqa: E402
-from drivers.published_values import StatusBits  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
-from gateway.core.motion_profiles import (  # noqa: E402
-    PiecewiseConstantAcceleration, Segment, StrokeSettings, reciprocating_strokes)
+from drivers.published_values import StatusBits  # noqa: E402
+from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment, StrokeSettings, reciprocating_strokes  # noqa: E402
 from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
 from gateway.core.simulator import ErrorTerm, simulate  # noqa: E402
 
@@ -176,7 +175,7 @@ def with_rest_after(profile: PiecewiseConstantAcceleration, after_s: float, rest
 def rest_intervals(ref_vel_mps: np.ndarray, min_slots: int) -> list[tuple[int, int]]:
     still = np.concatenate([[False], ref_vel_mps == 0.0, [False]])
     edges = np.flatnonzero(np.diff(still.astype(np.int8)))
-    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2]) if b - a >= min_slots]
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=False) if b - a >= min_slots]
 
 
 def board_script(case: Case, seed: int = 0) -> BoardScript:
@@ -454,7 +453,7 @@ def mm(x: float | None) -> str:
 
 
 def row(case: Case, s: Score) -> str:
-    stops = ", ".join(f"{mm(e)}{' V' if v else ''}" for e, v in zip(s.stop_errors_m, s.stop_valid)) or "–"
+    stops = ", ".join(f"{mm(e)}{' V' if v else ''}" for e, v in zip(s.stop_errors_m, s.stop_valid, strict=False)) or "–"
     flag = "–" if s.clear_delay_s is None else (
         f"{s.clear_delay_s:.2f} s / " + ("never" if s.flag_delay_s is None else f"{s.flag_delay_s:.2f} s"))
     kept = {None: "to the end", True: f"yes ({mm(s.revalidated_error_m)} mm)",
@@ -472,7 +471,7 @@ def print_trace(case: Case, script: BoardScript, written, reads, start_ns: int, 
     fault_ns = start_ns + int(script.fault_slot * SLOT_S * 1e9)
     print(f"trace of {case.name!r}: counter offsets {offsets}, fault at slot {script.fault_slot}")
     print(f"{'t-fault s':>9} {'slot':>6} {'truth m':>9} {'pos m':>9} {'error mm':>10} {'std mm':>9}  status")
-    for r, k in zip(reads, slots):
+    for r, k in zip(reads, slots, strict=False):
         if k < 0:
             continue
         status = StatusBits(r[4])
@@ -505,7 +504,7 @@ def main() -> None:
             raise SystemExit(f"--cases: no case matches {args.cases!r} (see the module doc for the names)")
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py"
           f"{f' --cases {args.cases!r}' if args.cases else ''} --seed {args.seed}")
-    print(f"date:    {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}")
+    print(f"date:    {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")
     print("errors in mm (daemon − truth); at stops: the last read in each of the next "
           f"{STOPS_SCORED} true stops after the fault, V = VALID set there")

@@ -61,9 +61,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from daemon_benchmark import board_frames, cpu_seconds, pct, writer  # noqa: E402
 from machine_info import machine  # noqa: E402
 
-from drivers import sparkplug_payload as spb  # noqa: E402
-from drivers.published_values import PublishedValues, StatusBits  # noqa: E402
 from drivers.pty_port import PtyPort  # noqa: E402
+from drivers.published_values import PublishedValues, StatusBits  # noqa: E402
 from drivers.sparkplug_host import FleetListener  # noqa: E402
 from tests.mqtt_helpers import Broker  # noqa: E402
 
@@ -88,9 +87,9 @@ def estimate_snapshots(rate_hz: float) -> list[PublishedValues]:
     from gateway.core.conversion import AxisCalibration, acceleration_mps2
     from gateway.core.estimator import estimate_series
     from gateway.core.estimator_settings import from_sensor_model
-    from gateway.core.sensor_model import SensorParams
     from gateway.core.motion_profiles import StrokeSettings
     from gateway.core.scenarios import ScenarioSettings, build_profile
+    from gateway.core.sensor_model import SensorParams
     from gateway.core.simulator import simulate
 
     run = simulate(build_profile(ScenarioSettings(strokes=StrokeSettings(strokes=12))), seed=0)
@@ -409,7 +408,7 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
     print(f"command: nice .venv/bin/python benchmarks/fleet_benchmark.py {' '.join(sys.argv[1:])}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; machine: {machine()}; "
+    print(f"date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; machine: {machine()}; "
           f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
           f"load average (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     results = {}

@@ -88,7 +88,7 @@ def main() -> None:
     other = load_module(args.compare) if args.compare else None
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/initial_rest_check.py --seeds {args.seeds}"
           + (f" --compare {args.compare}" if args.compare else ""))
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     print("| recording | samples | data step (m/s²) | rest, this checkout | " + ("other checkout |" if other else ""))
     print("| --- | --- | --- | --- |" + (" --- |" if other else ""))
     same = total = 0

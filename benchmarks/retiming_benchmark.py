@@ -67,7 +67,7 @@ def worst_move_percent(recording: Path, estimate: Path) -> tuple[float, list[str
 
 
 def main() -> int:
-    print(f"# {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}")
+    print(f"# {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; {machine()}")
     with tempfile.TemporaryDirectory() as tmp:
         for name, role, nominal in FILES:
             print(f"\n## {name} ({role})")
@@ -89,8 +89,8 @@ def main() -> int:
                     code, err = run("estimate", rec, "--method", method, "--out", est)
                     scores[timing, method] = (worst_move_percent(rec, est) if code == 0
                                               else (float("nan"), [err.strip().splitlines()[-1]]))
-            print(f"\nworst move's displacement error (per move in brackets)")
-            print(f"| timing | " + " | ".join(METHODS) + " |")
+            print("\nworst move's displacement error (per move in brackets)")
+            print("| timing | " + " | ".join(METHODS) + " |")
             print("| --- |" + " --- |" * len(METHODS))
             for timing in TIMINGS:
                 cells = [f"{scores[timing, m][0]:.1f} % ({'; '.join(scores[timing, m][1])})"

@@ -60,7 +60,7 @@ def closure_table(name: str) -> list[str]:
            "| β that would close it (%/g) |",
            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     mids = [int((a + b - 1) // 2) for a, b in runs]
-    for k, (i, j) in enumerate(zip(mids[:-1], mids[1:]), start=1):
+    for k, (i, j) in enumerate(zip(mids[:-1], mids[1:], strict=False), start=1):
         x = acc[i:j + 1] - bias
         dt = np.diff(t[i:j + 1])
         dv = float(np.sum(0.5 * (x[1:] + x[:-1]) * dt))

@@ -56,7 +56,7 @@ def main() -> int:
     print("| rest | from – to (s) | samples used | mean acceleration − 1 g (mg) | its standard error (mg) |")
     print("| --- | --- | --- | --- | --- |")
     edges = np.diff(np.concatenate([[0], rest.astype(np.int8), [0]]))
-    for i, (a, b) in enumerate(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)), start=1):
+    for i, (a, b) in enumerate(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=False), start=1):
         use = np.arange(a, b)[t[a:b] >= t[a] + (SETTLE_S if a > 0 else 0.0)]
         if use.size < 8:
             print(f"| {i} | {t[a]:.2f} – {t[b - 1]:.2f} | {use.size} | (too short) | |")

@@ -258,7 +258,7 @@ def closed_at_once(sock: socket.socket, within_s: float = 1.0) -> bool:
                 return True
     except (ConnectionResetError, BrokenPipeError):
         return True
-    except (socket.timeout, TimeoutError):
+    except TimeoutError:
         return False
 
 
@@ -362,7 +362,7 @@ def malformed_then_valid(daemon: Daemon):
                 first = recv_exactly(sock, 9)
                 rest = [recv_exactly(sock, 29) for _ in range(20)]
                 undecodable_ok = first[7:9] == b"\x84\x03" and all(
-                    r[:2] == struct.pack(">H", t) for t, r in zip(range(2, 22), rest))
+                    r[:2] == struct.pack(">H", t) for t, r in zip(range(2, 22), rest, strict=False))
             except OSError:
                 undecodable_ok = False
         closed = sum(results)
@@ -652,7 +652,7 @@ def main() -> int:
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = parser.parse_args()
     polls = max(10, round(args.hold_s / POLL_PERIOD_S))
-    print(f"# {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC; {machine()}; "
+    print(f"# {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; {machine()}; "
           f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"# daemon open-file limit {args.fd_limit}; flood {args.flood}; PLC polls every "
           f"{POLL_PERIOD_S * 1000:.0f} ms for {args.hold_s:g} s per case")

@@ -136,7 +136,7 @@ def main() -> None:
     runs = [one_run(tmp) for _ in range(args.runs)]
     load_after = os.getloadavg()
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/service_timing.py --runs {args.runs}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; "
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
           f"machine: {machine()}")
     print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f}; {args.runs} runs after a warm-up")
     labels = {

@@ -61,7 +61,7 @@ def stop_ratios(seed: int, sensitivity_error_frac: float, dcm_reading: str = "me
             stops = summarise_errors(t, track.pos_m, run.ref_pos_m, run.ref_vel_mps, run.ref_acc_mps2).stops
             sigma = [float(track.pos_std_m[s.index]) for s in stops]
             out[(method, with_scale, with_reading)] = ([abs(s.error_m) / (3 * sd) if sd > 0 else np.inf
-                                          for s, sd in zip(stops, sigma)], sigma)
+                                          for s, sd in zip(stops, sigma, strict=False)], sigma)
     return out
 
 

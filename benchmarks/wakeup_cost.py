@@ -160,14 +160,14 @@ def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[f
     cpu1, wall1 = [cpu_seconds(p.pid) for _, p in readers], time.monotonic()
     woken1 = [wakeups(p.pid) for _, p in readers]
     outputs = []
-    for (_, w), (pty, proc) in zip(writers, readers):
+    for (_, w), (pty, proc) in zip(writers, readers, strict=False):
         w.join()
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=20)
         outputs.append(out or "")
         pty.close(remove_link=True)
-    return ([100.0 * (b - a) / (wall1 - wall0) for a, b in zip(cpu0, cpu1)], outputs,
-            [(b - a) / (wall1 - wall0) for a, b in zip(woken0, woken1)])
+    return ([100.0 * (b - a) / (wall1 - wall0) for a, b in zip(cpu0, cpu1, strict=False)], outputs,
+            [(b - a) / (wall1 - wall0) for a, b in zip(woken0, woken1, strict=False)])
 
 
 def main() -> None:
@@ -189,13 +189,13 @@ def main() -> None:
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
           f"--repeat {args.repeat}" + (" --gateways-only" if args.gateways_only else "")
           + "".join(f" --compare {other}" for other in args.compare))
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     names = list(variants)
     cpu = {name: [] for name in names}
     woken = {name: [] for name in names}
     for _ in range(args.repeat):
         got, _, rates = together([variants[n] for n in names], args.seconds)
-        for name, value, rate in zip(names, got, rates):
+        for name, value, rate in zip(names, got, rates, strict=False):
             cpu[name].append(value)
             woken[name].append(rate)
     print(f"CPU at 500 samples/s, one write per frame, {args.repeat} runs of {args.seconds:g} s, all side by side")
@@ -217,7 +217,7 @@ def main() -> None:
     _, outs, _ = together([PROBES[n] for n in probe_names], args.seconds, capture=True)
     print("SamplePipeline.feed after each wakeup (µs per chunk, mean), and the same call on a second")
     print("pipeline right after it:")
-    for name, out in zip(probe_names, outs):
+    for name, out in zip(probe_names, outs, strict=False):
         first_us, second_us, calls = out.split()
         print(f"  {name:22s} first {float(first_us):5.1f} µs   second {float(second_us):5.1f} µs   ({calls} chunks)")
 

@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import binascii
 import struct
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from types import MappingProxyType
-from typing import Final, Mapping, Protocol, Union
+from typing import Final, Protocol, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -432,7 +433,7 @@ class SampleSink(Protocol):
         repeats, seq backward steps). 0 samples: the frame at `pos` is not a good one."""
         ...
 
-    def on_report(self, frame: "Status | Hello") -> None: ...
+    def on_report(self, frame: Status | Hello) -> None: ...
 
 
 class StreamDecoder:

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 from can.interfaces import VALID_INTERFACES
 
-
 ARPHRD_CAN = 280  # linux/if_arp.h: the link type of can0, vcan0, vxcan …
 
 

@@ -23,9 +23,8 @@ open-file limit of 1 024, 1 100 idle connections used to stop every accept):
 from __future__ import annotations
 
 import ipaddress
-from collections.abc import Iterable, Sequence
+from collections.abc import Hashable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import Hashable
 
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 

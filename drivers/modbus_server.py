@@ -81,8 +81,8 @@ from .modbus_map import (
     ServerRowEncoder,
     WordOrder,
     encode_input_registers,
-    write_value_rows,
     string32_complaint,
+    write_value_rows,
 )
 from .modbus_ports import RtuPortProblem, probe_rtu_port, tcp_listen_problem
 from .peer_log import PeerLogLimiter

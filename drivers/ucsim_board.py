@@ -21,11 +21,11 @@ import shutil
 import subprocess
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
-from drivers.board_protocol import HEADER_LENGTH, CRC_LENGTH, PAYLOAD_LENGTH, SYNC, sample_at
+from drivers.board_protocol import CRC_LENGTH, HEADER_LENGTH, PAYLOAD_LENGTH, SYNC, sample_at
 from drivers.errors import DriverError
 from drivers.pty_port import PtyPort
 
@@ -70,7 +70,7 @@ class CpuTime:
     isr_clocks: int
     idle_clocks: int
 
-    def __sub__(self, other: "CpuTime") -> "CpuTime":
+    def __sub__(self, other: CpuTime) -> CpuTime:
         return CpuTime(self.clocks - other.clocks, self.isr_clocks - other.isr_clocks,
                        self.idle_clocks - other.idle_clocks)
 
@@ -165,7 +165,7 @@ class S51Board:
                 self.process.kill()
                 self.process.wait()
 
-    def __enter__(self) -> "S51Board":
+    def __enter__(self) -> S51Board:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -12,9 +12,10 @@ import difflib
 import ipaddress
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from drivers.modbus_map import string32_complaint
 from gateway.errors import ConfigError
@@ -247,7 +248,7 @@ class Config:
     def as_dict(self) -> dict[str, dict[str, Any]]:
         return {s: dict(k) for s, k in self._values.items()}
 
-    def replace(self, overrides: dict[str, Any]) -> "Config":
+    def replace(self, overrides: dict[str, Any]) -> Config:
         """A copy with dotted-key overrides (from the command line), validated like the file."""
         # keys without a default that are still unset stay unset (validate fills them in)
         data = {s: {k: v for k, v in keys.items() if v is not None} for s, keys in self._values.items()}

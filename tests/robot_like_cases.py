@@ -3,8 +3,15 @@
 offset step in the first move's cruise, scored per move as the benchmarks score."""
 import numpy as np
 
-from benchmarks.robot_like_sweep import AxisCalibration, G, SPEED_MPS, acceleration_mps2, robot_path, \
-    sample_times_s, sensor_for
+from benchmarks.robot_like_sweep import (
+    SPEED_MPS,
+    AxisCalibration,
+    G,
+    acceleration_mps2,
+    robot_path,
+    sample_times_s,
+    sensor_for,
+)
 from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.evaluation import move_errors
 from gateway.core.simulator import simulate

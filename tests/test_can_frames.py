@@ -22,11 +22,11 @@ from drivers.can_frames import (
     QUALITY_FRAME,
     VELOCITY_FRAME,
     AckResult,
+    CyclicEncoder,
     check_command,
     crc8,
     dbc_text,
     e2e_p01_crc,
-    CyclicEncoder,
     encode_command,
 )
 from drivers.published_values import Command, PublishedValues, StatusBits

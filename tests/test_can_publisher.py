@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import asyncio
-import logging
 import contextlib
 import dataclasses
 import itertools
+import logging
 import re
 import subprocess
 import sys
@@ -160,7 +160,7 @@ def test_cyclic_frames_carry_the_values_with_counter_and_crc(channel: str) -> No
                 assert decoded["Qual_StatusExt"] == int(VALUES.status_ext)
         # alive counter: starts at 0, +1 per frame, 0..14 (E2E profile 1)
         assert counters[0] == 0
-        assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+        assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:], strict=False)), counters
         assert max(counters) == COUNTER_MAX
     assert publisher.counters.frames_sent >= 60 and publisher.counters.send_errors == 0
 
@@ -299,10 +299,10 @@ def test_frames_follow_the_updates_once_per_period_with_the_newest_values(channe
     # one transmission per period: never more than the drift-free schedule allows
     assert len(sends) <= elapsed / 0.050 + 1, (len(sends), elapsed)
     assert len(sends) >= 0.5 * elapsed / 0.050, (len(sends), elapsed)
-    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
+    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:], strict=False)]
     assert min(gaps) >= 0.025 - 0.002, gaps  # at least half a period apart
     counters = [c for *_, c in sends]
-    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:], strict=False)), counters
 
 
 @pytest.mark.parametrize("offset", [0.0, 0.25, 0.5, 0.75])
@@ -331,7 +331,7 @@ def test_updates_once_per_period_lock_the_cycle_whatever_their_phase(channel: st
     # 36 cycles after the lock-on window; a loaded machine delays some updates into one cycle
     assert len(locked) >= 25, sends
     assert sum(on_update for _, on_update, _, _ in locked) >= 0.9 * len(locked), locked
-    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
+    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:], strict=False)]
     assert min(gaps) >= period_s / 2 - 0.002, gaps
     elapsed = sends[-1][0] - sends[0][0]
     assert len(sends) <= elapsed / period_s + 2, (len(sends), elapsed)
@@ -359,7 +359,7 @@ def test_an_update_from_inside_a_transmission_starts_no_second_one(channel: str)
     sends = run(scenario())
     assert 5 <= len(sends) <= 0.2 / 0.020 * 1.5 + 2, sends
     counters = [c for *_, c in sends]
-    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:], strict=False)), counters
 
 
 def test_without_updates_the_timer_keeps_the_cycle_and_the_counter_going(channel: str) -> None:
@@ -377,7 +377,7 @@ def test_without_updates_the_timer_keeps_the_cycle_and_the_counter_going(channel
     assert 0.4 / 0.020 * 0.5 <= len(after) <= 0.4 / 0.020 + 1, len(after)
     assert after[0][0] - stopped <= 0.030 + 0.010
     counters = [c for *_, c in sends]
-    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:])), counters
+    assert all(b == (a + 1) % (COUNTER_MAX + 1) for a, b in zip(counters, counters[1:], strict=False)), counters
 
 
 def test_values_given_as_a_function_are_built_once_per_transmission(channel: str) -> None:
@@ -428,7 +428,7 @@ def test_min_interval_sends_on_update_at_most_that_often(channel: str) -> None:
             return [s for s in RecordingBus.sends if s[0] >= started], time.monotonic() - started
 
     sends, elapsed = run(scenario())
-    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:])]
+    gaps = [b[0] - a[0] for a, b in zip(sends, sends[1:], strict=False)]
     assert min(gaps) >= 0.020 - 0.001, gaps
     assert len(sends) > elapsed / 0.200 * 3  # far more than one per 200 ms period
     assert sum(inside for _, inside, *_ in sends) >= 0.8 * len(sends)
@@ -658,7 +658,7 @@ def test_two_gateways_share_one_bus_on_their_own_identifiers(channel: str) -> No
     dbs = [cantools.database.load_string(dbc_text(t), database_format="dbc") for t in tables]
     seen = {}
     for message in frames:
-        for db, table in zip(dbs, tables):
+        for db, table in zip(dbs, tables, strict=False):
             if message.arbitration_id == table.position.frame_id:
                 seen[table.base_id] = db.decode_message(message.arbitration_id, message.data)["Pos_Position"]
     assert seen == {0x120: pytest.approx(1.5), 0x200: pytest.approx(-2.25)}

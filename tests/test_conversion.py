@@ -3,8 +3,8 @@ import pytest
 
 from gateway.core.conversion import (
     AxisCalibration,
-    advance_sample_time,
     acceleration_mps2,
+    advance_sample_time,
     axis_valid,
     lost_before_from_seq,
     sample_times_s,

@@ -317,7 +317,7 @@ def test_two_gateways_on_one_can_bus_each_on_its_identifiers(tmp_path):
                     if {0x120, 0x121, 0x200, 0x201} <= ids:
                         break
                 assert {0x120, 0x121, 0x200, 0x201} <= ids, ids
-                for db, base in zip(dbcs, (0x120, 0x200)):
+                for db, base in zip(dbcs, (0x120, 0x200), strict=False):
                     assert db.get_message_by_name("ADXL_Position").frame_id == base
                     assert db.get_message_by_name("ADXL_Command").frame_id == base + 0x10
         finally:

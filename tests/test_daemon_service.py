@@ -49,7 +49,7 @@ class NotifySocket:
             self.sock.settimeout(max(0.01, deadline - time.monotonic()))
             try:
                 msg = self.sock.recv(4096).decode()
-            except socket.timeout:
+            except TimeoutError:
                 break
             self.messages.append(msg)
             if text in msg:

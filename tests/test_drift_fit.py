@@ -46,7 +46,7 @@ def test_overlapping_allan_deviation_against_a_plain_loop():
     x = rng.standard_normal(300) + np.linspace(0, 1, 300)
     period = 0.01
     got = allan_deviation(x, period, m=np.array([1, 3, 7, 20]))
-    for m, value in zip([1, 3, 7, 20], got.adev):
+    for m, value in zip([1, 3, 7, 20], got.adev, strict=False):
         means = np.array([x[i:i + m].mean() for i in range(x.size - m + 1)])  # overlapping cluster means
         diffs = means[m:] - means[:-m]
         assert value == pytest.approx(math.sqrt(0.5 * np.mean(diffs**2)), rel=1e-9)

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.motion_profiles import StrokeSettings
+from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.simulator import simulate
 from gateway.offline.recording import read_recording, to_acceleration
 

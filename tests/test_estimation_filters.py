@@ -24,7 +24,6 @@ from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 from gateway.core.smoother import run_backward
 
-
 # ---- the paper's filter ------------------------------------------------------------------
 
 @pytest.mark.parametrize("dt", [1e-3, 2.01e-3, 0.1])
@@ -130,7 +129,7 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags
     the prior's velocity variance (half the velocity's range over the hinted samples), and
     the record's innovation plus the prior's velocity."""
     kf = KalmanFilter(dim_x=3, dim_z=1)
-    zupt = {int(i): row for i, row in zip(zupt_index, zupt_data)}
+    zupt = {int(i): row for i, row in zip(zupt_index, zupt_data, strict=False)}
     xs, ps, priors, prior_ps, phis = [], [], [], [], []
     u_prev, prev_invalid, have_u = 0.0, False, False
     kf.x, kf.P = np.zeros(3), np.diag([0.0, 0.0, prm[K.P_BIAS0_VAR]])
@@ -260,7 +259,7 @@ def test_long_standstill_bias_is_the_sample_mean_and_its_variance_r_over_n():
     expected = (used.sum() / r) / (1.0 / prior + used.size / r)
     assert track.bias_mps2[-1] == pytest.approx(expected, rel=1e-9)
     est = RealtimeEstimator(settings)
-    for tk, zk in zip(t, z):
+    for tk, zk in zip(t, z, strict=False):
         est.step(tk, zk)
     assert est.covariance[2, 2] == pytest.approx(1.0 / (1.0 / prior + used.size / r), rel=1e-9)
     assert np.all(track.pos_m[first:] == 0.0) and np.all(track.vel_mps[first:] == 0.0)
@@ -273,7 +272,7 @@ def test_realtime_class_reproduces_the_offline_track():
     settings = from_sensor_model(sensor)
     track = estimate_series(t, z, ok, method="realtime", settings=settings, lost_before=lost)
     est = RealtimeEstimator(settings)
-    got = [est.step(tk, zk if okk else None, int(lk)) for tk, zk, okk, lk in zip(t, z, ok, lost)]
+    got = [est.step(tk, zk if okk else None, int(lk)) for tk, zk, okk, lk in zip(t, z, ok, lost, strict=False)]
     np.testing.assert_array_equal([e.flags for e in got], track.flags)
     np.testing.assert_allclose([e.pos_m for e in got], track.pos_m, rtol=0, atol=1e-12)
     np.testing.assert_allclose([e.vel_mps for e in got], track.vel_mps, rtol=0, atol=1e-12)

@@ -8,8 +8,8 @@ from gateway.core import estimator_kernel as K
 from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
 from gateway.core.estimator import RealtimeEstimator, estimate_series
 from gateway.core.estimator_settings import from_sensor_model
-from gateway.core.reference_point import NoRestError
 from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
+from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 from gateway.core.units import STANDARD_GRAVITY_MPS2

@@ -84,7 +84,7 @@ def test_the_share_grows_only_in_motion_and_restarts_at_a_tare():
     k = runs[1]
     assert extra[k + 5] == pytest.approx(extra[k + 50], rel=1e-9)
     est = RealtimeEstimator(settings)
-    for tk, zk in zip(t[: k + 10], z[: k + 10]):
+    for tk, zk in zip(t[: k + 10], z[: k + 10], strict=False):
         est.step(float(tk), float(zk))
     assert est.state.misc[K.M_READING_DRIFT] > 0
     est.tare()

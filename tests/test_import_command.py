@@ -12,7 +12,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gateway.cli import main as cli_main
-
 from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
 from tests import hostile_files
 from tests.hostile_files import run_measured

@@ -111,4 +111,4 @@ def test_the_compiled_cache_is_keyed_by_every_source_of_the_project(tmp_path):
     if jit.JIT_ENABLED:
         import numba
 
-        assert numba.config.CACHE_DIR == os.environ["NUMBA_CACHE_DIR"]
+        assert os.environ["NUMBA_CACHE_DIR"] == numba.config.CACHE_DIR

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from gateway.log_setup import JournalFormatter, PLAIN_FORMAT, stream_is_journal
+from gateway.log_setup import PLAIN_FORMAT, JournalFormatter, stream_is_journal
 
 CLI = [sys.executable, "-m", "gateway.cli"]
 

@@ -29,12 +29,11 @@ def expected_objects() -> dict[int, bytes]:
 @pytest.mark.parametrize("read_code, ids", [(1, [0, 1, 2]), (2, [0, 1, 2, 4, 5, 6]), (3, [0, 1, 2, 4, 5, 6, 0x80])])
 def test_pymodbus_client_reads_the_identification_streams(read_code: int, ids: list[int]) -> None:
     async def scenario() -> None:
-        async with serving(tcp_config(device_name=NAME)) as server:
-            async with tcp_client(server.tcp_port) as client:
-                response = await client.read_device_information(read_code=read_code, object_id=0, device_id=1)
-                assert not response.isError(), response
-                assert response.information == {k: expected_objects()[k] for k in ids}
-                assert response.conformity == 0x83 and response.more_follows == 0
+        async with serving(tcp_config(device_name=NAME)) as server, tcp_client(server.tcp_port) as client:
+            response = await client.read_device_information(read_code=read_code, object_id=0, device_id=1)
+            assert not response.isError(), response
+            assert response.information == {k: expected_objects()[k] for k in ids}
+            assert response.conformity == 0x83 and response.more_follows == 0
 
     run(scenario())
 
@@ -59,16 +58,15 @@ def test_individual_access_and_bad_requests() -> None:
 
 def test_identity_registers_read_version_and_name() -> None:
     async def scenario() -> None:
-        async with serving(tcp_config(device_name=NAME)) as server:
-            async with tcp_client(server.tcp_port) as client:
-                words = await read_table(client)
-                version = tuple(decode(client, words, n, WordOrder.ABCD)
-                                for n in ("VERSION_MAJOR", "VERSION_MINOR", "VERSION_PATCH"))
-                assert version == version_numbers(package_version())
-                # a PLC reads the name as 16 registers of two ASCII characters
-                row = BY_NAME["DEVICE_NAME"]
-                raw = struct.pack(">16H", *words[row.address: row.address + 16])
-                assert raw == NAME.encode().ljust(32, b"\0")
+        async with serving(tcp_config(device_name=NAME)) as server, tcp_client(server.tcp_port) as client:
+            words = await read_table(client)
+            version = tuple(decode(client, words, n, WordOrder.ABCD)
+                            for n in ("VERSION_MAJOR", "VERSION_MINOR", "VERSION_PATCH"))
+            assert version == version_numbers(package_version())
+            # a PLC reads the name as 16 registers of two ASCII characters
+            row = BY_NAME["DEVICE_NAME"]
+            raw = struct.pack(">16H", *words[row.address: row.address + 16])
+            assert raw == NAME.encode().ljust(32, b"\0")
 
     run(scenario())
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import os
 import socket
 import struct
 import subprocess
@@ -52,7 +51,7 @@ async def closed_by_server(reader: asyncio.StreamReader, within_s: float) -> boo
                 return True
     except (ConnectionResetError, BrokenPipeError):
         return True
-    except asyncio.TimeoutError:
+    except TimeoutError:
         return False
     return False
 
@@ -106,13 +105,12 @@ def test_at_the_limit_a_newcomer_gets_in_and_a_priority_client_is_never_closed_f
 def test_where_only_priority_clients_are_left_anyone_else_is_refused() -> None:
     async def scenario() -> None:
         config = tcp_config(max_connections=1, write_allow=(PLC_IP,), idle_timeout_s=0)
-        async with serving(config) as server:
-            async with tcp_client(server.tcp_port, source_ip=PLC_IP) as plc:
-                reader, writer = await open_raw(server.tcp_port)
-                assert await closed_by_server(reader, 1.0)
-                assert server.counters.refused_connections == 1
-                assert not (await plc.read_input_registers(0, count=1, device_id=1)).isError()
-                writer.close()
+        async with serving(config) as server, tcp_client(server.tcp_port, source_ip=PLC_IP) as plc:
+            reader, writer = await open_raw(server.tcp_port)
+            assert await closed_by_server(reader, 1.0)
+            assert server.counters.refused_connections == 1
+            assert not (await plc.read_input_registers(0, count=1, device_id=1)).isError()
+            writer.close()
 
     run(scenario())
 

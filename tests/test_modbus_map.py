@@ -119,7 +119,7 @@ def test_json_lists_every_row_with_the_documented_keys() -> None:
     rows = json.loads(regmap_json())
     assert rows == regmap_rows()
     assert [r["name"] for r in rows] == [r.name for r in REGISTERS]
-    for printed, row in zip(rows, REGISTERS):
+    for printed, row in zip(rows, REGISTERS, strict=False):
         assert {"name", "table", "address", "type", "unit", "scale", "description"} <= printed.keys()
         assert printed["address"] == row.address
         assert printed["table"] in ("input", "holding")
@@ -129,7 +129,7 @@ def test_markdown_has_one_line_per_row_with_plc_reference() -> None:
     text = regmap_markdown()
     lines = [line for line in text.splitlines() if line.startswith("| 3") or line.startswith("| 4")]
     assert len(lines) == len(REGISTERS)
-    for line, row in zip(lines, REGISTERS):
+    for line, row in zip(lines, REGISTERS, strict=False):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert cells[0] == str(row.plc_reference)
         assert cells[2] == str(row.address)

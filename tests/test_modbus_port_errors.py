@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.modbus_map import BY_NAME, WordOrder
+from drivers.modbus_map import WordOrder
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import StatusBits
 from tests.test_modbus_server import (

@@ -19,8 +19,17 @@ import pytest
 from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from drivers.modbus_map import (BY_NAME, HOLDING_SIZE, INPUT_REGISTERS, INPUT_SIZE, MAP_VERSION, VALUE_ROWS, RegType,
-                                WordOrder, encode_input_registers)
+from drivers.modbus_map import (
+    BY_NAME,
+    HOLDING_SIZE,
+    INPUT_REGISTERS,
+    INPUT_SIZE,
+    MAP_VERSION,
+    VALUE_ROWS,
+    RegType,
+    WordOrder,
+    encode_input_registers,
+)
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import Command, PublishedValues, StatusBits
 
@@ -149,26 +158,25 @@ def test_a_read_of_part_of_the_table_answers_that_part_of_the_same_image() -> No
     requests_row = BY_NAME["MODBUS_REQUESTS"]
 
     async def scenario() -> None:
-        async with serving(tcp_config()) as server:
-            async with tcp_client(server.tcp_port) as client:
-                whole = await read_table(client)
-                rng = random.Random(12)
-                for n in range(2, 40):
-                    address = rng.randrange(INPUT_SIZE)
-                    count = rng.randint(1, INPUT_SIZE - address)
-                    response = await client.read_input_registers(address, count=count, device_id=1)
-                    assert not response.isError(), (address, count)
-                    part = list(response.registers)
-                    assert len(part) == count
-                    for offset, word in enumerate(part):
-                        at = address + offset
-                        if requests_row.address <= at < requests_row.address + requests_row.words:
-                            continue
-                        assert word == whole[at], (address, count, at)
-                    # the request counter in the answer counts this request
-                    if address <= requests_row.address and requests_row.address + 2 <= address + count:
-                        i = requests_row.address - address
-                        assert (part[i] << 16 | part[i + 1]) == n, (address, count)
+        async with serving(tcp_config()) as server, tcp_client(server.tcp_port) as client:
+            whole = await read_table(client)
+            rng = random.Random(12)
+            for n in range(2, 40):
+                address = rng.randrange(INPUT_SIZE)
+                count = rng.randint(1, INPUT_SIZE - address)
+                response = await client.read_input_registers(address, count=count, device_id=1)
+                assert not response.isError(), (address, count)
+                part = list(response.registers)
+                assert len(part) == count
+                for offset, word in enumerate(part):
+                    at = address + offset
+                    if requests_row.address <= at < requests_row.address + requests_row.words:
+                        continue
+                    assert word == whole[at], (address, count, at)
+                # the request counter in the answer counts this request
+                if address <= requests_row.address and requests_row.address + 2 <= address + count:
+                    i = requests_row.address - address
+                    assert (part[i] << 16 | part[i + 1]) == n, (address, count)
 
     run(scenario())
 
@@ -180,17 +188,16 @@ def test_each_read_shows_the_newest_snapshot_whole_and_nothing_of_the_one_before
     snapshots = [SAMPLE, clamped, PublishedValues(heartbeat=2), SAMPLE, clamped, SAMPLE]
 
     async def scenario() -> None:
-        async with serving(tcp_config()) as server:
-            async with tcp_client(server.tcp_port) as client:
-                for values in snapshots:
-                    server.update(values)
-                    words = await read_table(client)
-                    fresh = encode_input_registers(values)
-                    for row in VALUE_ROWS:
-                        span = slice(row.address, row.address + row.words)
-                        assert words[span] == fresh[span], (row.name, values)
-                    clamped_bit = bool(words[BY_NAME["STATUS"].address] & StatusBits.SCALED_CLAMPED)
-                    assert clamped_bit == (values is clamped)
+        async with serving(tcp_config()) as server, tcp_client(server.tcp_port) as client:
+            for values in snapshots:
+                server.update(values)
+                words = await read_table(client)
+                fresh = encode_input_registers(values)
+                for row in VALUE_ROWS:
+                    span = slice(row.address, row.address + row.words)
+                    assert words[span] == fresh[span], (row.name, values)
+                clamped_bit = bool(words[BY_NAME["STATUS"].address] & StatusBits.SCALED_CLAMPED)
+                assert clamped_bit == (values is clamped)
 
     run(scenario())
 
@@ -205,15 +212,14 @@ def test_values_given_as_a_function_are_built_only_when_a_client_reads() -> None
         return PublishedValues(position_m=float(len(calls)), status=StatusBits.VALID)
 
     async def scenario() -> list[float]:
-        async with serving(tcp_config()) as server:
-            async with tcp_client(server.tcp_port) as client:
-                for _ in range(100):
-                    server.update(build)  # many updates, no read
-                assert calls == []
-                seen = [decode(client, await read_table(client), "POSITION", WordOrder.ABCD) for _ in range(3)]
-                server.update(build)
-                seen.append(decode(client, await read_table(client), "POSITION", WordOrder.ABCD))
-                return seen
+        async with serving(tcp_config()) as server, tcp_client(server.tcp_port) as client:
+            for _ in range(100):
+                server.update(build)  # many updates, no read
+            assert calls == []
+            seen = [decode(client, await read_table(client), "POSITION", WordOrder.ABCD) for _ in range(3)]
+            server.update(build)
+            seen.append(decode(client, await read_table(client), "POSITION", WordOrder.ABCD))
+            return seen
 
     assert run(scenario()) == [1.0, 1.0, 1.0, 2.0]
     assert len(calls) == 2
@@ -432,7 +438,7 @@ async def raw_exchange(port: int, data: bytes, wait_s: float = 0.3) -> bytes:
         await writer.drain()
         try:
             return await asyncio.wait_for(reader.read(1024), wait_s)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             return b""
     finally:
         writer.close()
@@ -688,10 +694,9 @@ def test_rtu_writes_when_enabled_name_the_serial_port(pty_pair) -> None:
 
     async def scenario() -> None:
         config = rtu_config(server_end, writes_enabled=True, rtu_writes_enabled=True)
-        async with serving(config, recorder):
-            async with rtu_client(client_end) as client:
-                response = await client.write_register(0, 1, device_id=7)
-                assert not response.isError(), response
+        async with serving(config, recorder), rtu_client(client_end) as client:
+            response = await client.write_register(0, 1, device_id=7)
+            assert not response.isError(), response
 
     run(scenario())
     assert recorder.calls == [(Command.TARE, f"modbus-rtu:{server_end}:unit7")]

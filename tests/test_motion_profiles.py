@@ -76,7 +76,7 @@ def test_jerk_limited_strokes_keep_their_moves_and_rests():
     assert t[full] - t[first_move] == pytest.approx(longer_s, abs=1e-4)
     before, after = steps.standstill_intervals(), s.standstill_intervals()
     assert len(after) == len(before)
-    for k, ((a0, b0), (a1, b1)) in enumerate(zip(before, after)):
+    for k, ((a0, b0), (a1, b1)) in enumerate(zip(before, after, strict=False)):
         assert b1 - a1 == pytest.approx(b0 - a0, abs=1e-12)  # a rest keeps its length
         assert a1 == pytest.approx(a0 + k * longer_s, abs=1e-12)  # after k moves each a ramp longer
     assert s.duration_s == pytest.approx(steps.duration_s + 4 * longer_s)

@@ -89,7 +89,7 @@ def test_births_data_by_exception_and_the_death_on_a_stop(tmp_path):
     assert all(m.name and m.alias == spb.ALIASES[m.name] for m in dbirth_payload.metrics)
     # DDATA: aliases only, the changed metrics only, seq going on modulo 256
     seqs = [spb.decode(p)[0].seq for t, p in raw if t.kind in ("DBIRTH", "DDATA")]
-    assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:]))
+    assert all(b == (a + 1) % 256 for a, b in zip(seqs, seqs[1:], strict=False))
     ddata = [spb.Payload.FromString(p) for t, p in raw if t.kind == "DDATA"]
     assert all(not m.name and m.alias for d in ddata for m in d.metrics)
     assert all(len(d.metrics) < len(spb.DEVICE_METRICS) for d in ddata)

@@ -7,8 +7,8 @@ import uuid
 import pytest
 
 from gateway.config import validate
-from gateway.errors import ConfigError
 from gateway.daemon.preflight import findings, refuse_unrunnable
+from gateway.errors import ConfigError
 
 CLI = [sys.executable, "-m", "gateway.cli"]
 

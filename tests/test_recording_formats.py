@@ -147,7 +147,7 @@ def test_streamed_error_summary_is_summarise_errors_in_chunks():
     run_edges = np.flatnonzero(np.diff(still.astype(int))) + 1
     cuts = np.unique(np.concatenate([rng.integers(1, t.size, 40), run_edges, run_edges + 1, [1, t.size - 1]]))
     judge = StreamedErrors()
-    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [t.size]])):
+    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [t.size]]), strict=False):
         judge.feed(t[a:b], pos[a:b], ref_pos[a:b], ref_vel[a:b], ref_acc[a:b])
     got = judge.result()
     assert got.stops == whole.stops

@@ -5,8 +5,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 from scipy.optimize import linprog
 
-from gateway.core.retiming import (RetimingError, RetimingSettings, fit_floor_line, on_sample_clock, retime,
-                                   timing_error)
+from gateway.core.retiming import RetimingError, RetimingSettings, fit_floor_line, on_sample_clock, retime, timing_error
 
 TRANSFER_S = 0.0025  # one sample's transfer when a backlog is flushed (the loggers' 2.5 ms)
 # between the last arrival on the floor before a gap and the first after it, arrivals cannot
@@ -49,7 +48,7 @@ def assert_gaps_found(r, lost_true, rows=GAP_PLACE_ROWS):
     truth = [(int(i), int(lost_true[i])) for i in np.flatnonzero(lost_true)]
     assert [m for _, m in r.gaps] == [m for _, m in truth]
     near = np.zeros(lost_true.size, dtype=bool)
-    for (found, _), (true, _) in zip(r.gaps, truth):
+    for (found, _), (true, _) in zip(r.gaps, truth, strict=False):
         assert abs(found - true) <= rows
         near[min(found, true) - rows:max(found, true) + rows] = True
     return near
@@ -65,7 +64,7 @@ def test_floor_line_is_the_linear_programme_it_stands_for():
                       bounds=[(None, None), (None, None)], method="highs")
         t0, T = fit_floor_line(k, a)
         assert res.status == 0
-        assert T == pytest.approx(res.x[1], rel=1e-9)
+        assert pytest.approx(res.x[1], rel=1e-9) == T
         assert t0 == pytest.approx(res.x[0], abs=1e-9)
         assert np.all(t0 + T * k <= a + 1e-12)
 

@@ -24,7 +24,12 @@ import numpy as np
 import pytest
 
 from drivers.board_protocol import (
-    SAMPLE_FRAME_LENGTH, Sample, decode_frames, encode_hello, encode_sample, encode_status,
+    SAMPLE_FRAME_LENGTH,
+    Sample,
+    decode_frames,
+    encode_hello,
+    encode_sample,
+    encode_status,
     sample_at,
 )
 from gateway.core import estimator_kernel as K
@@ -168,10 +173,10 @@ def test_compiled_and_plain_python_are_one_implementation_bit_for_bit():
     assert here["counters"]["resets_announced"] == 1 and here["counters"]["samples_invalid"] > 10
     assert here["counters"]["samples_saturated"] > 10 and here["decoder"]["samples_lost"] > 10
     assert len(plain["rows"]) == len(here["rows"])
-    for k, (a, b) in enumerate(zip(here["rows"], plain["rows"])):
+    for k, (a, b) in enumerate(zip(here["rows"], plain["rows"], strict=False)):
         assert (a is None) == (b is None), k
         if a is not None:
-            for x, y in zip(a, b):
+            for x, y in zip(a, b, strict=False):
                 assert x == y or (x != x and y != y), (k, a, b)
 
 

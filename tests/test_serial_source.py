@@ -12,7 +12,6 @@ import asyncio
 import fcntl
 import itertools
 import os
-import socket
 import struct
 import termios
 import time

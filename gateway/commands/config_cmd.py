@@ -5,8 +5,8 @@ import argparse
 import sys
 
 from gateway.config import default_config_text, load_config
-from gateway.log_setup import error_prefix
 from gateway.daemon.preflight import findings
+from gateway.log_setup import error_prefix
 
 
 def add_parser(sub) -> None:

@@ -12,8 +12,8 @@ import numpy as np
 from gateway.commands.common import positive_float
 from gateway.core.drift_fit import DriftFit, fit_drift
 from gateway.core.units import STANDARD_GRAVITY_MPS2
-from gateway.offline.figures import save_figure
 from gateway.errors import InputError, RecordingError
+from gateway.offline.figures import save_figure
 from gateway.offline.progress import reading_bar
 from gateway.offline.recording import open_recording, read_all, to_acceleration
 

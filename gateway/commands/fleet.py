@@ -105,7 +105,7 @@ def _print_table(rows, out) -> None:
     table = [COLUMNS] + [_cells(r, now) for r in rows]
     widths = [max(len(line[i]) for line in table) for i in range(len(COLUMNS))]
     for line in table:
-        out.write("  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() + "\n")
+        out.write("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=False)).rstrip() + "\n")
     if not rows:
         out.write("(no Sparkplug B edge node heard)\n")
 

@@ -18,13 +18,17 @@ from pathlib import Path
 import numpy as np
 
 from gateway.commands.common import positive_float
-from gateway.core.retiming import (Retiming, RetimingError, RetimingSettings, on_sample_clock, retime,
-                                   timing_error)
+from gateway.core.retiming import Retiming, RetimingError, RetimingSettings, on_sample_clock, retime, timing_error
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
 from gateway.offline.progress import progress_bar
 from gateway.offline.recording import (
-    HINT_COLUMN, MAX_LINE_BYTES, cell_text, check_output, line_blocks, write_recording,
+    HINT_COLUMN,
+    MAX_LINE_BYTES,
+    cell_text,
+    check_output,
+    line_blocks,
+    write_recording,
 )
 
 UNIT_SCALES = {"g": STANDARD_GRAVITY_MPS2, "mps2": 1.0, "mg": STANDARD_GRAVITY_MPS2 / 1000}

@@ -85,7 +85,7 @@ class FittedDrift:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FittedDrift":
+    def from_dict(cls, d: dict) -> FittedDrift:
         """Raises KeyError/TypeError/ValueError on a malformed dict (the caller names the file)."""
         white = d.get("white_density_g_per_rthz")
         return cls(

@@ -13,8 +13,8 @@ Pure numbers and text; the files and processes are in drivers/ucsim_board.py.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 

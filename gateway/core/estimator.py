@@ -54,7 +54,7 @@ class Estimate:
 
     @classmethod
     def from_kernel(cls, t_s: float, out: np.ndarray, reference_m: float = 0.0,
-                    held_std_unknown: bool = False) -> "Estimate":
+                    held_std_unknown: bool = False) -> Estimate:
         """The estimate in a kernel output array (`KernelState.out`, layout O_*), the
         position measured from `reference_m`. With `held_std_unknown`, the position's σ
         is NaN before the filter has initialised (the position is held there, not

@@ -32,9 +32,18 @@ from typing import NamedTuple
 import numpy as np
 
 from gateway.core.jit import jit
-from gateway.core.standstill import MIN_WINDOW_SAMPLES, hint_gate_open, hinted_rest_fits, mean_velocity_offset, \
-    standstill_tests, stopping_within_a_window, velocity_consistent_with_rest, velocity_decidable, velocity_swing, \
-    window_statistics
+from gateway.core.standstill import (
+    MIN_WINDOW_SAMPLES,
+    hint_gate_open,
+    hinted_rest_fits,
+    mean_velocity_offset,
+    standstill_tests,
+    stopping_within_a_window,
+    velocity_consistent_with_rest,
+    velocity_decidable,
+    velocity_swing,
+    window_statistics,
+)
 
 # ---- parameter layout (EstimatorSettings.kernel_params) -------------------------------
 P_QV = 0  # velocity process noise density N²/2

@@ -24,10 +24,13 @@ import numpy as np
 # not scipy: its import was ~0.6 s of the daemon's start (a restart's blind time) and
 # scipy 143 MB of the daemon's install (gateway/core/chi2.py)
 from gateway.core.chi2 import chi2_isf
-
-from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation, noise_terms
-from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, NOMINAL_DUTY_PER_G, SensorParams, \
-    edge_reading_gain_s2_per_m
+from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation
+from gateway.core.sensor_model import (
+    CALIBRATED_SENSITIVITY_TOLERANCE_FRAC,
+    NOMINAL_DUTY_PER_G,
+    SensorParams,
+    edge_reading_gain_s2_per_m,
+)
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 G = STANDARD_GRAVITY_MPS2
@@ -212,7 +215,7 @@ class EstimatorSettings:
         p[k.P_ZUPT_CHI2] = self.zupt_chi2_threshold
         return p
 
-    def with_known_bias(self) -> "EstimatorSettings":
+    def with_known_bias(self) -> EstimatorSettings:
         """The noise floor: the same filter told the true bias (fed z − b_true, bias fixed at 0)."""
         return replace(self, bias_initial_std_mps2=0.0, bias_random_walk_mps2_per_rts=0.0,
                        drift_c1_mps2=0.0, source=self.source + " + true bias (noise floor)")

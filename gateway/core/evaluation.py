@@ -89,7 +89,7 @@ def move_errors(pos_m, ref_pos_m, at_rest, min_move_m: float = 0.01) -> list[Mov
     pos = np.asarray(pos_m, dtype=float)
     ref = np.asarray(ref_pos_m, dtype=float)
     moves = []
-    for a, b in zip(ends[:-1], ends[1:]):
+    for a, b in zip(ends[:-1], ends[1:], strict=False):
         d_ref = float(ref[b] - ref[a])
         if abs(d_ref) >= min_move_m:
             moves.append(MoveError(int(a), int(b), d_ref, float(pos[b] - pos[a])))

@@ -51,7 +51,7 @@ class PiecewiseConstantAcceleration:
     def standstill_intervals(self) -> list[tuple[float, float]]:
         """Intervals (start_s, end_s) where the body is at rest (zero velocity and acceleration)."""
         out = []
-        for t0, v0, seg in zip(self._t0, self._v0, self.segments):
+        for t0, v0, seg in zip(self._t0, self._v0, self.segments, strict=False):
             if seg.acc_mps2 == 0.0 and abs(v0) < 1e-12:
                 out.append((float(t0), float(t0 + seg.duration_s)))
         return out
@@ -134,7 +134,7 @@ def jerk_limited(profile: PiecewiseConstantAcceleration, jerk_mps3: float,
         raise ValueError("a jerk-limited profile needs at least one step per ramp")
     segments: list[Segment] = []
     move: list[Segment] = []
-    for seg, v0 in zip(profile.segments, profile._v0):
+    for seg, v0 in zip(profile.segments, profile._v0, strict=False):
         if seg.acc_mps2 == 0.0 and abs(v0) < 1e-12:  # a rest: the move before it ends here
             segments += _ramped_move(move, jerk_mps3, steps) + [seg]
             move = []
@@ -165,7 +165,7 @@ def _ramped_move(move: list[Segment], jerk_mps3: float, steps: int) -> list[Segm
     mean_acc /= steps
     mean_acc[np.abs(mean_acc) < 1e-9 * peak] = 0.0  # a cruise's exact zero
     out: list[Segment] = []
-    for duration, a in zip(np.diff(edges), mean_acc):
+    for duration, a in zip(np.diff(edges), mean_acc, strict=False):
         if out and out[-1].acc_mps2 == a:  # pieces of equal acceleration joined
             out[-1] = Segment(out[-1].duration_s + duration, a)
         else:

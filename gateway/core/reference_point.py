@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 # scipy.special, not scipy.stats (the daemon's start: see estimator_settings)
 from scipy.special import fdtri, stdtrit
 

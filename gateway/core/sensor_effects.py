@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gateway.core.filters import mount_resonance, one_pole_lowpass
-from gateway.core.simulator import ErrorTerm, SignalContext, SimulatedRun
+from gateway.core.simulator import ErrorTerm, SignalContext
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
 
 

@@ -6,7 +6,7 @@ from. Values the paper does not give are marked "assumed" with the reasoning.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -15,7 +15,7 @@ quantisation) and/or ``samples`` (after: loss, host timing).
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.signal import lfilter
@@ -68,7 +68,7 @@ class SimulatedRun:
     def __len__(self) -> int:
         return int(self.seq.size)
 
-    def select(self, keep: np.ndarray) -> "SimulatedRun":
+    def select(self, keep: np.ndarray) -> SimulatedRun:
         """The run with only the samples where keep is true (seq keeps its gaps)."""
         return replace(self, **{k: v[keep] for k, v in self.__dict__.items() if isinstance(v, np.ndarray)})
 

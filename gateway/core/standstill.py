@@ -49,7 +49,6 @@ import math
 
 from gateway.core.jit import jit
 
-
 # The fewest samples any spread is judged on: the detector's window (the floor of
 # EstimatorSettings.window_samples) and the hinted samples of a soft hinted velocity update
 # (hinted_rest_fits). A mean judged against the spread of n samples has n − 1 degrees of

@@ -10,7 +10,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
-from typing import Callable
+from collections.abc import Callable
 
 from drivers.errors import SerialPortError
 from drivers.serial_source import SerialSource, reconnect_delays_s

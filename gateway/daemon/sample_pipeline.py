@@ -25,8 +25,19 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from drivers.board_protocol import (
-    FLAG_TIMER_OVERFLOW, FLAG_X_TIMED_OUT, FLAG_Y_TIMED_OUT, FLAGS_RESERVED, SAMPLE_FRAME_LENGTH, Hello,
-    DecoderCounters, Status, StreamDecoder, sample_at, seq_step, SEQ_BACKWARDS, SEQ_REPEAT,
+    FLAG_TIMER_OVERFLOW,
+    FLAG_X_TIMED_OUT,
+    FLAG_Y_TIMED_OUT,
+    FLAGS_RESERVED,
+    SAMPLE_FRAME_LENGTH,
+    SEQ_BACKWARDS,
+    SEQ_REPEAT,
+    DecoderCounters,
+    Hello,
+    Status,
+    StreamDecoder,
+    sample_at,
+    seq_step,
 )
 from gateway.core import estimator_kernel as K
 from gateway.core.conversion import Calibration, advance_sample_time, duty_to_mps2

@@ -28,8 +28,9 @@ import logging
 import math
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 import can
 
@@ -38,16 +39,16 @@ from drivers.modbus_identity import package_version
 from drivers.modbus_server import ModbusServer
 from drivers.published_values import Command, PublishedValues, StatusBits
 from drivers.sparkplug_node import SparkplugNode
-from gateway.daemon.board_intake import BoardIntake, LinkHealth
 from gateway.config import Config
-from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
+from gateway.daemon.board_intake import BoardIntake, LinkHealth
 from gateway.daemon.board_port import BoardPort
-from gateway.errors import ConfigError, DeviceError
 from gateway.daemon.preflight import refuse_reload
 from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
+from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
 from gateway.daemon.wires import WireContext, WireSet
+from gateway.errors import ConfigError, DeviceError
 
 if TYPE_CHECKING:  # rich, behind the view, is an offline tool's library (pyproject's [offline])
     from gateway.daemon.terminal_view import TerminalView

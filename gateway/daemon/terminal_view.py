@@ -61,7 +61,7 @@ class TerminalView:
         self._handler: _ConsoleLogHandler | None = None
         self._moved: list[logging.Handler] = []
 
-    def __enter__(self) -> "TerminalView":
+    def __enter__(self) -> TerminalView:
         if self.ansi:
             self._live = Live(console=self.console, auto_refresh=False)  # redrawn by draw(), no thread
             self._live.start()

@@ -20,8 +20,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import can
 
@@ -348,7 +349,7 @@ class WireSet:
         """Reload: the wires whose settings changed, with the new settings — or, when
         one cannot take them, DeviceError and every wire as it was."""
         changed: list[tuple[Wire, Any]] = []
-        for kind, wire in zip(self._kinds, self.wires):
+        for kind, wire in zip(self._kinds, self.wires, strict=False):
             before, after = kind.settings_from(old), kind.settings_from(new)
             if before == after:
                 continue
