@@ -47,8 +47,10 @@ PY
 if ! "$PYTHON" -c "import venv, ensurepip" 2>/dev/null; then
     apt_install python3-venv
 fi
-if [ ! -x .venv/bin/python ]; then
+# a venv left half-made by an interrupted run (no pip in it) is made again
+if [ ! -x .venv/bin/python ] || ! .venv/bin/python -m pip --version >/dev/null 2>&1; then
     log "creating .venv"
+    rm -rf .venv
     "$PYTHON" -m venv .venv
 fi
 extras="[offline]"
