@@ -118,3 +118,51 @@ def test_the_wheel_carries_the_files_not_links(tmp_path):
         metadata = zf.read(next(n for n in zf.namelist() if n.endswith("/METADATA"))).decode()
     assert "Requires-Dist: numba<1,>=0.60" in metadata
     assert 'Requires-Dist: filterpy<2.1,>=1.4.5; extra == "test"' in metadata
+
+
+def _runtime_closure() -> set[str]:
+    """The distributions a slim install brings: the runtime dependencies and, as
+    installed here, what they require in turn (extras' requirements left out)."""
+    from importlib.metadata import PackageNotFoundError, requires
+
+    from packaging.utils import canonicalize_name
+
+    todo = [Requirement(r) for r in PYPROJECT["project"]["dependencies"]]
+    seen: set[str] = set()
+    while todo:
+        req = todo.pop()
+        name = canonicalize_name(req.name)
+        if name in seen or (req.marker is not None and not req.marker.evaluate({"extra": ""})):
+            continue
+        seen.add(name)
+        try:
+            todo.extend(Requirement(r) for r in requires(name) or [])
+        except PackageNotFoundError:
+            pass
+    return seen
+
+
+def test_the_daemon_imports_only_what_the_slim_install_brings():
+    """Every module `adxlgw run` imports is the standard library's, the project's own or
+    a runtime dependency's (pyproject's [project] dependencies and what they require):
+    a library kept in an extra but imported by the daemon breaks the slim install."""
+    from importlib.metadata import packages_distributions
+
+    from packaging.utils import canonicalize_name
+
+    code = ("import sys, gateway.daemon.supervisor, gateway.daemon.settings, gateway.commands.run; "
+            "print('\\n'.join(sorted({m.split('.')[0] for m in sys.modules})))")
+    top_level = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                               check=True, cwd=ROOT).stdout.split()
+    owners = packages_distributions()
+    allowed = _runtime_closure()
+    outside = []
+    for module in top_level:
+        if module in sys.stdlib_module_names or module in ("gateway", "drivers") or module.startswith("_"):
+            continue
+        if module == "scipy":  # numba imports the bare package where it is installed, to read its
+            continue  # version; none of its parts (tests/test_chi2.py checks that)
+        dists = {canonicalize_name(d) for d in owners.get(module, [])}
+        if dists and not dists & allowed:
+            outside.append(f"{module} (from {', '.join(sorted(dists))})")
+    assert not outside, f"the daemon imports libraries a slim install lacks: {outside}"
