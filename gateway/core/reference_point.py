@@ -12,7 +12,6 @@ from dataclasses import dataclass
 import numpy as np
 
 # scipy.special, not scipy.stats (the daemon's start: see estimator_settings)
-from scipy.special import fdtri, stdtrit
 
 MOTION_RUN = 3  # samples in a row a step off the rest that end it (see find_initial_rest)
 RESOLUTION_SAMPLES = 200_000  # enough to see a logger's step, bounded for a 12-hour file
@@ -121,6 +120,10 @@ def quiet_part(acc_mps2, valid, rest: Rest, period_s: float, baseline_s: float =
     if s0 == 0.0:
         return rest  # a noise-free (quantised) baseline: no scale to test against
     windows = np.lib.stride_tricks.sliding_window_view(a[n0:], w)
+    # scipy here, not at the top: the daemon imports this module and starts without scipy
+    # (the slim install, gateway/core/chi2.py); only `adxlgw estimate` calls quiet_part
+    from scipy.special import fdtri, stdtrit
+
     var_max = s0 * s0 * float(fdtri(w - 1, n0 - 1, 1.0 - false_motion_prob))
     mean_max = float(stdtrit(n0 - 1, 1.0 - 0.5 * false_motion_prob)) * s0 * np.sqrt(1.0 / w + 1.0 / n0)
     loud = (windows.var(axis=1, ddof=1) > var_max) | (np.abs(windows.mean(axis=1) - m0) > mean_max)
