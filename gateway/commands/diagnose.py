@@ -12,6 +12,7 @@ from gateway.commands.estimate import settings_for
 from gateway.core.diagnosis import DiagnosisInput, diagnose, list_effects
 from gateway.core.diagnosis.context import reference_resolution_block
 from gateway.core.diagnosis.judgement import REFERENCE_INTERVALS_PER_BLOCK
+from gateway.core.diagnosis.timestamps import TimestampError, check_sample_clock
 from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
@@ -126,6 +127,40 @@ def _nothing(path: str, why: str) -> InputError:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The diagnosis; with --json the file is written whatever happens: the result, or
+    {"error": …, "exit_code": …} when the recording cannot be analysed (2) or the
+    diagnosis itself failed (1, a bug: the traceback is printed too)."""
+    try:
+        return _run(args)
+    except InputError as err:
+        _write_error_json(args, err, err.exit_code)
+        raise
+    except Exception as err:
+        _write_error_json(args, err, 1)
+        raise
+
+
+def _write_error_json(args: argparse.Namespace, err: Exception, code: int) -> None:
+    if not getattr(args, "json", None) or args.list_effects:
+        return
+    try:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"error": str(err), "exit_code": code}, fh, indent=2, ensure_ascii=False)
+            fh.write("\n")
+    except OSError:
+        pass  # the error that brought us here is the one reported
+
+
+def _write_json(path: str, doc: dict) -> None:
+    try:
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=2, allow_nan=False, ensure_ascii=False)
+            fh.write("\n")
+    except OSError as err:
+        raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
+
+
+def _run(args: argparse.Namespace) -> int:
     if args.list_effects:
         effects = list_effects()
         width = max(len(name) for name, _ in effects)
@@ -149,6 +184,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--reference-block {args.reference_block}: must be a whole number of samples ≥ 1")
     data = build_input(path, rec, series, notes, other_axis_still=args.other_axis_still,
                        reference_block=args.reference_block)
+    try:  # before any analysis: an estimate on arrival stamps would be nonsense (timestamps.py)
+        check_sample_clock(data.t_s, data.lost_before)
+    except TimestampError as err:
+        raise InputError(f"{path}: {err}") from err
     no_rest = ("no reference motion and no standstill to start the smoothed estimate from "
                "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
     try:
@@ -175,13 +214,7 @@ def run(args: argparse.Namespace) -> int:
         _warn(c)
     print(text_summary(result, path))
     if args.json:
-        doc = jsonable(result.to_dict())
-        try:
-            with open(args.json, "w", encoding="utf-8") as fh:
-                json.dump(doc, fh, indent=2, allow_nan=False, ensure_ascii=False)
-                fh.write("\n")
-        except OSError as err:
-            raise InputError(f"{args.json}: cannot write: {err.strerror or err}") from err
+        _write_json(args.json, jsonable(result.to_dict()))
         print(f"wrote {args.json}")
     if args.report:
         ref_pos = series.reference.get("ref_pos_m") if data.reference == "recorded" else None

@@ -181,6 +181,15 @@ def text_summary(result: DiagnosisResult, path: str) -> str:
         out.append("")
         out.append("cannot analyse:")
         out.extend(f"  - {c}" for c in result.cannot)
+    host = (result.timestamps or {}).get("host")
+    if host and not host["strictly_increasing"]:
+        out.append("")
+        out.append(f"host arrival times: {host['backwards']} backward steps, {host['zero_intervals']} zero intervals, "
+                   f"{host['burst_intervals']} bursts in {host['rows']} rows (analysed as delays; no estimate on them)")
+    if result.failures:
+        out.append("")
+        out.append("failed (each in isolation; the rest of the report stands):")
+        out.extend(f"  - {f['what']}: {f['error']}" for f in result.failures)
     out.append("")
     out.append(verdict_line(result))
     return "\n".join(out)

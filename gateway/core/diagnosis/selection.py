@@ -33,6 +33,7 @@ from gateway.core.diagnosis.screening import (
 )
 from gateway.core.diagnosis.side_effects import SIDE_EFFECTS, SideEffect, SideTest
 from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, Signal, SignalEffect
+from gateway.core.diagnosis.timestamps import HostClock, check_host_clock, check_sample_clock
 from gateway.core.estimator_settings import EstimatorSettings
 
 BIC_MARGIN = 10.0  # "very strong" evidence on Kass & Raftery's scale
@@ -107,6 +108,10 @@ class DiagnosisResult:
     setup: list[dict] = field(default_factory=list)  # measured properties of the setup (nuisance values)
     negligible: list[dict] = field(default_factory=list)  # significant, but too small to matter
     not_physical: list[dict] = field(default_factory=list)  # a shape that fits, with impossible values
+    # what the clocks are like (timestamps.HostClock), checked before the analysis
+    timestamps: dict = field(default_factory=dict)
+    # computations that failed, each in isolation: {"what": ..., "error": ...}; the rest stands
+    failures: list[dict] = field(default_factory=list)
     # for plots and the report (not in the JSON)
     t_s: np.ndarray = field(repr=False, default=None)
     residual_before: np.ndarray = field(repr=False, default=None)
@@ -140,6 +145,8 @@ class DiagnosisResult:
             "setup": self.setup,
             "negligible": self.negligible,
             "not_physical": self.not_physical,
+            "timestamps": self.timestamps,
+            "failures": self.failures,
         }
 
 
@@ -156,8 +163,11 @@ def _prepare_with_estimate(data: DiagnosisInput, plan: EstimatePlan) -> Prepared
 
 def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start: bool = False,
              progress: Callable[[str], None] = lambda msg: None) -> DiagnosisResult:
+    period_s = check_sample_clock(data.t_s, data.lost_before)  # TimestampError (a ValueError): bad input
+    host = check_host_clock(data.t_host_s, period_s) if data.t_host_s is not None else None
     plan = EstimatePlan(settings, returns_to_start)
     cannot: list[str] = []
+    failures: list[dict] = []
     if data.reference is None:
         data.reference = "estimated"
     prep = _prepare_with_estimate(data, plan)
@@ -290,12 +300,18 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         # part's own output filter, say), reads part of it as its own — a part at −0.96 %
         # read as −1.04 % before the filter was in, and was named outside its tolerance
         theta, std = current.effect_theta(e)
-        step_plan = before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1])
         progress(f"gain of {e.name}: distance estimate before and after")
+        step_plan = _isolated(f"the compensation of {e.name}", failures,
+                              lambda: before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1]))
+        if isinstance(step_plan, dict):  # failed: no distance for it, the chain goes on without it
+            distance, step_plan = step_plan, before_plan
+        else:
+            distance = _isolated(f"distance gain of {e.name}", failures,
+                                 lambda: distance_gain(prep, before_plan, step_plan))
         gain = {
             "residual_rms_mps2": [before.residual_rms, after.residual_rms],
             "loglik": [before.loglik, after.loglik],
-            "distance": distance_gain(prep, before_plan, step_plan),
+            "distance": distance,
         }
         before_plan = step_plan
         result = EffectResult(e.name, "signal", e.report(theta, std), candidates[e.name].p_value,
@@ -308,7 +324,10 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             candidates[s.name] = Candidate(s.name, "not applicable", reason=why)
             continue
         progress(f"testing {s.name}")
-        test = s.test(prep, current.residual)
+        test = _isolated(f"the {s.name} test", failures, lambda: s.test(prep, current.residual))
+        if isinstance(test, dict):  # it failed: said in failures, the rest of the report stands
+            candidates[s.name] = Candidate(s.name, "failed", reason=test["why"])
+            continue
         dbic = -2.0 * (test.loglik_after - test.loglik_before) + test.extra_params * math.log(max(current.n, 2))
         ok = test.significant(ALPHA / len(SIDE_EFFECTS)) and dbic <= -BIC_MARGIN
         # a test that could not be made (no parameters fitted) says why in its detail
@@ -316,7 +335,10 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                                        "" if ok else (test.detail if not test.params else "ΔBIC or p not enough"))
         if ok:
             progress(f"gain of {s.name}: distance estimate before and after")
-            if test.values.get("host_time"):
+            no_estimate = host.why_no_estimate() if host is not None and test.values.get("host_time") else None
+            if no_estimate:
+                without = step_plan = None
+            elif test.values.get("host_time"):
                 # the baseline trusts host times as the board's; the extension knows better
                 without, step_plan = before_plan.as_host_timed(prep), before_plan
             elif test.values.get("lost"):
@@ -324,7 +346,8 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             else:
                 without, step_plan = before_plan, before_plan.with_side(prep, s, test)
             gain = {"loglik": [test.loglik_before, test.loglik_after],
-                    "distance": distance_gain(prep, without, step_plan)}
+                    "distance": {"available": False, "why": no_estimate} if no_estimate else _isolated(
+                        f"distance gain of {s.name}", failures, lambda: distance_gain(prep, without, step_plan))}
             if test.rms_unit is not None:  # the same key shape as a signal effect's residual_rms_mps2
                 gain[f"residual_rms_{test.rms_unit}"] = [test.rms_before, test.rms_after]
             if test.position_mm is not None:
@@ -337,17 +360,17 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 candidates[s.name] = Candidate(s.name, "not physical", dbic, test.p_value, why)
                 not_physical.append({"shape": s.name, "why": why, "delta_bic": dbic, "params": test.params})
                 continue
-            if _classify(result, in_setup, effects, setup, negligible, candidates):
+            if _classify(result, in_setup, effects, setup, negligible, candidates) and step_plan is not None:
                 before_plan = step_plan
 
     regs = candidate_regressors(prep, prep.reading_mps2, data.ref_pos_m)
     screening = {
-        "before": {"correlations": correlations(prep, base.residual, regs),
-                   "spectrum_peaks": spectrum_peaks(prep, base.whitened),
-                   "allan": allan_slopes(prep, base.residual)},
-        "after": {"correlations": correlations(prep, current.residual, regs),
-                  "spectrum_peaks": spectrum_peaks(prep, current.whitened),
-                  "allan": allan_slopes(prep, current.residual)},
+        when: {"correlations": _isolated(f"correlations {when}", failures,
+                                         lambda: correlations(prep, fit.residual, regs), []),
+               "spectrum_peaks": _isolated(f"spectrum peaks {when}", failures,
+                                           lambda: spectrum_peaks(prep, fit.whitened), []),
+               "allan": _isolated(f"Allan slopes {when}", failures, lambda: allan_slopes(prep, fit.residual), [])}
+        for when, fit in (("before", base), ("after", current))
     }
     if data.reference == "estimated":
         cannot.append("no recorded reference: the smoothed estimate stands in for it, so effects that "
@@ -374,8 +397,24 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         t_s=data.t_s,
         residual_before=base.residual,
         residual_after=current.residual,
-        distance={"before": plan.baseline(data).track(prep), "after": before_plan.track(prep)},
+        distance={"before": _isolated("the baseline's track", failures, lambda: plan.baseline(data).track(prep), None),
+                  "after": _isolated("the extended model's track", failures, lambda: before_plan.track(prep), None)},
+        timestamps={"sample_period_s": period_s, "host": host.to_dict() if host is not None else None},
+        failures=failures,
     )
+
+
+def _isolated(what: str, failures: list[dict], compute: Callable, fallback=None):
+    """One computation of the report, in isolation: what it returns, or — when it fails
+    (a bug, or an input no check foresaw) — `fallback` (default: a distance result that
+    says why it is not available), the failure recorded in `failures`, and the rest of
+    the report standing. A failure is never silent: the JSON and the text list it."""
+    try:
+        return compute()
+    except Exception as err:  # noqa: BLE001 — isolation is the point; recorded below
+        why = f"{what} failed: {type(err).__name__}: {err}"
+        failures.append({"what": what, "error": f"{type(err).__name__}: {err}"})
+        return {"available": False, "why": why} if fallback is None else fallback
 
 
 def _classify(result: EffectResult, setup_why: str | None, effects: list, setup: list, negligible: list,
