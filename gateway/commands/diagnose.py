@@ -14,9 +14,11 @@ from gateway.core.diagnosis.context import reference_resolution_block
 from gateway.core.diagnosis.judgement import REFERENCE_INTERVALS_PER_BLOCK
 from gateway.core.diagnosis.timestamps import TimestampError, check_sample_clock
 from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.model_compensation import ModelTerm, SensorModel
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
+from gateway.sensor_model_file import write_sensor_model
 from gateway.offline.diagnosis_report import jsonable, text_summary, write_report
 from gateway.errors import InputError
 from gateway.offline.progress import reading_bar
@@ -52,6 +54,13 @@ def add_parser(sub) -> None:
                    help="compare model and measurement as means over N samples (default: 1 for a reference that "
                         "resolves every sample, 4 of its own intervals for a coarse one, e.g. a robot position "
                         "at a few Hz)")
+    p.add_argument("--model-out", metavar="M.json",
+                   help="write the extended model (the effects named or kept as the setup's, with their parameters) "
+                        "for adxlgw estimate --model and the daemon's [model] file")
+    p.add_argument("--model-with", metavar="NAME[,NAME]", default="",
+                   help="also write these candidates' fitted terms into --model-out, named or not (a cause the "
+                        "user knows of, to be tried on other recordings; the model file notes that the diagnosis "
+                        "did not name it, and why)")
     p.add_argument("--list-effects", action="store_true", help="list the effects looked for and exit")
     p.set_defaults(run=run, _parser=p)
 
@@ -140,6 +149,27 @@ def run(args: argparse.Namespace) -> int:
         raise
 
 
+def model_of(result, path: str, also: list[str]) -> SensorModel:
+    """The extended model: the terms the diagnosis named or kept as the setup's, then any
+    candidate asked for (--model-with) with its fitted parameters and a note saying why it
+    was not named."""
+    terms = [ModelTerm(t["name"], t["params"]) for t in result.model_terms]
+    notes = []
+    have = {t.name for t in terms}
+    by_name = {c.name: c for c in result.candidates}
+    for name in also:
+        c = by_name.get(name)
+        if c is None:
+            raise InputError(f"--model-with {name}: not a candidate (adxlgw diagnose --list-effects)")
+        if name in have:
+            continue
+        if not c.model_params:
+            raise InputError(f"--model-with {name}: not fitted on this recording ({c.status}: {c.reason})")
+        terms.append(ModelTerm(name, c.model_params))
+        notes.append(f"{name}: added by --model-with; the diagnosis did not name it ({c.status}: {c.reason})")
+    return SensorModel(tuple(terms), source=path, notes=tuple(notes))
+
+
 def _write_error_json(args: argparse.Namespace, err: Exception, code: int) -> None:
     if not getattr(args, "json", None) or args.list_effects:
         return
@@ -216,6 +246,11 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, jsonable(result.to_dict()))
         print(f"wrote {args.json}")
+    if args.model_out:
+        model = model_of(result, path, [n.strip() for n in args.model_with.split(",") if n.strip()])
+        write_sensor_model(args.model_out, model)
+        print(f"wrote {args.model_out}: {len(model.terms)} term(s)"
+              + (f"; not compensated: {', '.join(model.not_compensated)}" if model.not_compensated else ""))
     if args.report:
         ref_pos = series.reference.get("ref_pos_m") if data.reference == "recorded" else None
         files = write_report(args.report, result, path, ref_pos)

@@ -187,6 +187,14 @@ class Prepared:
         full = mask[:n].reshape(-1, b).all(axis=1)
         return xb[full]
 
+    def compared_index(self, mask: np.ndarray) -> np.ndarray:
+        """The sample index of each value whiten_masked returns (a block's first sample)."""
+        if self.block == 1:
+            return np.flatnonzero(mask)
+        b = self.block
+        n = mask.size // b * b
+        return np.flatnonzero(mask[:n].reshape(-1, b).all(axis=1)) * b
+
     def whiten_masked(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """x over mask, as the models are compared: whitened by the noise model, per sample
         or per comparison block."""

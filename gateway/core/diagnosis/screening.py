@@ -40,6 +40,28 @@ def spectrum_peaks(prep: Prepared, whitened: np.ndarray, top: int = 3) -> list[d
     return [{"frequency_hz": float(f[idx[i]]), "power_ratio": float(props["peak_heights"][i] / floor)} for i in order]
 
 
+def spectrum_line(prep: Prepared, whitened: np.ndarray, alpha: float) -> dict | None:
+    """The strongest spectral line of a whitened residual above what white noise reaches
+    with probability alpha over all bins (Welch: each bin is the level × χ²₂ₖ/2K, K the
+    segments averaged, the level from the median bin), with its share of the variance."""
+    from scipy.stats import chi2
+
+    fs = 1.0 / prep.compare_period_s
+    if whitened.size < 64:
+        return None
+    nperseg = min(1024, whitened.size // 4)
+    f, pxx = welch(whitened, fs=fs, nperseg=nperseg)
+    k = max(1, 2 * whitened.size // nperseg - 1)  # half-overlapping segments
+    level = float(np.median(pxx)) / (float(chi2.median(2 * k)) / (2 * k))
+    limit = level * float(chi2.isf(alpha / pxx.size, 2 * k)) / (2 * k)
+    i = int(np.argmax(pxx[1:])) + 1
+    if pxx[i] <= limit:
+        return None
+    df = float(f[1] - f[0])
+    share = (float(pxx[i]) - level) * df / max(float(np.sum(pxx)) * df, 1e-300)
+    return {"what": f"a spectral line at {f[i]:.1f} Hz, {pxx[i] / level:.0f}× the level", "share": share}
+
+
 def allan_slopes(prep: Prepared, residual: np.ndarray) -> list[dict]:
     r = np.nan_to_num(residual)
     if r.size < 64:

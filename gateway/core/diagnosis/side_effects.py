@@ -242,7 +242,9 @@ class Timing(SideEffect):
             rms_unit="s",
             detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
                     f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
-            values={"host_time": True},
+            # the delays' scatter beyond the baseline link's, in sample periods (judgement.matters)
+            values={"host_time": True, "host_scatter_periods": math.sqrt(max(
+                float(np.var(x1)) - BASELINE_LATENCY_MEAN_S**2, 0.0)) / d.period_s},
             position_mm=position_mm,
             theta=np.array([hold, rate]),  # the hold-back (s), the clock's rate error (fraction)
         )
