@@ -270,7 +270,13 @@ class Prepared:
         self.set_reading(np.interp(np.arange(self.t_full.size), self.where, received))
 
 
-def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = 0.3) -> np.ndarray:
+# a rest starts this long after the last motion: 100 time constants of the part's 50 Hz
+# pole, and a mount's ringing with ζ·f0 ≥ 3 Hz (ζ 0.1 at 30 Hz) down by e^(−2π·ζ·f0·t) < e⁻⁵;
+# a lighter ringing is left in the rests, where it reads as noise colour, not as an effect
+REST_SETTLE_S = 0.3
+
+
+def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = REST_SETTLE_S) -> np.ndarray:
     """At rest by the reference and settle_s past the last motion (ringing, filter tails)."""
     t = np.asarray(t_s, dtype=float)
     still = (np.abs(ref_vel_mps) < 1e-6) & (np.abs(ref_acc_mps2) < 1e-9)

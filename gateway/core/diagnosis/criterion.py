@@ -39,6 +39,9 @@ from scipy.stats import chi2
 # no single block carries most of the record (leaving it out would leave the parameters
 # to the rest) and the block gains' spread (the SE reported) has 19+ degrees of freedom
 MIN_CV_BLOCKS = 20
+# the false-alarm rate of one round of the search, split over the candidates tried: a
+# clean record has an effect named with at most this probability per round
+ALPHA = 1e-3
 
 
 @dataclass(frozen=True)

@@ -146,10 +146,13 @@ def _errors(prep: Prepared, plan: EstimatePlan) -> dict | None:
         # the plan's time axis may differ (host time, gaps closed): compare sample by sample
         s = summarise_errors(t, track.pos_m, ref_pos, ref_vel)
         stops = np.array([st.error_m for st in s.stops])
+        # what the estimator itself says it knows each stop's position to (judgement.matters)
+        std = np.array([track.pos_std_m[st.index] for st in s.stops], dtype=float)
         return {"stop_rms_mm": float(np.sqrt(np.mean(stops**2))) * 1e3 if stops.size else float("nan"),
-                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3, "stops_mm": (stops * 1e3).tolist()}
+                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3, "stops_mm": (stops * 1e3).tolist(),
+                "stop_std_mm": float(np.sqrt(np.mean(std**2))) * 1e3 if std.size else float("nan")}
     if plan.returns_to_start:
-        return {"final_mm": float(track.pos_m[-1]) * 1e3}
+        return {"final_mm": float(track.pos_m[-1]) * 1e3, "stop_std_mm": float(track.pos_std_m[-1]) * 1e3}
     return None
 
 

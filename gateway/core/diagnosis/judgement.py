@@ -42,8 +42,9 @@ ORDINARY_HOLD_BACK_S = 2e-3
 
 # the distance gain's interval: a bootstrap over the stops (each stop's error before and
 # after resampled together), BOOTSTRAP_RESAMPLES draws from a fixed seed; a loss counts
-# when the interval's upper end is below zero (one-sided 2.5 %), at any number of stops —
-# with one stop (or the final position alone) the interval is that one value
+# when the interval's upper end is below minus the estimator's own position standard
+# deviation at the stops (one-sided 2.5 %), at any number of stops — with one stop (or the
+# final position alone) the interval is that one value
 DISTANCE_INTERVAL = 0.95
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 20261127
@@ -187,7 +188,11 @@ def matters(distance: dict | None, host_scatter_periods: float | None = None,
     - structure left in the residual explains more than it does (masked_by says what):
       a small effect is not named while a larger unexplained one stands."""
     interval = distance_interval(distance or {})
-    if interval is not None and interval[1] < 0:
+    # ...and beyond what the estimator itself says it knows the stops' positions to (its
+    # own position standard deviation there, RMS over the stops, before the change): a
+    # loss consistent over the stops but smaller than that is no harm anyone could see
+    known = float((distance or {}).get("before", {}).get("stop_std_mm", 0.0) or 0.0)
+    if interval is not None and interval[1] < -(known if math.isfinite(known) else 0.0):
         return False, (f"makes the distance error worse by {-float(distance['improvement_mm']):.2f} mm "
                        f"(interval {interval[0]:+.2f} … {interval[1]:+.2f} mm)")
     if host_scatter_periods is not None and host_scatter_periods < HOST_SCATTER_PERIODS:

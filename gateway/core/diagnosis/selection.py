@@ -3,14 +3,15 @@
 Selection (signal effects on the measured axis), forward:
   1. fit the baseline (offset + drift) and the ARMA(1,1) noise model on the rests;
   2. fit every remaining candidate jointly with those already accepted, starting from
-     its own quick fit on the current residual;
-  3. take the best by BIC; accept it only if ΔBIC ≤ −BIC_MARGIN *and* its
-     likelihood-ratio test has p < ALPHA (Bonferroni over the candidates of the round);
-     otherwise stop.
-Side effects (other axis, host clock, seq gaps, bias wander) are each tested once with
-their own likelihood ratio, the bias wander on the final residual.
-"Unexplained" is set when the final residual is still not white: structure remains that
-no candidate explains — said rather than naming a wrong cause.
+     its own quick fit on the current residual; order them by in-sample ΔBIC;
+  3. accept the first that predicts the blocks it was not fitted on better than chance
+     (criterion.py, at ALPHA split over the candidates of the round) and is physical;
+     otherwise stop. A backward pass drops any the others make redundant (same test).
+Then each accepted effect is placed (the setup's property, named, or not — judgement.py),
+what else explains the same residual is found (identifiability.py), and the gain is
+measured (gain.py). Side effects (other axis, host clock, seq gaps, bias wander) are each
+tested once with their own likelihood ratio. "Unexplained" is set when the final
+residual is still not white: structure remains that no candidate explains.
 """
 from __future__ import annotations
 
@@ -19,9 +20,10 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.stats import chi2, norm
 
 from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
+from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.diagnosis.gain import distance_gain, EstimatePlan
 from gateway.core.diagnosis.identifiability import alternatives, temperature_in_line_with_drift
 from gateway.core.diagnosis.judgement import (
@@ -30,7 +32,8 @@ from gateway.core.diagnosis.judgement import (
 from gateway.core.diagnosis.model_fit import ModelFit, current_signal, cv_gain_of, fit_model
 from gateway.core.diagnosis.reading import fit_noise_model
 from gateway.core.diagnosis.screening import (
-    allan_slopes, block_whiteness_p, candidate_regressors, correlations, spectrum_line, spectrum_peaks,
+    WHITENESS_BLOCK_S, allan_slopes, block_whiteness_p, candidate_regressors, correlations, spectrum_line,
+    spectrum_peaks,
 )
 from gateway.core.diagnosis.side_effects import SIDE_EFFECTS, SideEffect, SideTest
 from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, Signal, SignalEffect
@@ -40,9 +43,6 @@ from gateway.core.estimator_settings import EstimatorSettings
 # side effects that have no block structure (host timing) still need "very strong"
 # evidence on Kass & Raftery's scale beside their likelihood-ratio test
 BIC_MARGIN = 10.0
-# the false-alarm rate of one round of the search, split over the candidates tried: the
-# one criterion (criterion.py) names an effect on a clean record with at most this
-ALPHA = 1e-3
 WHITE_ALPHA = 1e-3  # a 60 s record has 6000 blocks: a small misfit of the noise model must not read as a cause
 
 ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
@@ -429,10 +429,18 @@ def leftover_structure(prep: Prepared, fit: ModelFit, alpha: float) -> dict | No
     found = []
     other = prep.data.other_mps2
     if other is not None and np.isfinite(other).mean() > 0.9:
-        rows = correlations(prep, fit.residual, {"other axis": other})
-        if rows and rows[0]["p_value"] < alpha:
-            found.append({"what": f"correlation r = {rows[0]['correlation']:+.2f} with the other axis",
-                          "share": rows[0]["correlation"] ** 2})
+        # on WHITENESS_BLOCK_S means, as whiteness is judged: both axes are divided by the
+        # same T2 count and share its rounding (the baseline's own, at the sample rate)
+        b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
+        m = prep.fit_mask
+        x = prep.whiten_masked(np.nan_to_num(fit.residual), m)
+        y = prep.whiten_masked(np.nan_to_num(other - np.nanmean(other)), m)
+        n = x.size // b * b
+        x, y = x[:n].reshape(-1, b).mean(axis=1), y[:n].reshape(-1, b).mean(axis=1)
+        if x.size > 3 and np.std(x) > 0 and np.std(y) > 0:
+            r = float(np.corrcoef(x, y)[0, 1])
+            if 2.0 * norm.sf(abs(r) * np.sqrt(x.size)) < alpha:
+                found.append({"what": f"correlation r = {r:+.2f} with the other axis", "share": r * r})
     line = spectrum_line(prep, fit.whitened, alpha)
     if line is not None:
         found.append(line)

@@ -309,6 +309,9 @@ class BiasRandomWalk(SideEffect):
 
     name = "bias_random_walk"
     summary = "the bias wanders as a random walk beyond the exponential drift (Allan slope +1/2)"
+    # a block of 0.25 s averages the part's noise (its 50 Hz pole: 25 correlation times)
+    # to white block means while a walk of the documented sizes (0.3–0.8 mg/√s) moves by
+    # 0.15–0.4 mg within it; 20 blocks: the local-level model's two variances need them
     block_s = 0.25
     MIN_BLOCKS = 20
 
