@@ -69,7 +69,8 @@ def report(effect: str | None, seed: int, args) -> list[str]:
         dist = e.gain.get("distance", {})
         out.append(f"- named: {e.name} {e.params}; residual share {share}; distance improvement "
                    f"{dist.get('improvement_mm', float('nan')):+.2f} mm"
-                   + (" (loss within chance)" if dist.get("loss_within_chance") else ""))
+                   + (f" (interval {dist['interval_mm'][0]:+.2f} … {dist['interval_mm'][1]:+.2f} mm)"
+                      if dist.get("interval_mm") else ""))
     for title, items in (("setup", result.setup), ("negligible", result.negligible),
                          ("not physical", result.not_physical)):
         for item in items:

@@ -14,7 +14,7 @@ from gateway.core.simulator import simulate
 from gateway.offline.recording import write_recording
 
 EFFECTS = ("scale_factor tilt cross_axis temperature_offset timing sample_loss vibration bandwidth "
-           "nonlinearity clipping bias_random_walk reference_delay").split()
+           "nonlinearity clipping bias_random_walk reference_delay motion_offset cross_talk").split()
 PNGS = ("residual.png", "spectrum.png", "allan.png", "position.png")
 
 
@@ -47,7 +47,7 @@ def clean_run(clean, tmp_path_factory):
     return code, out
 
 
-def test_list_effects_names_all_twelve_with_a_summary(capsys):
+def test_list_effects_names_all_fourteen_with_a_summary(capsys):
     assert main(["diagnose", "--list-effects"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     names = [line.split()[0] for line in lines]

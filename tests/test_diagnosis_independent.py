@@ -14,7 +14,7 @@ import pytest
 
 from gateway.core.diagnosis.context import DiagnosisInput, prepare, reference_resolution_block
 from gateway.core.diagnosis.judgement import (
-    MIN_DISTANCE_GAIN_MM, MIN_RESIDUAL_SHARE, SENSITIVITY_TOLERANCE_FRAC, matters, physical, setup_range,
+    SENSITIVITY_TOLERANCE_FRAC, physical, setup_range,
 )
 from tests.diagnosis_cases import estimator_settings
 from tests.independent_generator.cases import IN_VOCABULARY, make_case, run_case
@@ -110,8 +110,8 @@ def test_setup_range_holds_the_calibration_tolerance_and_the_timing_convention()
 
 def test_physical_ranges_name_what_no_part_can_do():
     prep = _prep()
-    assert "damping" in physical("vibration", prep, np.array([172.0, 0.9]))
-    assert physical("vibration", prep, np.array([20.0, 0.05])) is None
+    assert "damping" in physical("vibration", prep, np.array([172.0, 0.9, 0.2, 0.0]))
+    assert physical("vibration", prep, np.array([20.0, 0.05, 1.0, 0.0])) is None
     assert physical("bandwidth", prep, np.array([0.7]))
     assert physical("bandwidth", prep, np.array([12.0])) is None
     assert physical("scale_factor", prep, np.array([-0.44]))
@@ -121,14 +121,6 @@ def test_physical_ranges_name_what_no_part_can_do():
     assert "backlog" in physical("timing", prep, np.array([1.44, -0.455]))
     assert "backlog" in physical("timing", prep, np.array([0.004, 0.05]))
     assert physical("timing", prep, np.array([0.016, 20e-6])) is None
-
-
-def test_matters_needs_a_residual_share_or_a_distance_gain_and_no_loss():
-    assert matters(MIN_RESIDUAL_SHARE * 1.1, None)[0]
-    assert matters(None, MIN_DISTANCE_GAIN_MM * 1.1)[0]
-    assert not matters(MIN_RESIDUAL_SHARE * 0.5, MIN_DISTANCE_GAIN_MM * 0.5)[0]
-    named, why = matters(0.5, -2.3)
-    assert not named and "worse by 2.30 mm" in why
 
 
 def test_reference_resolution_is_the_interval_of_a_coarse_position():

@@ -12,10 +12,13 @@ from gateway.commands.estimate import settings_for
 from gateway.core.diagnosis import DiagnosisInput, diagnose, list_effects
 from gateway.core.diagnosis.context import reference_resolution_block
 from gateway.core.diagnosis.judgement import REFERENCE_INTERVALS_PER_BLOCK
+from gateway.core.diagnosis.timestamps import TimestampError, check_sample_clock
 from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.model_compensation import ModelTerm, SensorModel
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
+from gateway.sensor_model_file import write_sensor_model
 from gateway.offline.diagnosis_report import jsonable, text_summary, write_report
 from gateway.errors import InputError
 from gateway.offline.progress import reading_bar
@@ -51,6 +54,13 @@ def add_parser(sub) -> None:
                    help="compare model and measurement as means over N samples (default: 1 for a reference that "
                         "resolves every sample, 4 of its own intervals for a coarse one, e.g. a robot position "
                         "at a few Hz)")
+    p.add_argument("--model-out", metavar="M.json",
+                   help="write the extended model (the effects named or kept as the setup's, with their parameters) "
+                        "for adxlgw estimate --model and the daemon's [model] file")
+    p.add_argument("--model-with", metavar="NAME[,NAME]", default="",
+                   help="also write these candidates' fitted terms into --model-out, named or not (a cause the "
+                        "user knows of, to be tried on other recordings; the model file notes that the diagnosis "
+                        "did not name it, and why)")
     p.add_argument("--list-effects", action="store_true", help="list the effects looked for and exit")
     p.set_defaults(run=run, _parser=p)
 
@@ -126,6 +136,61 @@ def _nothing(path: str, why: str) -> InputError:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The diagnosis; with --json the file is written whatever happens: the result, or
+    {"error": …, "exit_code": …} when the recording cannot be analysed (2) or the
+    diagnosis itself failed (1, a bug: the traceback is printed too)."""
+    try:
+        return _run(args)
+    except InputError as err:
+        _write_error_json(args, err, err.exit_code)
+        raise
+    except Exception as err:
+        _write_error_json(args, err, 1)
+        raise
+
+
+def model_of(result, path: str, also: list[str]) -> SensorModel:
+    """The extended model: the terms the diagnosis named or kept as the setup's, then any
+    candidate asked for (--model-with) with its fitted parameters and a note saying why it
+    was not named."""
+    terms = [ModelTerm(t["name"], t["params"]) for t in result.model_terms]
+    notes = []
+    have = {t.name for t in terms}
+    by_name = {c.name: c for c in result.candidates}
+    for name in also:
+        c = by_name.get(name)
+        if c is None:
+            raise InputError(f"--model-with {name}: not a candidate (adxlgw diagnose --list-effects)")
+        if name in have:
+            continue
+        if not c.model_params:
+            raise InputError(f"--model-with {name}: not fitted on this recording ({c.status}: {c.reason})")
+        terms.append(ModelTerm(name, c.model_params))
+        notes.append(f"{name}: added by --model-with; the diagnosis did not name it ({c.status}: {c.reason})")
+    return SensorModel(tuple(terms), source=path, notes=tuple(notes))
+
+
+def _write_error_json(args: argparse.Namespace, err: Exception, code: int) -> None:
+    if not getattr(args, "json", None) or args.list_effects:
+        return
+    try:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"error": str(err), "exit_code": code}, fh, indent=2, ensure_ascii=False)
+            fh.write("\n")
+    except OSError:
+        pass  # the error that brought us here is the one reported
+
+
+def _write_json(path: str, doc: dict) -> None:
+    try:
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(doc, fh, indent=2, allow_nan=False, ensure_ascii=False)
+            fh.write("\n")
+    except OSError as err:
+        raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
+
+
+def _run(args: argparse.Namespace) -> int:
     if args.list_effects:
         effects = list_effects()
         width = max(len(name) for name, _ in effects)
@@ -149,6 +214,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--reference-block {args.reference_block}: must be a whole number of samples ≥ 1")
     data = build_input(path, rec, series, notes, other_axis_still=args.other_axis_still,
                        reference_block=args.reference_block)
+    try:  # before any analysis: an estimate on arrival stamps would be nonsense (timestamps.py)
+        check_sample_clock(data.t_s, data.lost_before)
+    except TimestampError as err:
+        raise InputError(f"{path}: {err}") from err
     no_rest = ("no reference motion and no standstill to start the smoothed estimate from "
                "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
     try:
@@ -175,14 +244,13 @@ def run(args: argparse.Namespace) -> int:
         _warn(c)
     print(text_summary(result, path))
     if args.json:
-        doc = jsonable(result.to_dict())
-        try:
-            with open(args.json, "w", encoding="utf-8") as fh:
-                json.dump(doc, fh, indent=2, allow_nan=False, ensure_ascii=False)
-                fh.write("\n")
-        except OSError as err:
-            raise InputError(f"{args.json}: cannot write: {err.strerror or err}") from err
+        _write_json(args.json, jsonable(result.to_dict()))
         print(f"wrote {args.json}")
+    if args.model_out:
+        model = model_of(result, path, [n.strip() for n in args.model_with.split(",") if n.strip()])
+        write_sensor_model(args.model_out, model)
+        print(f"wrote {args.model_out}: {len(model.terms)} term(s)"
+              + (f"; not compensated: {', '.join(model.not_compensated)}" if model.not_compensated else ""))
     if args.report:
         ref_pos = series.reference.get("ref_pos_m") if data.reference == "recorded" else None
         files = write_report(args.report, result, path, ref_pos)

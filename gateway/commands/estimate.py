@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from gateway.core.drift_fit import FittedDrift
+from gateway.commands.model_option import add_model_argument, estimate_with_model
 from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
 from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
@@ -61,6 +62,7 @@ def add_parser(sub) -> None:
     p.add_argument("--method", choices=METHODS, default="realtime", help="estimation method (default: realtime)")
     p.add_argument("--out", required=True, help="output: t_s, pos_m, vel_mps, acc_mps2 and health columns; "
                                                 "CSV, or Parquet when it ends in .parquet")
+    add_model_argument(p)
     p.add_argument("--plot", metavar="FILE.png", help="draw the estimate against the reference")
     p.add_argument("--noise-from", choices=("auto", "sensor", "rest"), default="auto",
                    help="where the filter's noise settings come from: the ADXL202 sensor model, or the "
@@ -266,13 +268,13 @@ class HintUse:
 
 def run(args: argparse.Namespace) -> int:
     source = open_recording(args.recording)
-    if args.method == "realtime" and not args.plot:
+    if args.method == "realtime" and not args.plot and not args.model:
         return run_streamed(args, source)
     if args.method == "smoothed":
         check_fits_in_memory(args.recording, SMOOTHED_BYTES_PER_SAMPLE * source.estimated_rows(),
                              f"the smoothed estimate ({SMOOTHED_BYTES_PER_SAMPLE} bytes per sample)")
     # the host's arrival time and the temperature are not used here: not read
-    wanted = [n for n in source.names if n not in ("t_host_s", "temp_c")]
+    wanted = [n for n in source.names if n not in ("t_host_s", "temp_c")] if not args.model else None
     with reading_bar(source) as bar:
         rec = read_all(source, columns=wanted, progress=bar)
     form = rec.form
@@ -291,10 +293,18 @@ def run(args: argparse.Namespace) -> int:
         if args.method in ("realtime", "smoothed"):
             settings = settings_for(series, form, args.noise_from, drift)
         hints = HintUse(args)
-        track = estimate_series(
-            series.t_s, series.acc_mps2, series.valid, method=args.method, settings=settings,
-            lost_before=series.lost_before if form == "raw" else None, standstill_hint=hints.of(series),
-        )
+        hint = hints.of(series)
+
+        def run_on(acc, settings=settings):
+            return estimate_series(series.t_s, acc, series.valid, method=args.method, settings=settings,
+                                   lost_before=series.lost_before if form == "raw" else None, standstill_hint=hint)
+
+        if args.model:  # the extended model (gateway/commands/model_option.py)
+            track, model_notes = estimate_with_model(args.model, series, settings, form, run_on)
+            for note in model_notes:
+                print(f"adxlgw estimate: {note}", file=sys.stderr)
+        else:
+            track = run_on(series.acc_mps2)
         hints.say()
     except NoRestError as err:
         raise _no_rest(args, err) from err

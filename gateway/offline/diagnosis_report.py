@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gateway.core.diagnosis.identifiability import what_separates
 from gateway.core.diagnosis import DiagnosisResult
 from gateway.core.diagnosis.context import DRIFT_TIME_CONSTANT_S
 from gateway.errors import InputError
@@ -98,10 +99,11 @@ def distance_text(dist: dict | None) -> str:
         return f"distance error: not available ({dist.get('why', 'no reason given')})"
     key = dist["metric"]
     b, a = dist["before"].get(key), dist["after"].get(key)
-    chance = ("; the loss is within what the other errors at the stops make by chance"
-              if dist.get("loss_within_chance") else "")
+    interval = dist.get("interval_mm")
+    within = (f", interval {_num(interval[0], '+.2f')} … {_num(interval[1], '+.2f')} mm over the stops"
+              if interval and interval[0] != interval[1] else "")
     return (f"distance error ({key}): {_num(b, '.3f')} → {_num(a, '.3f')} mm "
-            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{chance})")
+            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{within})")
 
 
 def summary_lines(result: DiagnosisResult, path: str) -> list[str]:
@@ -160,6 +162,9 @@ def text_summary(result: DiagnosisResult, path: str) -> str:
         for e in result.effects:
             out.append(f"  {e.name} ({e.kind}): {params_text(e.params)}")
             out.append(f"      ΔBIC {_num(e.delta_bic, '.1f')}, p {_p(e.p_value)}" + (f"; {e.detail}" if e.detail else ""))
+            if e.not_separable_from:
+                out.append(f"      cannot be told apart here from: {', '.join(e.not_separable_from)} — the record fits "
+                           f"them as well; {what_separates(e.name, e.not_separable_from[0])} would separate them")
             for line in gain_lines(e):
                 out.append(f"      {line}")
     else:
@@ -181,6 +186,19 @@ def text_summary(result: DiagnosisResult, path: str) -> str:
         out.append("")
         out.append("cannot analyse:")
         out.extend(f"  - {c}" for c in result.cannot)
+    if result.leftover:
+        out.append("")
+        out.append(f"left unexplained: {result.leftover['what']} ({100 * result.leftover['share']:.1f} % of the "
+                   "residual variance): no smaller effect is named while it stands")
+    host = (result.timestamps or {}).get("host")
+    if host and not host["strictly_increasing"]:
+        out.append("")
+        out.append(f"host arrival times: {host['backwards']} backward steps, {host['zero_intervals']} zero intervals, "
+                   f"{host['burst_intervals']} bursts in {host['rows']} rows (analysed as delays; no estimate on them)")
+    if result.failures:
+        out.append("")
+        out.append("failed (each in isolation; the rest of the report stands):")
+        out.extend(f"  - {f['what']}: {f['error']}" for f in result.failures)
     out.append("")
     out.append(verdict_line(result))
     return "\n".join(out)

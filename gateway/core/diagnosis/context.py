@@ -187,6 +187,14 @@ class Prepared:
         full = mask[:n].reshape(-1, b).all(axis=1)
         return xb[full]
 
+    def compared_index(self, mask: np.ndarray) -> np.ndarray:
+        """The sample index of each value whiten_masked returns (a block's first sample)."""
+        if self.block == 1:
+            return np.flatnonzero(mask)
+        b = self.block
+        n = mask.size // b * b
+        return np.flatnonzero(mask[:n].reshape(-1, b).all(axis=1)) * b
+
     def whiten_masked(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """x over mask, as the models are compared: whitened by the noise model, per sample
         or per comparison block."""
@@ -262,7 +270,13 @@ class Prepared:
         self.set_reading(np.interp(np.arange(self.t_full.size), self.where, received))
 
 
-def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = 0.3) -> np.ndarray:
+# a rest starts this long after the last motion: 100 time constants of the part's 50 Hz
+# pole, and a mount's ringing with ζ·f0 ≥ 3 Hz (ζ 0.1 at 30 Hz) down by e^(−2π·ζ·f0·t) < e⁻⁵;
+# a lighter ringing is left in the rests, where it reads as noise colour, not as an effect
+REST_SETTLE_S = 0.3
+
+
+def rest_mask(t_s, ref_vel_mps, ref_acc_mps2, settle_s: float = REST_SETTLE_S) -> np.ndarray:
     """At rest by the reference and settle_s past the last motion (ringing, filter tails)."""
     t = np.asarray(t_s, dtype=float)
     still = (np.abs(ref_vel_mps) < 1e-6) & (np.abs(ref_acc_mps2) < 1e-9)

@@ -19,6 +19,7 @@ from gateway.core.diagnosis.reading import shifted
 from gateway.core.estimator import EstimateTrack, estimate_series
 from gateway.core.estimator_settings import EstimatorSettings
 from gateway.core.evaluation import summarise_errors
+from gateway.core.model_compensation import SampleContext
 from gateway.core.reference_point import NoRestError
 
 
@@ -64,24 +65,36 @@ class EstimatePlan:
         return plan
 
     def _compensated(self, prep: Prepared, plan: "EstimatePlan", effect, theta) -> "EstimatePlan":
-        """The plan corrected for one effect. An effect that needs the position (tilt) is
-        corrected with the estimate's, re-estimated until it settles: the estimate without
-        the correction can be metres off, and one pass from there overshoots."""
+        """The plan corrected for one effect. An effect that needs the estimate (tilt: its
+        position; motion_offset: where it moves) is corrected with the estimate's own,
+        re-estimated until it settles: the estimate without the correction can be metres
+        off, and one pass from there overshoots (model_compensation.compensated_estimate
+        does the same for `adxlgw estimate --model`)."""
         track = plan.track(prep)
-        pos = track.pos_m if track is not None else np.zeros(len(prep.data))
-        new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, pos))
+        est = self._context(prep, track)
+        new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
         if not getattr(effect, "uses_position", False):
             return new
         for _ in range(POSITION_ITERATIONS):
             track = new.track(prep)
             if track is None:
                 break
-            step = float(np.max(np.abs(track.pos_m - pos)))
-            pos = track.pos_m
-            new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, pos))
+            step = float(np.max(np.abs(track.pos_m - est.pos_m)))
+            est = self._context(prep, track)
+            new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
             if step < POSITION_SETTLED_M:
                 break
         return new
+
+    @staticmethod
+    def _context(prep: Prepared, track) -> SampleContext:
+        """What a correction may use: the record's columns and the estimate's position and motion."""
+        d = prep.data
+        n = len(d)
+        return SampleContext(d.t_s, d.other_mps2, d.temperature_c,
+                             pos_m=track.pos_m if track is not None else np.zeros(n),
+                             moving=~np.asarray(track.standstill, bool) if track is not None else np.zeros(n, bool),
+                             rest=prep.rest)
 
     def _base_of_chain(self, prep: Prepared) -> "EstimatePlan":
         d = prep.data
@@ -133,10 +146,13 @@ def _errors(prep: Prepared, plan: EstimatePlan) -> dict | None:
         # the plan's time axis may differ (host time, gaps closed): compare sample by sample
         s = summarise_errors(t, track.pos_m, ref_pos, ref_vel)
         stops = np.array([st.error_m for st in s.stops])
+        # what the estimator itself says it knows each stop's position to (judgement.matters)
+        std = np.array([track.pos_std_m[st.index] for st in s.stops], dtype=float)
         return {"stop_rms_mm": float(np.sqrt(np.mean(stops**2))) * 1e3 if stops.size else float("nan"),
-                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3, "stops_mm": (stops * 1e3).tolist()}
+                "final_mm": s.final_m * 1e3, "rms_mm": s.rms_m * 1e3, "stops_mm": (stops * 1e3).tolist(),
+                "stop_std_mm": float(np.sqrt(np.mean(std**2))) * 1e3 if std.size else float("nan")}
     if plan.returns_to_start:
-        return {"final_mm": float(track.pos_m[-1]) * 1e3}
+        return {"final_mm": float(track.pos_m[-1]) * 1e3, "stop_std_mm": float(track.pos_std_m[-1]) * 1e3}
     return None
 
 

@@ -1,22 +1,18 @@
-"""When a significant effect is named: the ranges and thresholds, and cross-validation.
+"""When a predictive effect is named: the setup's ranges, the physical ranges, the distance.
 
-With thousands of samples any small mismatch between the recording and the baseline
-gives a large ΔBIC, so significance alone names whatever fits best. An effect is named
-only when it is also
+Every candidate is first judged by the one criterion (criterion.py: out-of-block
+predictive likelihood at the false-alarm rate ALPHA). A predictive effect is then
 
-- **outside the setup's own range** (``SETUP_RANGES``): what every real setup has and
-  the data sheet leaves open — the calibration's residual sensitivity error, where in
-  its period a sample reads (the timing convention) and the output filter's spread with
-  its capacitor. Inside that range the fitted value is kept in the model and reported
-  as a measured property of the setup, not as an effect;
-- **physically possible** (``physical``): outside that range the report says "something
-  of this shape, not physical as X — look elsewhere";
-- **predictive**: fitted on one half of the record it must improve the likelihood of
-  the other half, both ways (``cross_validated``);
-- **of a size that matters**: it explains at least MIN_RESIDUAL_SHARE of the residual
-  variance or improves the distance error by at least MIN_DISTANCE_GAIN_MM, and does
-  not worsen it by more than MAX_DISTANCE_LOSS_MM. Smaller ones are "negligible";
-- **still needed once the others are in** (the backward pass in selection.py).
+- **the setup's own property** when its value lies inside what every real setup has and
+  the data sheet leaves open (``setup_range``: the calibration's residual sensitivity
+  error, where in its period a sample reads, the output filter's spread with its
+  capacitor): kept in the model, reported as measured, not named;
+- **not physical** outside what a part, mount or machine can have (``physical``): the
+  report says "something of this shape, not physical as X — look elsewhere";
+- **named**, unless its compensation makes the distance worse beyond the interval of a
+  bootstrap over the stops (``matters``: a loss counts at any number of stops), or what
+  is left unexplained in the residual is larger than it (selection.leftover_structure).
+The backward pass (selection.py) then drops any named effect the others make redundant.
 """
 from __future__ import annotations
 
@@ -44,13 +40,17 @@ REFERENCE_INTERVALS_PER_BLOCK = 4
 # under 2 ms is what an ordinary serial link's jitter (a few tenths of a ms) fits as
 ORDINARY_HOLD_BACK_S = 2e-3
 
-# "matters": the share of the baseline's residual variance, or the distance error
-MIN_RESIDUAL_SHARE = 0.01
-MIN_DISTANCE_GAIN_MM = 0.5
-MAX_DISTANCE_LOSS_MM = 0.5
-# ...a loss counts only when the other errors at the stops cannot have made it by chance
-# (distance_loss_is_chance): the cross term's 2σ, one-sided 2 %
-DISTANCE_CHANCE_SIGMAS = 2.0
+# the distance gain's interval: a bootstrap over the stops (each stop's error before and
+# after resampled together), BOOTSTRAP_RESAMPLES draws from a fixed seed; a loss counts
+# when the interval's upper end is below minus the estimator's own position standard
+# deviation at the stops (one-sided 2.5 %), at any number of stops — with one stop (or the
+# final position alone) the interval is that one value
+DISTANCE_INTERVAL = 0.95
+BOOTSTRAP_RESAMPLES = 2000
+BOOTSTRAP_SEED = 20261127
+# host timestamps matter when they misplace a sample by more than the board's own timing
+# convention already allows (where in its period a sample reads: half a period)
+HOST_SCATTER_PERIODS = 0.5
 
 # physically possible values (data sheets of the ADXL202 family, mounts, boards)
 MAX_SCALE_ERROR_FRAC = 0.20  # sensitivity 10–15 %/g around 12.5 %/g
@@ -61,6 +61,7 @@ MAX_DELAY_S = 0.25  # a reference logged more than ¼ s off is a clock problem, 
 MAX_TILT_RAD_PER_M = 0.5  # 29°/m: a rail or an arm turning the sensor that much
 MAX_OFFSET_MG_PER_C = 10.0  # data sheet: order of mg/°C
 MAX_CROSS_GAIN = 0.15  # ±2 % cross-axis sensitivity + a few degrees of misalignment
+MAX_TILT_IN_MOTION_DEG = 5.0  # a tool tilting more than 5° under its drive is a machine out of order
 # host timing: a USB adapter's latency timer is at most 255 ms; a clock, even an RC
 # oscillator (±2 %), is not tens of per cent off. Beyond: a logger's backlog or a host
 # that fell behind — host times that are wrong, but not by a clock or a latency timer
@@ -117,7 +118,10 @@ def physical(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
     if name == "nonlinearity" and abs(theta[0]) > MAX_QUADRATIC_PER_G:
         return f"a quadratic term of {100 * theta[0]:+.1f} %/g (data sheet: ~0.2 % of full scale)"
     if name == "vibration":
-        f, z = theta
+        f, z, gain, quad = theta
+        if math.hypot(gain, quad) > 1.0 / (2.0 * z):
+            return (f"a ringing at {f:.0f} Hz of {math.hypot(gain, quad):.1f}× the mount's own response, beyond "
+                    f"its resonance's amplification 1/(2ζ) = {1.0 / (2.0 * z):.1f}")
         if z > MAX_DAMPING_RATIO:
             return f"a resonance at {f:.0f} Hz with damping ratio {z:.2f} (> {MAX_DAMPING_RATIO:g}: it would not ring)"
         bw = prep.data.sensor_bandwidth_hz
@@ -130,6 +134,11 @@ def physical(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
         return f"a reference {1e3 * theta[0]:+.0f} ms off (beyond ±{1e3 * MAX_DELAY_S:g} ms: a clock problem)"
     if name == "tilt" and abs(theta[0]) > MAX_TILT_RAD_PER_M:
         return f"a tilt gradient of {math.degrees(theta[0]):.0f}°/m"
+    if name == "motion_offset" and abs(theta[0]) > G * math.sin(math.radians(MAX_TILT_IN_MOTION_DEG)):
+        return (f"an offset of {theta[0] / G * 1e3:.0f} mg in motion (a tool tilting more than "
+                f"{MAX_TILT_IN_MOTION_DEG:g}° under its drive)")
+    if name == "cross_talk" and abs(theta[0]) > MAX_CROSS_GAIN:
+        return f"{100 * theta[0]:+.0f} % of the other axis's motion (beyond ±{100 * MAX_CROSS_GAIN:g} %)"
     if name == "temperature_offset" and abs(theta[0] / G * 1e3) > MAX_OFFSET_MG_PER_C:
         return f"{theta[0] / G * 1e3:.1f} mg/°C (data sheet: order of 1 mg/°C)"
     if name == "timing":  # theta: (hold-back s, clock rate error as a fraction)
@@ -142,14 +151,6 @@ def physical(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
     return None
 
 
-def halves(prep: Prepared) -> tuple[np.ndarray, np.ndarray]:
-    """The record's first and second half in time, over the fit mask."""
-    t = prep.data.t_s
-    mid = 0.5 * (t[0] + t[-1])
-    first = prep.fit_mask & (t < mid)
-    return first, prep.fit_mask & ~first
-
-
 def residual_share(rms_before: float, rms_after: float) -> float:
     """The share of the residual variance an effect explains."""
     if not (rms_before > 0):
@@ -157,51 +158,46 @@ def residual_share(rms_before: float, rms_after: float) -> float:
     return 1.0 - (rms_after / rms_before) ** 2
 
 
-def distance_loss_is_chance(distance: dict) -> bool:
-    """True when a distance "loss" is what the other errors at the stops make by chance.
-
-    Before the compensation the stop errors are b = e + c (e: every other error, c: the
-    effect's share), after it a = e if the effect is real and rightly compensated. Then
-    mean(b²) − mean(a²) = mean(c²) + 2·mean(a·c): removing a real effect whose share
-    happened to cancel the other errors at a handful of stops raises the RMS, by a cross
-    term mean(a·c) that is zero on average with a standard error √Σ(a·c)²/n. A
-    compensation that moves the estimate away from the reference (a shape fitted to a
-    mismatch: c = −d, a = b + d) makes that term −mean(d²) and more, far beyond its
-    chance. So a loss counts only where the cross term is below −DISTANCE_CHANCE_SIGMAS
-    of its standard error. Found on the simulator: a temperature term fitted within 5 %
-    whose compensation gave the clean twin's stop errors within 0.1 mm, "worse by
-    0.62 mm" (docs/diagnosis.md §7, the noise model per rest)."""
+def distance_interval(distance: dict) -> tuple[float, float] | None:
+    """The DISTANCE_INTERVAL interval of the distance improvement (mm) from a bootstrap
+    over the stops; None when no distance is available."""
+    if not distance.get("available"):
+        return None
     before, after = distance.get("before", {}), distance.get("after", {})
     if distance.get("metric") != "stop_rms_mm" or "stops_mm" not in before or "stops_mm" not in after:
-        return False
+        v = float(distance["improvement_mm"])
+        return v, v
     b, a = np.asarray(before["stops_mm"], float), np.asarray(after["stops_mm"], float)
     if a.size != b.size or a.size < 2:
-        return False
-    cross = a * (b - a)
-    standard_error = float(np.sqrt(np.sum(cross**2))) / a.size
-    return bool(float(np.mean(cross)) >= -DISTANCE_CHANCE_SIGMAS * standard_error)
+        v = float(distance["improvement_mm"])
+        return v, v
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    idx = rng.integers(0, a.size, size=(BOOTSTRAP_RESAMPLES, a.size))
+    gain = np.sqrt(np.mean(b[idx] ** 2, axis=1)) - np.sqrt(np.mean(a[idx] ** 2, axis=1))
+    tail = 100 * (1 - DISTANCE_INTERVAL) / 2
+    lo, hi = np.percentile(gain, [tail, 100 - tail])
+    return float(lo), float(hi)
 
 
-def matters(share: float | None, distance_mm: float | None,
-            position_mm: float | None = None, loss_is_chance: bool = False) -> tuple[bool, str]:
-    """(named, why) from the residual share, the distance improvement and, for an effect
-    a user meets elsewhere than in the distance (host timestamps: position_mm, see
-    side_effects.host_time_position_mm), the position error it makes there (None: unknown).
-    loss_is_chance: a distance loss that the other errors at the stops explain
-    (distance_loss_is_chance) does not count against the effect."""
-    if distance_mm is not None and distance_mm < -MAX_DISTANCE_LOSS_MM and not loss_is_chance:
-        return False, f"makes the distance error worse by {-distance_mm:.2f} mm"
-    if share is not None and share >= MIN_RESIDUAL_SHARE:
-        return True, ""
-    if distance_mm is not None and distance_mm >= MIN_DISTANCE_GAIN_MM:
-        return True, ""
-    if position_mm is not None and position_mm >= MIN_DISTANCE_GAIN_MM:
-        return True, ""
-    size = []
-    if share is not None:
-        size.append(f"explains {100 * share:.2f} % of the residual variance")
-    if distance_mm is not None:
-        size.append(f"distance {distance_mm:+.2f} mm")
-    if position_mm is not None:
-        size.append(f"a host-timed position off by {position_mm:.2f} mm at top speed")
-    return False, "; ".join(size) or "no measurable gain"
+def matters(distance: dict | None, host_scatter_periods: float | None = None,
+            masked_by: str | None = None) -> tuple[bool, str]:
+    """(named, why). A predictive, physical effect is named unless
+    - its compensation makes the distance worse beyond its interval (harmful);
+    - it is host timing whose delays scatter by less than HOST_SCATTER_PERIODS of a
+      sample period (its residual share says nothing: side_effects.host_time_position_mm);
+    - structure left in the residual explains more than it does (masked_by says what):
+      a small effect is not named while a larger unexplained one stands."""
+    interval = distance_interval(distance or {})
+    # ...and beyond what the estimator itself says it knows the stops' positions to (its
+    # own position standard deviation there, RMS over the stops, before the change): a
+    # loss consistent over the stops but smaller than that is no harm anyone could see
+    known = float((distance or {}).get("before", {}).get("stop_std_mm", 0.0) or 0.0)
+    if interval is not None and interval[1] < -(known if math.isfinite(known) else 0.0):
+        return False, (f"makes the distance error worse by {-float(distance['improvement_mm']):.2f} mm "
+                       f"(interval {interval[0]:+.2f} … {interval[1]:+.2f} mm)")
+    if host_scatter_periods is not None and host_scatter_periods < HOST_SCATTER_PERIODS:
+        return False, (f"host delays scatter by {host_scatter_periods:.2f} of a sample period beyond the "
+                       f"baseline's link: less than where in its period a sample reads ({HOST_SCATTER_PERIODS:g})")
+    if masked_by:
+        return False, f"smaller than what is left unexplained ({masked_by})"
+    return True, ""

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from gateway.core.diagnosis.context import Prepared
+from gateway.core.diagnosis.criterion import CvGain, block_ids, block_predictive_loglik, cv_gain
 from gateway.core.diagnosis.reading import gaussian_loglik
 from gateway.core.diagnosis.signal_effects import Signal, SignalEffect
 
@@ -39,6 +40,8 @@ class ModelFit:
         return -2.0 * self.loglik + self.n_params * np.log(self.n)
 
     block: int = 1  # the comparison's block (Prepared.block): the RMS is taken at that rate
+    # the whitened residual's Jacobian in the free parameters (criterion.py: out-of-block prediction)
+    jacobian: np.ndarray | None = None
 
     @property
     def residual_rms(self) -> float:
@@ -130,57 +133,33 @@ def fit_model(prep: Prepared, effects, start: dict[str, np.ndarray] | None = Non
         # linear: the Jacobian of the whitened residual is the whitened regressors
         cols = [np.ones(m.size), prep.drift_shape]
         jac = -np.column_stack([_whitened(prep, c) for c in cols])
+    # a parameter at a bound of its range is held there: no column for it
+    span_all = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
+    free = ~((np.isfinite(lo) & (theta - lo <= 1e-5 * span_all)) | (np.isfinite(hi) & (hi - theta <= 1e-5 * span_all)))
+    jac_free = np.asarray(jac)[:, free] if jac is not None else None
     var = float(np.dot(white, white)) / max(white.size - theta.size, 1)
     try:
         cov = np.linalg.pinv(jac.T @ jac) * var
         std = np.sqrt(np.clip(np.diag(cov), 0.0, np.inf))
     except np.linalg.LinAlgError:
         std = np.full(theta.size, np.nan)
-    return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size, prep.block)
+    return ModelFit(effects, theta, std, residual, white, gaussian_loglik(white), theta.size, prep.block, jac_free)
 
 
-def out_of_sample_gain(prep: Prepared, effects_with, effects_without, start: dict[str, np.ndarray],
-                       base_start: np.ndarray) -> list[tuple[float, float]]:
-    """Cross-validation: each model fitted on one half of the record, the log-likelihood
-    gain of adding the effect on the *other* half, whose offset and drift are refitted
-    there (whitened residual, Gaussian with its own variance). One (gain, reach) per fold.
+def cv_gain_of(prep: Prepared, with_effect: ModelFit, without: ModelFit) -> CvGain:
+    """The out-of-block predictive gain of one model over another (criterion.py)."""
+    ids = block_ids(prep.compared_index(prep.fit_mask), prep.rest)
+    return cv_gain(block_predictive_loglik(with_effect.whitened, with_effect.jacobian, ids),
+                   block_predictive_loglik(without.whitened, without.jacobian, ids))
 
-    reach: what the effect predicts on the judged half beyond its offset and drift — the
-    two models' predictions' difference there, whitened, offset and drift projected out,
-    in units of the residual's variance (a χ²). A fold can decide for or against the
-    effect only where that is large: a right effect gains about reach/2 there, a wrong one
-    loses about as much, each ± √reach. A slow effect (a temperature swing over the record)
-    is nearly a line on each half: it reaches almost nothing, and its gain is noise.
-    """
-    from gateway.core.diagnosis.judgement import halves
 
-    first, second = halves(prep)
-    saved = prep.fit_mask
-    measured = np.nan_to_num(prep.data.acc_mps2)
-    gains = []
-    try:
-        for train, test in ((first, second), (second, first)):
-            if train.sum() < 50 * prep.block or test.sum() < 50 * prep.block:
-                return []
-            prep.fit_mask = train
-            # offset and drift are the baseline's, refitted on the half they are judged on
-            # (a level extrapolated from the other half would decide the comparison)
-            cols = np.column_stack([prep.whiten_masked(c, test) for c in (np.ones(test.size), prep.drift_shape)])
-
-            def judged(x):
-                w = prep.whiten_masked(np.where(test, x, 0.0), test)
-                return w - cols @ np.linalg.lstsq(cols, w, rcond=None)[0]
-
-            sse, predictions = [], []
-            for effects in (effects_without, effects_with):
-                fit = fit_model(prep, effects, {k: v for k, v in start.items()}, base_start=base_start)
-                predictions.append(predict(prep, fit.effects, fit.theta))
-                w = judged(measured - predictions[-1])
-                sse.append(float(np.dot(w, w)))
-            n = int(test.sum())
-            d = judged(predictions[1] - predictions[0])
-            reach = float(np.dot(d, d)) / max(sse[0] / max(n, 1), 1e-300)
-            gains.append((-0.5 * n * math.log(max(sse[1], 1e-300) / max(sse[0], 1e-300)), reach))
-    finally:
-        prep.fit_mask = saved
-    return gains
+def current_signal(prep: Prepared, fit: ModelFit) -> Signal:
+    """The motion's reading with the accepted filters and delay applied (what new effects act on)."""
+    sig = Signal(prep.reading_full.copy(), prep.where, None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
+    i = len(BASELINE_PARAMS)
+    for e in fit.effects:
+        k = len(e.param_names)
+        if e.stage < 2:
+            e.apply(prep, fit.theta[i:i + k], sig)
+        i += k
+    return sig

@@ -16,6 +16,7 @@ from scipy.signal import find_peaks, welch
 from scipy.stats import norm
 
 from gateway.core.diagnosis.context import Prepared
+from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.drift_fit import allan_deviation, ljung_box
 
 WHITENESS_BLOCK_S = 0.01
@@ -29,15 +30,46 @@ def block_whiteness_p(prep: Prepared, whitened: np.ndarray) -> float:
     return ljung_box(m).p_value
 
 
+def _welch_limit(prep: Prepared, whitened: np.ndarray, alpha: float, block: int = 1):
+    """(f, pxx, level, limit): the whitened residual's Welch spectrum, the white level
+    (from the median bin) and what white noise exceeds with probability alpha over all
+    bins (each bin is the level × χ²₂ₖ/2K, K the half-overlapping segments averaged)."""
+    from scipy.stats import chi2
+
+    fs = 1.0 / (prep.compare_period_s * block)
+    nperseg = min(1024, whitened.size // 4)
+    f, pxx = welch(whitened, fs=fs, nperseg=nperseg)
+    k = max(1, 2 * whitened.size // nperseg - 1)
+    level = float(np.median(pxx)) / (float(chi2.median(2 * k)) / (2 * k))
+    limit = level * float(chi2.isf(alpha / pxx.size, 2 * k)) / (2 * k)
+    return f, pxx, level, limit
+
+
 def spectrum_peaks(prep: Prepared, whitened: np.ndarray, top: int = 3) -> list[dict]:
-    fs = 1.0 / prep.compare_period_s
+    """The strongest lines of the whitened residual above white noise's level at ALPHA."""
     if whitened.size < 64:
         return []
-    f, pxx = welch(whitened, fs=fs, nperseg=min(1024, whitened.size // 4))
-    floor = float(np.median(pxx))
-    idx, props = find_peaks(pxx, height=6.0 * floor)
+    f, pxx, level, limit = _welch_limit(prep, whitened, ALPHA)
+    idx, props = find_peaks(pxx, height=limit)
     order = np.argsort(-props["peak_heights"])[:top] if idx.size else []
-    return [{"frequency_hz": float(f[idx[i]]), "power_ratio": float(props["peak_heights"][i] / floor)} for i in order]
+    return [{"frequency_hz": float(f[idx[i]]), "power_ratio": float(props["peak_heights"][i] / level)} for i in order]
+
+
+def spectrum_line(prep: Prepared, whitened: np.ndarray, alpha: float) -> dict | None:
+    """The strongest spectral line of a whitened residual above what white noise reaches
+    with probability alpha over all bins, with its share of the variance; None: none."""
+    # on WHITENESS_BLOCK_S means, as whiteness is judged: the timer's rounding line (the
+    # baseline's own, near 200 Hz and its aliases) is no structure an effect could explain
+    b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
+    whitened = whitened[: whitened.size // b * b].reshape(-1, b).mean(axis=1)
+    if whitened.size < 64:
+        return None
+    f, pxx, level, limit = _welch_limit(prep, whitened, alpha, b)
+    i = int(np.argmax(pxx[1:])) + 1
+    if pxx[i] <= limit:
+        return None
+    share = (float(pxx[i]) - level) / max(float(np.sum(pxx)), 1e-300)
+    return {"what": f"a spectral line at {f[i]:.1f} Hz, {pxx[i] / level:.0f}× the level", "share": share}
 
 
 def allan_slopes(prep: Prepared, residual: np.ndarray) -> list[dict]:

@@ -3,14 +3,15 @@
 Selection (signal effects on the measured axis), forward:
   1. fit the baseline (offset + drift) and the ARMA(1,1) noise model on the rests;
   2. fit every remaining candidate jointly with those already accepted, starting from
-     its own quick fit on the current residual;
-  3. take the best by BIC; accept it only if ΔBIC ≤ −BIC_MARGIN *and* its
-     likelihood-ratio test has p < ALPHA (Bonferroni over the candidates of the round);
-     otherwise stop.
-Side effects (other axis, host clock, seq gaps, bias wander) are each tested once with
-their own likelihood ratio, the bias wander on the final residual.
-"Unexplained" is set when the final residual is still not white: structure remains that
-no candidate explains — said rather than naming a wrong cause.
+     its own quick fit on the current residual; order them by in-sample ΔBIC;
+  3. accept the first that predicts the blocks it was not fitted on better than chance
+     (criterion.py, at ALPHA split over the candidates of the round) and is physical;
+     otherwise stop. A backward pass drops any the others make redundant (same test).
+Then each accepted effect is placed (the setup's property, named, or not — judgement.py),
+what else explains the same residual is found (identifiability.py), and the gain is
+measured (gain.py). Side effects (other axis, host clock, seq gaps, bias wander) are each
+tested once with their own likelihood ratio. "Unexplained" is set when the final
+residual is still not white: structure remains that no candidate explains.
 """
 from __future__ import annotations
 
@@ -19,36 +20,29 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.stats import chi2, norm
 
 from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
+from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.diagnosis.gain import distance_gain, EstimatePlan
+from gateway.core.diagnosis.identifiability import alternatives, temperature_in_line_with_drift
 from gateway.core.diagnosis.judgement import (
-    distance_loss_is_chance, matters, physical, residual_share, setup_range,
+    distance_interval, matters, physical, residual_share, setup_range,
 )
-from gateway.core.diagnosis.model_fit import ModelFit, fit_model, out_of_sample_gain
+from gateway.core.diagnosis.model_fit import ModelFit, current_signal, cv_gain_of, fit_model
 from gateway.core.diagnosis.reading import fit_noise_model
 from gateway.core.diagnosis.screening import (
-    allan_slopes, block_whiteness_p, candidate_regressors, correlations, spectrum_peaks,
+    WHITENESS_BLOCK_S, allan_slopes, block_whiteness_p, candidate_regressors, correlations, spectrum_line,
+    spectrum_peaks,
 )
 from gateway.core.diagnosis.side_effects import SIDE_EFFECTS, SideEffect, SideTest
 from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, Signal, SignalEffect
+from gateway.core.diagnosis.timestamps import HostClock, check_host_clock, check_sample_clock
 from gateway.core.estimator_settings import EstimatorSettings
 
-BIC_MARGIN = 10.0  # "very strong" evidence on Kass & Raftery's scale
-ALPHA = 1e-3  # per round, split over the candidates tried
-# cross-validation: the effect fitted on one half must raise the other half's
-# log-likelihood, both ways. Not by a margin: each half's offset and drift are refitted
-# there, and they take a slow effect's share (a temperature swing over the record is
-# nearly a line on each half: gains of 1–3 for an effect with ΔBIC −38); a shape fitted
-# to a mismatch loses tens to hundreds out of sample
-CV_MIN_GAIN = 0.0
-# ...judged only on a half where the effect reaches far enough beyond offset and drift
-# to decide (model_fit.out_of_sample_gain: a right effect gains ~reach/2 ± √reach, a wrong
-# one loses as much; the sign is 2σ clear from reach 16 on). A swing slower than the
-# record reached ~1 there and lost 0.1–0.3 by chance: it was refused in 9 of 15 cases of
-# a 20 s swing; where neither half can decide, the in-sample tests decide alone.
-CV_MIN_REACH = 16.0
+# side effects that have no block structure (host timing) still need "very strong"
+# evidence on Kass & Raftery's scale beside their likelihood-ratio test
+BIC_MARGIN = 10.0
 WHITE_ALPHA = 1e-3  # a 60 s record has 6000 blocks: a small misfit of the noise model must not read as a cause
 
 ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
@@ -72,11 +66,14 @@ class EffectResult:
     delta_bic: float
     gain: dict
     detail: str = ""
+    # the causes that explain the same residual on this record as well (identifiability.py)
+    not_separable_from: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"name": self.name, "kind": self.kind,
                 "params": {k: [v, s] for k, (v, s) in self.params.items()},
-                "p_value": self.p_value, "delta_bic": self.delta_bic, "gain": self.gain, "detail": self.detail}
+                "p_value": self.p_value, "delta_bic": self.delta_bic, "gain": self.gain, "detail": self.detail,
+                "not_separable_from": list(self.not_separable_from)}
 
 
 @dataclass
@@ -86,6 +83,11 @@ class Candidate:
     delta_bic: float = float("nan")
     p_value: float = float("nan")
     reason: str = ""
+    # a signal effect's parameters as last fitted (SI units, model_compensation's names),
+    # named or not: what `diagnose --model-out --model-with NAME` writes for it
+    model_params: dict = field(default_factory=dict)
+    # the causes that explain the same residual on this record (named effects only)
+    not_separable_from: list = field(default_factory=list)
 
 
 @dataclass
@@ -107,6 +109,15 @@ class DiagnosisResult:
     setup: list[dict] = field(default_factory=list)  # measured properties of the setup (nuisance values)
     negligible: list[dict] = field(default_factory=list)  # significant, but too small to matter
     not_physical: list[dict] = field(default_factory=list)  # a shape that fits, with impossible values
+    # the largest structure left in the final residual (leftover_structure), None: none
+    leftover: dict | None = None
+    # what the clocks are like (timestamps.HostClock), checked before the analysis
+    timestamps: dict = field(default_factory=dict)
+    # computations that failed, each in isolation: {"what": ..., "error": ...}; the rest stands
+    failures: list[dict] = field(default_factory=list)
+    # the extended model: the signal effects named or kept as the setup's, in order of
+    # acceptance, parameters in SI units (`diagnose --model-out`, model_compensation)
+    model_terms: list[dict] = field(default_factory=list)
     # for plots and the report (not in the JSON)
     t_s: np.ndarray = field(repr=False, default=None)
     residual_before: np.ndarray = field(repr=False, default=None)
@@ -140,6 +151,10 @@ class DiagnosisResult:
             "setup": self.setup,
             "negligible": self.negligible,
             "not_physical": self.not_physical,
+            "timestamps": self.timestamps,
+            "leftover": self.leftover,
+            "failures": self.failures,
+            "model_terms": self.model_terms,
         }
 
 
@@ -156,8 +171,11 @@ def _prepare_with_estimate(data: DiagnosisInput, plan: EstimatePlan) -> Prepared
 
 def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start: bool = False,
              progress: Callable[[str], None] = lambda msg: None) -> DiagnosisResult:
+    period_s = check_sample_clock(data.t_s, data.lost_before)  # TimestampError (a ValueError): bad input
+    host = check_host_clock(data.t_host_s, period_s) if data.t_host_s is not None else None
     plan = EstimatePlan(settings, returns_to_start)
     cannot: list[str] = []
+    failures: list[dict] = []
     if data.reference is None:
         data.reference = "estimated"
     prep = _prepare_with_estimate(data, plan)
@@ -182,27 +200,35 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     current, accepted = base, []
     start: dict[str, np.ndarray] = {}
     not_physical: list[dict] = []
-    failed_cv: list[SignalEffect] = []
+    fitted: dict[str, dict] = {}  # each signal candidate's parameters as last fitted
     # whiteness does not end the search: a Ljung–Box test on lags is weak against an effect
     # tied to a regressor (a 1 % scale error leaves the residual almost white); the rounds
-    # go on until nothing passes the BIC margin, the test and the cross-validation, and
-    # whiteness gives the verdict
+    # go on until no candidate predicts the blocks it was not fitted on (criterion.py),
+    # and whiteness gives the verdict
     while usable:
         trials = []
         for e in usable:
             progress(f"round {len(accepted) + 1}: trying {e.name}")
-            sig = _current_signal(prep, current)
+            sig = current_signal(prep, current)
             init = e.initial(prep, np.nan_to_num(current.residual), sig)
             fit = fit_model(prep, tuple(accepted) + (e,), {**start, e.name: init}, base_start=current.theta[:2])
             trials.append((fit.bic - current.bic, e, fit))
+        # in-sample ΔBIC only orders the candidates; each is judged by the one criterion
         trials.sort(key=lambda row: row[0])
         alpha = ALPHA / len(trials)
         chosen = None
         for dbic, e, fit in trials:
             k = fit.n_params - current.n_params
             p = float(chi2.sf(max(0.0, 2.0 * (fit.loglik - current.loglik)), k))
-            candidates[e.name] = Candidate(e.name, "rejected", dbic, p, "ΔBIC or p not enough")
-            if chosen is not None or not (dbic <= -BIC_MARGIN and p < alpha):
+            fitted[e.name] = e.model_params(prep, fit.effect_theta(e)[0])
+            if chosen is not None:
+                candidates[e.name] = Candidate(e.name, "rejected", dbic, p, "another was chosen this round")
+                continue
+            cv = cv_gain_of(prep, fit, current)
+            if not cv.predictive(alpha, k):
+                candidates[e.name] = Candidate(e.name, "rejected", dbic, p,
+                                               f"not predictive: {cv.text()} (needs > "
+                                               f"{cv.threshold(alpha, k):.1f}: α = {alpha:.1g})")
                 continue
             theta = fit.effect_theta(e)[0]
             # a fit whose parameters no such effect can have: something of this shape,
@@ -214,33 +240,13 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                                      "params": e.report(theta, fit.effect_theta(e)[1])})
                 usable.remove(e)
                 continue
-            progress(f"round {len(accepted) + 1}: cross-validating {e.name}")
-            cv = out_of_sample_gain(prep, tuple(accepted) + (e,), tuple(accepted),
-                                    {**start, e.name: theta}, current.theta[:2])
-            decided = [g for g, reach in cv if reach >= CV_MIN_REACH]
-            folds = ", ".join(f"{g:.1f} at reach {reach:.3g}" for g, reach in cv) or "n/a"
-            if not cv or (decided and min(decided) <= CV_MIN_GAIN):
-                candidates[e.name] = Candidate(e.name, "rejected", dbic, p,
-                                               f"fitted on one half, it does not predict the other "
-                                               f"(log-likelihood gain {folds})")
-                usable.remove(e)
-                failed_cv.append(e)
-                continue
-            # said beside an accepted effect when no half could judge it (the report shows it)
-            note = "" if decided else (f"cross-validation could not judge (gain {folds}; a half decides from "
-                                       f"reach {CV_MIN_REACH:g}): decided in-sample")
-            chosen = (dbic, e, fit, p, note)
+            chosen = (dbic, e, fit, p, cv.text())
         if chosen is None:
             break
         dbic, best, fit, p, note = chosen
         candidates[best.name] = Candidate(best.name, "accepted", dbic, p, note)
         accepted.append(best)
         usable.remove(best)
-        # a candidate whose cross-validation failed was judged against a model that lacked
-        # what has just been accepted (the part's own sensitivity, say, which a half fitted
-        # without it reads into the candidate): it is tried again against the new model
-        usable.extend(failed_cv)
-        failed_cv.clear()
         for e in accepted:
             start[e.name] = fit.effect_theta(e)[0]
         current = fit
@@ -259,15 +265,24 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             progress(f"backward pass: without {e.name}")
             without = fit_model(prep, tuple(rest), {x.name: start[x.name] for x in rest},
                                 base_start=current.theta[:2])
-            if without.bic - current.bic < BIC_MARGIN:
+            cv = cv_gain_of(prep, current, without)
+            if not cv.predictive(ALPHA / len(accepted), len(e.param_names)):
                 candidates[e.name] = Candidate(e.name, "rejected", current.bic - without.bic, float("nan"),
-                                               "not needed once the others are in (backward pass)")
+                                               f"not needed once the others are in (backward pass: {cv.text()})")
                 accepted = rest
                 current = without
                 for x in accepted:
                     start[x.name] = current.effect_theta(x)[0]
                 changed = True
                 break
+
+    progress("identifiability: what else explains the same residual")
+    twins = _isolated("identifiability", failures,
+                      lambda: alternatives(prep, current, accepted, start, usable, ALPHA), {})
+    slow = _isolated("temperature against drift", failures, lambda: temperature_in_line_with_drift(prep, ALPHA), None)
+    if slow and "temperature_offset" in candidates and candidates["temperature_offset"].status != "accepted":
+        candidates["temperature_offset"].not_separable_from = ["drift"]
+        cannot.append(slow)
 
     # the gains, in order of acceptance, each against the model without it — all under
     # the final noise model (log-likelihoods under different noise models do not compare)
@@ -283,24 +298,35 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     effects: list[EffectResult] = []
     setup: list[dict] = []
     negligible: list[dict] = []
+    leftover = _isolated("leftover structure", failures, lambda: leftover_structure(prep, current, ALPHA), None)
     before_plan = plan.baseline(data)
+    model_terms: list[dict] = []
     for e, before, after in history:
         # the parameters as the final model has them, every accepted effect in (what the
         # backward pass judged): an effect accepted early, fitted before a later one (the
         # part's own output filter, say), reads part of it as its own — a part at −0.96 %
         # read as −1.04 % before the filter was in, and was named outside its tolerance
         theta, std = current.effect_theta(e)
-        step_plan = before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1])
         progress(f"gain of {e.name}: distance estimate before and after")
+        step_plan = _isolated(f"the compensation of {e.name}", failures,
+                              lambda: before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1]))
+        if isinstance(step_plan, dict):  # failed: no distance for it, the chain goes on without it
+            distance, step_plan = step_plan, before_plan
+        else:
+            distance = _isolated(f"distance gain of {e.name}", failures,
+                                 lambda: distance_gain(prep, before_plan, step_plan))
         gain = {
             "residual_rms_mps2": [before.residual_rms, after.residual_rms],
             "loglik": [before.loglik, after.loglik],
-            "distance": distance_gain(prep, before_plan, step_plan),
+            "distance": distance,
         }
         before_plan = step_plan
         result = EffectResult(e.name, "signal", e.report(theta, std), candidates[e.name].p_value,
-                              candidates[e.name].delta_bic, gain)
-        _classify(result, setup_range(e.name, prep, theta, std), effects, setup, negligible, candidates)
+                              candidates[e.name].delta_bic, gain, not_separable_from=twins.get(e.name, []))
+        candidates[e.name].not_separable_from = list(result.not_separable_from)
+        in_setup = setup_range(e.name, prep, theta, std)
+        if _classify(result, in_setup, effects, setup, negligible, candidates, leftover) or in_setup:
+            model_terms.append({"name": e.name, "params": e.model_params(prep, theta)})
 
     for s in SIDE_EFFECTS:
         why = s.unusable(prep)
@@ -308,7 +334,10 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             candidates[s.name] = Candidate(s.name, "not applicable", reason=why)
             continue
         progress(f"testing {s.name}")
-        test = s.test(prep, current.residual)
+        test = _isolated(f"the {s.name} test", failures, lambda: s.test(prep, current.residual))
+        if isinstance(test, dict):  # it failed: said in failures, the rest of the report stands
+            candidates[s.name] = Candidate(s.name, "failed", reason=test["why"])
+            continue
         dbic = -2.0 * (test.loglik_after - test.loglik_before) + test.extra_params * math.log(max(current.n, 2))
         ok = test.significant(ALPHA / len(SIDE_EFFECTS)) and dbic <= -BIC_MARGIN
         # a test that could not be made (no parameters fitted) says why in its detail
@@ -316,7 +345,10 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                                        "" if ok else (test.detail if not test.params else "ΔBIC or p not enough"))
         if ok:
             progress(f"gain of {s.name}: distance estimate before and after")
-            if test.values.get("host_time"):
+            no_estimate = host.why_no_estimate() if host is not None and test.values.get("host_time") else None
+            if no_estimate:
+                without = step_plan = None
+            elif test.values.get("host_time"):
                 # the baseline trusts host times as the board's; the extension knows better
                 without, step_plan = before_plan.as_host_timed(prep), before_plan
             elif test.values.get("lost"):
@@ -324,11 +356,14 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             else:
                 without, step_plan = before_plan, before_plan.with_side(prep, s, test)
             gain = {"loglik": [test.loglik_before, test.loglik_after],
-                    "distance": distance_gain(prep, without, step_plan)}
+                    "distance": {"available": False, "why": no_estimate} if no_estimate else _isolated(
+                        f"distance gain of {s.name}", failures, lambda: distance_gain(prep, without, step_plan))}
             if test.rms_unit is not None:  # the same key shape as a signal effect's residual_rms_mps2
                 gain[f"residual_rms_{test.rms_unit}"] = [test.rms_before, test.rms_after]
             if test.position_mm is not None:
                 gain["position_mm"] = test.position_mm
+            if "host_scatter_periods" in test.values:
+                gain["host_scatter_periods"] = test.values["host_scatter_periods"]
             result = EffectResult(s.name, "side", test.params, test.p_value, dbic, gain, test.detail)
             # judged like a signal effect's parameters, where the test gives them
             in_setup = setup_range(s.name, prep, test.theta) if test.theta is not None else None
@@ -337,21 +372,24 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 candidates[s.name] = Candidate(s.name, "not physical", dbic, test.p_value, why)
                 not_physical.append({"shape": s.name, "why": why, "delta_bic": dbic, "params": test.params})
                 continue
-            if _classify(result, in_setup, effects, setup, negligible, candidates):
+            if _classify(result, in_setup, effects, setup, negligible, candidates, leftover) and step_plan is not None:
                 before_plan = step_plan
 
     regs = candidate_regressors(prep, prep.reading_mps2, data.ref_pos_m)
     screening = {
-        "before": {"correlations": correlations(prep, base.residual, regs),
-                   "spectrum_peaks": spectrum_peaks(prep, base.whitened),
-                   "allan": allan_slopes(prep, base.residual)},
-        "after": {"correlations": correlations(prep, current.residual, regs),
-                  "spectrum_peaks": spectrum_peaks(prep, current.whitened),
-                  "allan": allan_slopes(prep, current.residual)},
+        when: {"correlations": _isolated(f"correlations {when}", failures,
+                                         lambda: correlations(prep, fit.residual, regs), []),
+               "spectrum_peaks": _isolated(f"spectrum peaks {when}", failures,
+                                           lambda: spectrum_peaks(prep, fit.whitened), []),
+               "allan": _isolated(f"Allan slopes {when}", failures, lambda: allan_slopes(prep, fit.residual), [])}
+        for when, fit in (("before", base), ("after", current))
     }
     if data.reference == "estimated":
         cannot.append("no recorded reference: the smoothed estimate stands in for it, so effects that "
                       "change the motion's reading (scale, nonlinearity, filters, delay) cannot be seen")
+    for name, params in fitted.items():
+        if name in candidates:
+            candidates[name].model_params = params
     order = [e.name for e in ALL_EFFECTS]
     return DiagnosisResult(
         reference=data.reference,
@@ -374,12 +412,56 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         t_s=data.t_s,
         residual_before=base.residual,
         residual_after=current.residual,
-        distance={"before": plan.baseline(data).track(prep), "after": before_plan.track(prep)},
+        distance={"before": _isolated("the baseline's track", failures, lambda: plan.baseline(data).track(prep), None),
+                  "after": _isolated("the extended model's track", failures, lambda: before_plan.track(prep), None)},
+        leftover=leftover,
+        timestamps={"sample_period_s": period_s, "host": host.to_dict() if host is not None else None},
+        failures=failures,
+        model_terms=model_terms,
     )
 
 
+def leftover_structure(prep: Prepared, fit: ModelFit, alpha: float) -> dict | None:
+    """The largest structure the final residual still has, with its share of the residual
+    variance: a correlation with the other axis (significant at alpha), or a spectral line
+    of the whitened residual above what white noise reaches at alpha over all the
+    spectrum's bins (a Welch estimate of K segments is the level × χ²₂ₖ/2K). None: none."""
+    found = []
+    other = prep.data.other_mps2
+    if other is not None and np.isfinite(other).mean() > 0.9:
+        # on WHITENESS_BLOCK_S means, as whiteness is judged: both axes are divided by the
+        # same T2 count and share its rounding (the baseline's own, at the sample rate)
+        b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
+        m = prep.fit_mask
+        x = prep.whiten_masked(np.nan_to_num(fit.residual), m)
+        y = prep.whiten_masked(np.nan_to_num(other - np.nanmean(other)), m)
+        n = x.size // b * b
+        x, y = x[:n].reshape(-1, b).mean(axis=1), y[:n].reshape(-1, b).mean(axis=1)
+        if x.size > 3 and np.std(x) > 0 and np.std(y) > 0:
+            r = float(np.corrcoef(x, y)[0, 1])
+            if 2.0 * norm.sf(abs(r) * np.sqrt(x.size)) < alpha:
+                found.append({"what": f"correlation r = {r:+.2f} with the other axis", "share": r * r})
+    line = spectrum_line(prep, fit.whitened, alpha)
+    if line is not None:
+        found.append(line)
+    return max(found, key=lambda row: row["share"]) if found else None
+
+
+def _isolated(what: str, failures: list[dict], compute: Callable, fallback=None):
+    """One computation of the report, in isolation: what it returns, or — when it fails
+    (a bug, or an input no check foresaw) — `fallback` (default: a distance result that
+    says why it is not available), the failure recorded in `failures`, and the rest of
+    the report standing. A failure is never silent: the JSON and the text list it."""
+    try:
+        return compute()
+    except Exception as err:  # noqa: BLE001 — isolation is the point; recorded below
+        why = f"{what} failed: {type(err).__name__}: {err}"
+        failures.append({"what": what, "error": f"{type(err).__name__}: {err}"})
+        return {"available": False, "why": why} if fallback is None else fallback
+
+
 def _classify(result: EffectResult, setup_why: str | None, effects: list, setup: list, negligible: list,
-              candidates: dict) -> bool:
+              candidates: dict, leftover: dict | None = None) -> bool:
     """Put an accepted effect where it belongs: the setup's own properties, the named
     effects, or the negligible ones. True when it is named."""
     gain = result.gain
@@ -401,10 +483,14 @@ def _classify(result: EffectResult, setup_why: str | None, effects: list, setup:
     if result.name == "sample_loss":  # counted, not fitted: a gap is a fact
         effects.append(result)
         return True
-    chance = distance_mm is not None and distance_mm < 0 and distance_loss_is_chance(dist)
-    if chance:  # said in the report and the JSON beside the loss
-        dist["loss_within_chance"] = True
-    named, why = matters(share, distance_mm, position_mm, loss_is_chance=chance)
+    interval = distance_interval(dist)
+    if interval is not None:  # said in the report and the JSON beside the gain
+        dist["interval_mm"] = list(interval)
+    scatter = gain.get("host_scatter_periods")
+    masked = None
+    if leftover and share is not None and share < leftover["share"]:
+        masked = f"{leftover['what']}: {100 * leftover['share']:.1f} % of the residual variance"
+    named, why = matters(dist, scatter, masked)
     if named:
         effects.append(result)
         return True
@@ -422,17 +508,3 @@ def _whiteness(prep: Prepared, fit: ModelFit) -> float:
         return block_whiteness_p(prep, fit.whitened)
     still = prep.rest[prep.fit_mask]
     return block_whiteness_p(prep, fit.whitened[still]) if still.sum() >= 50 else float("nan")
-
-
-def _current_signal(prep: Prepared, fit: ModelFit) -> Signal:
-    """The motion's reading with the accepted filters and delay applied (what new effects act on)."""
-    from gateway.core.diagnosis.model_fit import BASELINE_PARAMS
-
-    sig = Signal(prep.reading_full.copy(), prep.where, None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
-    i = len(BASELINE_PARAMS)
-    for e in fit.effects:
-        k = len(e.param_names)
-        if e.stage < 2:
-            e.apply(prep, fit.theta[i:i + k], sig)
-        i += k
-    return sig

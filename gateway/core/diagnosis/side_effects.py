@@ -242,7 +242,9 @@ class Timing(SideEffect):
             rms_unit="s",
             detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
                     f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
-            values={"host_time": True},
+            # the delays' scatter beyond the baseline link's, in sample periods (judgement.matters)
+            values={"host_time": True, "host_scatter_periods": math.sqrt(max(
+                float(np.var(x1)) - BASELINE_LATENCY_MEAN_S**2, 0.0)) / d.period_s},
             position_mm=position_mm,
             theta=np.array([hold, rate]),  # the hold-back (s), the clock's rate error (fraction)
         )
@@ -307,6 +309,9 @@ class BiasRandomWalk(SideEffect):
 
     name = "bias_random_walk"
     summary = "the bias wanders as a random walk beyond the exponential drift (Allan slope +1/2)"
+    # a block of 0.25 s averages the part's noise (its 50 Hz pole: 25 correlation times)
+    # to white block means while a walk of the documented sizes (0.3–0.8 mg/√s) moves by
+    # 0.15–0.4 mg within it; 20 blocks: the local-level model's two variances need them
     block_s = 0.25
     MIN_BLOCKS = 20
 

@@ -24,6 +24,7 @@ import numpy as np
 from gateway.core.diagnosis.context import G, Prepared
 from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
+from gateway.core.model_compensation import SampleContext, compensate_term, other_axis_motion
 from gateway.core.sensor_model import edge_reading_excess_mps2
 from gateway.core.diagnosis.reading import shifted
 
@@ -83,8 +84,12 @@ class SignalEffect:
     def report(self, theta: np.ndarray, std: np.ndarray) -> dict[str, tuple[float, float]]:
         return {n: (float(v), float(s)) for n, v, s in zip(self.param_names, theta, std)}
 
-    def compensate(self, prep: Prepared, theta: np.ndarray, acc: np.ndarray, pos_est: np.ndarray) -> Compensation | None:
+    def compensate(self, prep: Prepared, theta: np.ndarray, acc: np.ndarray, est: SampleContext) -> Compensation | None:
         return None
+
+    def model_params(self, prep: Prepared, theta: np.ndarray) -> dict[str, float]:
+        """The parameters as the model file keeps them (SI units; model_compensation reads them)."""
+        return {n: float(v) for n, v in zip(self.param_names, theta)}
 
     def full_scale_gain(self, theta: np.ndarray) -> float:
         """How this effect changes where the part's saturation reads (1: not at all)."""
@@ -128,8 +133,8 @@ class ScaleFactor(SignalEffect):
     def apply(self, prep, theta, sig):
         sig.out = sig.out + theta[0] * sig.reading
 
-    def compensate(self, prep, theta, acc, pos_est):
-        return Compensation(acc_mps2=acc / (1.0 + theta[0]))
+    def compensate(self, prep, theta, acc, est):
+        return Compensation(acc_mps2=compensate_term(self.name, self.model_params(prep, theta), acc, est))
 
     def full_scale_gain(self, theta):
         # the part saturates in acceleration, at its range; the reading of that saturation
@@ -152,7 +157,7 @@ class Nonlinearity(SignalEffect):
     def apply(self, prep, theta, sig):
         sig.out = sig.out + theta[0] * sig.reading**2 / G
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         # first-order inverse of a + βa²/g, on the motion as the model has it: the reading
         # less its level at rest. Squared with the level in, a 0.1 g offset adds 2β·0.1 g·a,
         # a sensitivity change the model gave to the scale factor (fitted beside it and
@@ -189,8 +194,8 @@ class Tilt(SignalEffect):
         return {"tilt_coefficient": (float(theta[0]), float(std[0])),
                 "tilt_gradient_deg_per_m": (math.degrees(float(theta[0])), math.degrees(float(std[0])))}
 
-    def compensate(self, prep, theta, acc, pos_est):
-        return Compensation(acc_mps2=acc - theta[0] * G * pos_est,
+    def compensate(self, prep, theta, acc, est):
+        return Compensation(acc_mps2=compensate_term(self.name, {"tilt_gradient_rad_per_m": float(theta[0])}, acc, est),
                             note="position from the estimate, iterated until it settles")
 
 
@@ -218,31 +223,65 @@ class TemperatureOffset(SignalEffect):
     def report(self, theta, std):
         return {"offset_mg_per_c": (float(theta[0] / G * 1e3), float(std[0] / G * 1e3))}
 
-    def compensate(self, prep, theta, acc, pos_est):
-        return Compensation(acc_mps2=acc - theta[0] * self._regressor(prep))
+    def model_params(self, prep, theta):
+        temp = prep.data.temperature_c
+        return {"offset_mps2_per_c": float(theta[0]), "reference_c": float(np.nanmean(temp))}
+
+    def compensate(self, prep, theta, acc, est):
+        return Compensation(acc_mps2=compensate_term(self.name, self.model_params(prep, theta), acc, est))
 
 
 class Vibration(SignalEffect):
+    """A resonance that rings at its own frequency f0 with damping ζ.
+
+    A sensor on a flexible mount follows its base through the mount's transfer function
+    (gateway/core/filters.mount_resonance): the ringing after each change of
+    acceleration is r = mount(a) − a. What excites it is not always that step alone (a
+    motor, a shaker, a second mode in the machine), so amplitude and phase are free:
+    the model adds g·r + q·ṙ/(2π f0) (g = 1, q = 0: the mount's own response). Physical
+    range: |g + i·q| no larger than the resonance's own amplification 1/(2ζ) (a
+    second-order system's peak transmissibility), ζ ≤ MAX_DAMPING_RATIO (above, it does
+    not ring: a filter shape, the `bandwidth` effect's)."""
+
     name = "vibration"
     stage = 1
-    summary = "a mount resonance rings after each change of acceleration (f0, damping ζ)"
-    param_names = ("frequency_hz", "damping_ratio")
+    summary = "a resonance rings at f0 with damping ζ, amplitude and phase free (gain, quadrature)"
+    param_names = ("frequency_hz", "damping_ratio", "gain", "quadrature")
 
     def _nyquist(self, prep):
         return 0.5 / prep.data.period_s
 
+    @staticmethod
+    def _ringing(prep, full, f, z):
+        ring = mount_resonance(full, prep.data.period_s, f, z) - full
+        return ring, np.gradient(ring) / (2.0 * math.pi * f * prep.data.period_s)
+
     def initial(self, prep, residual, sig):
+        """A grid over (f0, ζ); at each, gain and quadrature by least squares on the residual."""
         top = min(0.8 * self._nyquist(prep), 400.0)
-        grid = [(f, z) for f in np.geomspace(2.0, top, 36) for z in (0.02, 0.05, 0.12, 0.3)]
-        return _grid_best(prep, residual, sig, self, grid)
+        m = prep.fit_mask
+        y = residual[m] - residual[m].mean()
+        best, best_cost = (2.0, 0.05, 1.0, 0.0), np.inf
+        for f in np.geomspace(2.0, top, 36):
+            for z in (0.02, 0.05, 0.12, 0.3):
+                ring, dring = self._ringing(prep, sig.full, f, z)
+                x = np.column_stack([ring[prep.where][m], dring[prep.where][m]])
+                x = x - x.mean(axis=0)
+                coef = np.linalg.lstsq(x, y, rcond=None)[0]
+                cost = float(np.sum((y - x @ coef) ** 2))
+                if cost < best_cost:
+                    best, best_cost = (f, z, float(coef[0]), float(coef[1])), cost
+        return np.asarray(best, dtype=float)
 
     def bounds(self, prep):
-        return [0.5, 0.003], [0.9 * self._nyquist(prep), 0.9]
+        return [0.5, 0.003, -100.0, -100.0], [0.9 * self._nyquist(prep), 0.9, 100.0, 100.0]
 
     def apply(self, prep, theta, sig):
-        sig.full = mount_resonance(sig.full, prep.data.period_s, theta[0], theta[1])
+        f, z, gain, quad = theta
+        ring, dring = self._ringing(prep, sig.full, f, z)
+        sig.full = sig.full + gain * ring + quad * dring
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         return Compensation(note="not compensated: the ringing integrates to zero velocity and position change")
 
 
@@ -262,7 +301,7 @@ class Bandwidth(SignalEffect):
     def apply(self, prep, theta, sig):
         sig.full = one_pole_lowpass(sig.full, prep.data.period_s, theta[0])
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         # the estimator undoes a sensor lag τ in its outputs; the extra pole adds its own
         return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0])})
 
@@ -309,7 +348,7 @@ class OutputFilter(PartProperty):
     def apply(self, prep, theta, sig):
         sig.full = moved_pole(sig.full, prep.data.period_s, prep.data.sensor_bandwidth_hz, theta[0])
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         # the estimator undoes the nominal lag; the part's own differs by this much (either sign)
         nominal = 1.0 / (2.0 * math.pi * prep.data.sensor_bandwidth_hz)
         return Compensation(settings={"extra_sensor_lag_s": 1.0 / (2.0 * math.pi * theta[0]) - nominal})
@@ -346,7 +385,7 @@ class ReadingInstant(PartProperty):
     def apply(self, prep, theta, sig):
         sig.out = sig.out + theta[0] * self._edge_term(prep, sig.full)
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         # the measured motion (its offset taken out: the offset's share is a constant
         # delay, which moves no stop) read back to the period's middle
         finite = np.isfinite(acc)
@@ -403,7 +442,7 @@ class Clipping(SignalEffect):
             return "the fitted limits cut into the readings at rest"
         return None
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         # what was clipped is gone: treating those samples as missing loses even the part
         # that was read (measured: −150 mm median), so the estimator is left as it is
         return Compensation(note="not compensated: clipped acceleration cannot be recovered")
@@ -434,11 +473,87 @@ class ReferenceDelay(SignalEffect):
     def report(self, theta, std):
         return {"delay_ms": (float(theta[0] * 1e3), float(std[0] * 1e3))}
 
-    def compensate(self, prep, theta, acc, pos_est):
+    def compensate(self, prep, theta, acc, est):
         return Compensation(ref_shift_s=float(theta[0]), note="the error is taken against the shifted reference")
+
+
+class MotionOffset(SignalEffect):
+    """An offset that appears while the axis moves and goes when it stops: b·[moving].
+
+    Physical causes that read this way (one record cannot tell them apart): the carriage
+    or tool tilting under its drive's load (g·sin δ: a compliant arm or gearbox deflects
+    while the joint's friction torque acts, which the robot's encoders do not see); the
+    sensor's vibration rectification (a nonlinear part turns the machine's vibration in
+    motion into a level); a motor's field on the part. On a single move at steady speed
+    it cannot be told from an offset growing with travel (tilt) — a return stroke would
+    separate them (it reverses x, not [moving]). Physical range: |b| ≤ g·sin 5° — a drive
+    that tilts its tool by more than 5° is a machine out of order, not a sensor's error.
+    Moving: the reference's velocity or acceleration not zero; the compensation uses the
+    estimate's own standstill flags."""
+
+    name = "motion_offset"
+    summary = "an offset while the axis moves (a tool tilting under its drive, vibration rectification): b·[moving]"
+    param_names = ("offset_mps2",)
+    uses_position = True  # corrected with the estimate's own motion flags, iterated (gain.py)
+
+    @staticmethod
+    def _moving(prep):
+        d = prep.data
+        return ((np.abs(d.ref_vel_mps) >= 1e-6) | (np.abs(d.ref_acc_mps2) >= 1e-9)).astype(float)
+
+    def initial(self, prep, residual, sig):
+        return np.array([_ls_coefficient(residual, self._moving(prep), prep.fit_mask)])
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * self._moving(prep)
+
+    def report(self, theta, std):
+        return {"offset_mg": (float(theta[0] / G * 1e3), float(std[0] / G * 1e3)),
+                "tilt_in_motion_deg": (math.degrees(math.asin(max(-1.0, min(1.0, theta[0] / G)))),
+                                       math.degrees(float(std[0]) / G))}
+
+    def compensate(self, prep, theta, acc, est):
+        return Compensation(acc_mps2=compensate_term(self.name, self.model_params(prep, theta), acc, est),
+                            note="motion from the estimate's standstill flags, iterated until it settles")
+
+
+class CrossTalk(SignalEffect):
+    """The other axis's own motion leaking into this one: c·(other − its level at rest).
+
+    In-plane misalignment (sin of the angle) plus the part's cross-axis sensitivity
+    (data sheet: ±2 %); physical range |c| ≤ judgement.MAX_CROSS_GAIN. The other axis is
+    taken as measured (it has no reference): what it reads of its own motion is what
+    leaks. When the user says it stands (--other-axis-still) it has no motion of its own
+    — what it reads is this axis's motion (the `cross_axis` side effect) and a
+    regression on it would read this axis's own scale back: not looked for then."""
+
+    name = "cross_talk"
+    summary = "the other axis's measured motion leaks into this one: c·(other − level at rest)"
+    param_names = ("gain",)
+
+    def unusable(self, prep):
+        d = prep.data
+        if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < 0.9:
+            return "needs the other axis"
+        if d.other_axis_still:
+            return "the other axis stands still (--other-axis-still): it has no motion of its own to leak"
+        return super().unusable(prep)
+
+    @staticmethod
+    def _regressor(prep):
+        return other_axis_motion(prep.data.other_mps2, prep.rest)
+
+    def initial(self, prep, residual, sig):
+        return np.array([_ls_coefficient(residual, self._regressor(prep), prep.fit_mask)])
+
+    def apply(self, prep, theta, sig):
+        sig.out = sig.out + theta[0] * self._regressor(prep)
+
+    def compensate(self, prep, theta, acc, est):
+        return Compensation(acc_mps2=compensate_term(self.name, self.model_params(prep, theta), acc, est))
 
 
 SIGNAL_EFFECTS: tuple[SignalEffect, ...] = (
     ScaleFactor(), Tilt(), TemperatureOffset(), Vibration(), Bandwidth(), Nonlinearity(),
-    Clipping(), ReferenceDelay(), OutputFilter(), ReadingInstant(),
+    Clipping(), ReferenceDelay(), MotionOffset(), CrossTalk(), OutputFilter(), ReadingInstant(),
 )

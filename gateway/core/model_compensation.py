@@ -1,0 +1,193 @@
+"""The extended sensor model a diagnosis found, applied to measurements (written once).
+
+`adxlgw diagnose --model-out M.json` writes the effects it accepted, with their
+parameters in SI units; `adxlgw estimate --model M.json` and the daemon
+(`[model] file = M.json`) read it here and correct the measured acceleration before the
+estimator sees it. The diagnosis measures its own distance gain with the same functions
+(gateway/core/diagnosis/signal_effects.py calls `compensate_term`), so what is measured
+there is what a user gets.
+
+Each term undoes what its effect adds to the reading:
+
+| term | the effect | compensation | needs |
+| --- | --- | --- | --- |
+| scale_factor | reads (1 + s)·a | a / (1 + s) | – |
+| tilt | + g·κ·x (tilt varying along the path) | − g·κ·x̂ | the position |
+| motion_offset | + b while the axis moves | − b where the estimate moves | the standstill flags |
+| temperature_offset | + k·(T − T_ref) | − k·(T − T_ref) | the temperature |
+| cross_talk | + c·(other axis's motion) | − c·(other − its level at rest) | the other axis |
+| bandwidth, output_filter | an extra pole | the estimator's sensor lag + Δτ | – (a setting) |
+
+What needs the estimate (position, standstill) is corrected with the estimate's own,
+re-estimated until it settles (`compensated_estimate`): the estimate without the
+correction can be metres off, and one pass from there overshoots. Terms with no
+correction (a ringing that integrates to nothing, clipped samples, a reference delay)
+are kept in the file for the record and listed as `not_compensated`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+
+MODEL_FORMAT = "adxlgw-sensor-model"
+MODEL_VERSION = 1
+# re-estimate with the corrected measurement until the position moves less than this
+# (a tenth of the millimetre the distances are reported in) or this many passes
+SETTLED_M = 1e-4
+MAX_PASSES = 12
+
+
+@dataclass(frozen=True)
+class ModelTerm:
+    name: str
+    params: dict[str, float]  # SI units, the diagnosis's parameter names
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    terms: tuple[ModelTerm, ...]
+    source: str = ""
+    notes: tuple[str, ...] = ()
+
+    @property
+    def uses_estimate(self) -> bool:
+        return any(t.name in NEEDS_ESTIMATE for t in self.terms)
+
+    @property
+    def not_compensated(self) -> tuple[str, ...]:
+        return tuple(t.name for t in self.terms if t.name not in COMPENSATED and t.name not in LAG_TERMS)
+
+    def to_dict(self) -> dict:
+        return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "source": self.source,
+                "effects": [{"name": t.name, "params": dict(t.params)} for t in self.terms],
+                "not_compensated": list(self.not_compensated), "notes": list(self.notes)}
+
+
+@dataclass
+class SampleContext:
+    """What a correction may use beside the measured acceleration, one entry per sample."""
+
+    t_s: np.ndarray
+    other_mps2: np.ndarray | None = None
+    temp_c: np.ndarray | None = None
+    pos_m: np.ndarray | None = None  # the estimate's position
+    moving: np.ndarray | None = None  # the estimate's (or the reference's) motion flags
+    rest: np.ndarray | None = None  # where the axis is known at rest (levels are read there)
+    extra: dict = field(default_factory=dict)
+
+
+class ModelError(ValueError):
+    """A model file that cannot be used; the message names what and where."""
+
+
+def other_axis_motion(other: np.ndarray, rest: np.ndarray | None) -> np.ndarray:
+    """The other axis less its level at rest (its offset and gravity share): its motion."""
+    o = np.asarray(other, dtype=float)
+    ok = np.isfinite(o)
+    at_rest = ok & rest if rest is not None and np.any(ok & rest) else ok
+    level = float(np.median(o[at_rest])) if at_rest.any() else 0.0
+    return np.where(ok, o - level, 0.0)
+
+
+def _temperature_term(temp: np.ndarray, ref_c: float) -> np.ndarray:
+    t = np.asarray(temp, dtype=float)
+    return np.nan_to_num(t - ref_c, nan=0.0)
+
+
+def compensate_term(name: str, params: dict[str, float], acc: np.ndarray, ctx: SampleContext) -> np.ndarray:
+    """acc with one term's reading removed (acc unchanged for a term with no correction)."""
+    if name == "scale_factor":
+        return acc / (1.0 + params["scale_error_frac"])
+    if name == "tilt":
+        pos = ctx.pos_m if ctx.pos_m is not None else np.zeros_like(acc)
+        return acc - params["tilt_gradient_rad_per_m"] * G * pos
+    if name == "motion_offset":
+        moving = ctx.moving if ctx.moving is not None else np.zeros(acc.size, dtype=bool)
+        return acc - params["offset_mps2"] * moving.astype(float)
+    if name == "temperature_offset":
+        if ctx.temp_c is None:
+            raise ModelError("temperature_offset: the recording has no temperature (temp_c) to correct with")
+        return acc - params["offset_mps2_per_c"] * _temperature_term(ctx.temp_c, params.get("reference_c", 0.0))
+    if name == "cross_talk":
+        if ctx.other_mps2 is None:
+            raise ModelError("cross_talk: the recording has no other axis to correct with")
+        return acc - params["gain"] * other_axis_motion(ctx.other_mps2, ctx.rest)
+    return acc
+
+
+def extra_sensor_lag_s(model: SensorModel, nominal_bandwidth_hz: float | None) -> float:
+    """The lag the model's filter terms add to the estimator's own sensor lag."""
+    lag = 0.0
+    for t in model.terms:
+        if t.name == "bandwidth":
+            lag += 1.0 / (2.0 * math.pi * t.params["cutoff_hz"])
+        elif t.name == "output_filter" and nominal_bandwidth_hz:
+            lag += 1.0 / (2.0 * math.pi * t.params["bandwidth_hz"]) - 1.0 / (2.0 * math.pi * nominal_bandwidth_hz)
+    return lag
+
+
+def compensate(model: SensorModel, acc: np.ndarray, ctx: SampleContext) -> np.ndarray:
+    """One pass of every term over acc, in the file's order (the diagnosis's acceptance order)."""
+    out = np.asarray(acc, dtype=float)
+    for t in model.terms:
+        out = compensate_term(t.name, t.params, out, ctx)
+    return out
+
+
+def compensated_estimate(model: SensorModel, acc: np.ndarray, ctx: SampleContext,
+                         run: Callable[[np.ndarray], object]):
+    """(the estimate on the corrected acceleration, that acceleration, passes). run(acc)
+    returns a track with pos_m and standstill; terms that need the estimate take it from
+    the previous pass until the position settles (SETTLED_M, MAX_PASSES)."""
+    track = run(compensate(model, acc, ctx))
+    passes = 1
+    if not model.uses_estimate:
+        return track, compensate(model, acc, ctx), passes
+    corrected = acc
+    for passes in range(2, MAX_PASSES + 1):
+        ctx.pos_m = np.asarray(track.pos_m, dtype=float)
+        ctx.moving = ~np.asarray(track.standstill, dtype=bool)
+        corrected = compensate(model, acc, ctx)
+        new = run(corrected)
+        step = float(np.max(np.abs(np.asarray(new.pos_m) - ctx.pos_m))) if len(ctx.pos_m) else 0.0
+        track = new
+        if step < SETTLED_M:
+            break
+    return track, corrected, passes
+
+
+NEEDS_ESTIMATE = ("tilt", "motion_offset")
+COMPENSATED = ("scale_factor", "tilt", "motion_offset", "temperature_offset", "cross_talk")
+LAG_TERMS = ("bandwidth", "output_filter")
+
+
+def model_from_dict(doc: dict, where: str) -> SensorModel:
+    if not isinstance(doc, dict) or doc.get("format") != MODEL_FORMAT:
+        raise ModelError(f"{where}: not an {MODEL_FORMAT} file (written by adxlgw diagnose --model-out)")
+    if doc.get("version") != MODEL_VERSION:
+        raise ModelError(f"{where}: version {doc.get('version')!r}; this gateway reads version {MODEL_VERSION}")
+    terms = []
+    for i, e in enumerate(doc.get("effects", [])):
+        if not isinstance(e, dict) or not isinstance(e.get("name"), str) or not isinstance(e.get("params"), dict):
+            raise ModelError(f"{where}: effects[{i}]: needs a name and params")
+        params = {}
+        for k, v in e["params"].items():
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                raise ModelError(f"{where}: effects[{i}] ({e['name']}): {k} = {v!r} is not a finite number")
+            params[k] = float(v)
+        terms.append(ModelTerm(e["name"], params))
+    return SensorModel(tuple(terms), str(doc.get("source", "")), tuple(doc.get("notes", ())))
+
+
+def check_terms(model: SensorModel, where: str) -> None:
+    """Every term's parameters present (checked once, when the file is read)."""
+    for t in model.terms:
+        try:
+            compensate_term(t.name, t.params, np.zeros(2), SampleContext(np.zeros(2), np.zeros(2), np.zeros(2)))
+        except KeyError as err:
+            raise ModelError(f"{where}: {t.name}: parameter {err.args[0]} is missing") from err
