@@ -1,6 +1,7 @@
 """How well `adxlgw diagnose` names hidden effects, estimates them, and keeps quiet on clean data.
 
-    PYTHONPATH=. python benchmarks/diagnosis_benchmark.py [--cases 100] [--effects a,b] [--parts nominal|tolerance] [--jobs 2] [--json OUT]
+    PYTHONPATH=. python benchmarks/diagnosis_benchmark.py [--cases 100] [--effects a,b] \
+        [--parts nominal|tolerance] [--jobs 2] [--json OUT]
 
 Per effect of gateway.core.sensor_effects (EFFECT_SIZES, the documented sizes): N
 seeded cases (seeds 0…N−1; the tests use 9000+), each a simulated 4-stroke recording
@@ -125,7 +126,7 @@ def effect_stats(name: str, cases: list[CaseOutcome]) -> dict:
         "gain_positive_rate": sum(e.gain_positive for e in named) / n,
         "distance_improvement_mm_median": _q([e.distance_improvement_mm for e in named], 0.5),
         "seconds_per_case": float(np.mean([c.seconds for c in cases])),
-        "missed_seeds": [c.seed for c, e in zip(cases, eff) if not e.named],
+        "missed_seeds": [c.seed for c, e in zip(cases, eff, strict=False) if not e.named],
         # parts as built: cases whose total sensitivity error is within the calibration's
         # tolerance, judged right (and counted as detected) when reported as the setup's
         "as_setup_cases": sum(e.as_setup for e in eff),
@@ -246,9 +247,9 @@ def main() -> int:
     ind_stats = None
     if ind_outs:
         rows, ind_stats = independent_table(ind_outs)
-        clean_ind = [o for o in ind_outs if o.effect is None]
         print(f"independent generator (tests/independent_generator), {args.independent_cases} cases per row, "
-              f"seeds {args.independent_seed0}…; {np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
+              f"seeds {args.independent_seed0}…; "
+              f"{np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
         print()
         print("\n".join(rows))
         print("  found: the hidden effect named; correct: found and nothing else named (clean: nothing named;")
@@ -259,8 +260,8 @@ def main() -> int:
             c = Counter()
             for st in ind_stats.values():
                 c.update(st[key])
-            print(f"  {key.replace('_', ' ')} (all rows): " + (", ".join(f"{k} ×{v}" for k, v in c.most_common()) or "none"))
-        in_voc = [ind_stats[e] for e in independent.IN_VOCABULARY if e in ind_stats]
+            listed = ", ".join(f"{k} ×{v}" for k, v in c.most_common()) or "none"
+            print(f"  {key.replace('_', ' ')} (all rows): {listed}")
         print()
         print(f"goals (independent): correct ≥ {DETECTION_GOAL:.0%} per effect, clean cases with any name "
               f"≤ {FALSE_POSITIVE_GOAL:.0%}, hum named as nothing")

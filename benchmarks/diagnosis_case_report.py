@@ -33,8 +33,8 @@ from gateway.core.diagnosis import diagnose  # noqa: E402
 from gateway.core.diagnosis.judgement import residual_share  # noqa: E402
 from gateway.core.estimator import estimate_series  # noqa: E402
 from gateway.core.evaluation import summarise_errors  # noqa: E402
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
 from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
 from tests import diagnosis_cases as own  # noqa: E402
 from tests.diagnosis_cases import estimator_settings  # noqa: E402
 from tests.independent_generator import cases as independent  # noqa: E402

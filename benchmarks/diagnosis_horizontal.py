@@ -68,7 +68,7 @@ def main() -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_horizontal.py --model-with {args.model_with}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     recs, models = {}, {}
     for name in FILES:
         rec = out / f"{name}.recording.csv"

@@ -69,7 +69,7 @@ def main() -> None:
     args = ap.parse_args()
     print("command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_real_compare.py "
           + " ".join(f"--compare {c}" for c in args.compare))
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     checkouts = [ROOT, *[c.resolve() for c in args.compare]]
     results = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -85,7 +85,8 @@ def facts(src: Path) -> list[str]:
     # arrival timing
     delay = d["arrival_time_s"] - t
     gaps = np.diff(d["arrival_time_s"])
-    out.append(f"arrival − sensor time: median {np.median(delay) * 1e3:.1f} ms, 5–95 % {np.quantile(delay, 0.05) * 1e3:.1f}"
+    out.append(f"arrival − sensor time: median {np.median(delay) * 1e3:.1f} ms, "
+               f"5–95 % {np.quantile(delay, 0.05) * 1e3:.1f}"
                f"–{np.quantile(delay, 0.95) * 1e3:.1f} ms; arrival gaps < 4 ms: {np.mean(gaps < 4e-3) * 100:.0f} % "
                f"(bursts; the board's link would give one per period)")
     # the reference: its interval and how steady a cruise looks through it
@@ -100,8 +101,9 @@ def facts(src: Path) -> list[str]:
     # on a cruise the robot's speed is steady: the spread of segment speeds is the
     # reference's timing noise (δt ≈ interval · δv / v)
     rel = np.abs(np.diff(seg_v[steady])) / np.abs(seg_v[steady][1:])
-    out.append(f"reference: a position that bends every {step} samples (median {np.median(seg_t) * 1e3:.0f} ms between its "
-               f"own samples); consecutive segment speeds while moving differ by {np.median(rel) * 100:.0f} % (median), "
+    out.append(f"reference: a position that bends every {step} samples "
+               f"(median {np.median(seg_t) * 1e3:.0f} ms between its own samples); "
+               f"consecutive segment speeds while moving differ by {np.median(rel) * 100:.0f} % (median), "
                f"i.e. its timestamps scatter by ~{np.median(rel) * np.median(seg_t) * 1e3:.0f} ms")
     return out
 

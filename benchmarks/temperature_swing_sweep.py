@@ -13,7 +13,8 @@ on the simulator: the design ground behind docs/diagnosis.md §4's cross-validat
    (docs/diagnosis.md §7b: one ±4 °C swing over the whole record, starting at its mean
    and rising; 6 strokes of 30 cm, rests of 0.8 s), at the smallest documented
    coefficient (0.5 mg/°C, the sign drawn; `--offset-mg-per-c` for others), on parts as built, with the simulator's
-   strokes as acceleration steps and jerk-limited (400 m/s³, as the generator drives): is the row's shortfall there (88 %) a property
+   strokes as acceleration steps and jerk-limited (400 m/s³, as the generator drives): is the row's
+   shortfall there (88 %) a property
    of the swing's shape or size? (Needs a checkout with TemperatureTerm.phase_rad and
    StrokeSettings.jerk_mps3; skipped otherwise.)
 
@@ -53,7 +54,7 @@ def main() -> None:
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/temperature_swing_sweep.py --seeds {args.seeds} "
           f"--checkout {args.checkout} --parts {args.parts} --dcm-reading {args.dcm_reading} "
           f"--offset-mg-per-c {' '.join(f'{x:g}' for x in args.offset_mg_per_c)}")
-    print(f"date: {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')}; machine: {machine()}")
+    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     drawn = dc.draw_terms
 
     def with_period(cycle_s):
@@ -72,11 +73,13 @@ def main() -> None:
                 named[tuple(e.name for e in dc.run_diagnosis(data).effects)] += 1
             alone = named[("temperature_offset",)]
             print(f"   P = {cycle_s:4.0f} s: named alone {alone} of {args.seeds}; "
-                  + ", ".join(f"{' + '.join(k) or 'nothing'} ×{v}" for k, v in sorted(named.items()) if k != ("temperature_offset",)))
+                  + ", ".join(f"{' + '.join(k) or 'nothing'} ×{v}" for k, v in sorted(named.items())
+                              if k != ("temperature_offset",)))
         dc.draw_terms = drawn
 
     if "2" in parts:
-        print("2. a moving temperature column the offset does not follow (anything named beside the hidden effect is false):")
+        print("2. a moving temperature column the offset does not follow "
+              "(anything named beside the hidden effect is false):")
         false = cases = 0
         for hidden in ((), ("tilt",), ("scale_factor",), ("vibration",)):
             for kind in ("warm-up", "slow swing"):
@@ -110,7 +113,8 @@ def part_three(dc, seeds: int, dcm_reading: str = "mean", offset_mg_per_c: float
         print("3. skipped: this checkout has no TemperatureTerm.phase_rad or StrokeSettings.jerk_mps3")
         return
     print("3. the independent generator's documented temperature case (one swing over the record, phase 0, "
-          f"{offset_mg_per_c:g} mg/°C), parts as built, readings {'over the period' if dcm_reading == 'mean' else 'at the edge'}:")
+          f"{offset_mg_per_c:g} mg/°C), parts as built, "
+          f"readings {'over the period' if dcm_reading == 'mean' else 'at the edge'}:")
     for jerk in (0.0, 400.0):
         # as the generator's recordings: 6 strokes of 30 cm, rests of 0.6–1 s
         strokes = StrokeSettings(strokes=6, dwell_s=0.8, jerk_mps3=jerk)

@@ -9,7 +9,8 @@ One place builds every case, so the tests (tests/test_diagnosis.py) and the benc
 
 A case is the paper's reciprocating motion (4 strokes of 30 cm, ~7.6 s at 500 samples/s)
 — or, for bias_random_walk, a 60 s standstill (sensor_effects.SCENARIO_FOR: a walk is a
-standstill phenomenon and 7.6 s cannot tell it from offset and drift) — simulated by the baseline simulator with the chosen error terms of
+standstill phenomenon and 7.6 s cannot tell it from offset and drift) — simulated by the baseline simulator with
+the chosen error terms of
 gateway.core.sensor_effects, parameters drawn by ``draw_effect`` at the documented sizes
 (``EFFECT_SIZES``) from ``numpy.random.default_rng([seed, 7])``, in the order given;
 the simulator's own noise is seeded with ``seed``. The board's raw recording is then
@@ -66,9 +67,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
-from typing import Callable
 
 import numpy as np
 
@@ -273,7 +274,8 @@ def _gain_check(effect) -> tuple[bool, str]:
     ll_before, ll_after = g["loglik"]
     # one residual RMS, its unit in the key (timing's is seconds); sample loss has none
     rms_keys = sorted(k for k in g if k.startswith("residual_rms"))
-    expected = [] if effect.name == "sample_loss" else ["residual_rms_s" if effect.name == "timing" else "residual_rms_mps2"]
+    rms_key = "residual_rms_s" if effect.name == "timing" else "residual_rms_mps2"
+    expected = [] if effect.name == "sample_loss" else [rms_key]
     if rms_keys != expected:
         return False, f"(residual RMS keys {rms_keys}, expected {expected})"
     if effect.kind == "signal":
@@ -300,7 +302,7 @@ def judge(hidden: tuple[str, ...], terms: tuple[ErrorTerm, ...], data: Diagnosis
     found = {e.name: e for e in result.effects}
     setup = {s["name"]: s for s in result.setup}
     outcomes = {}
-    for name, term in zip(hidden, terms):
+    for name, term in zip(hidden, terms, strict=False):
         e = found.get(name)
         total_scale = part_scale_error_frac(term, part) if name == "scale_factor" else float("nan")
         if part is not None and abs(total_scale) <= CALIBRATED_SENSITIVITY_TOLERANCE_FRAC:

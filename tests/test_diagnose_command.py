@@ -13,8 +13,9 @@ from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 from gateway.offline.recording import write_recording
 
-EFFECTS = ("scale_factor tilt cross_axis temperature_offset timing sample_loss vibration bandwidth "
-           "nonlinearity clipping bias_random_walk reference_delay motion_offset cross_talk").split()
+EFFECTS = ["scale_factor", "tilt", "cross_axis", "temperature_offset", "timing", "sample_loss", "vibration",
+           "bandwidth", "nonlinearity", "clipping", "bias_random_walk", "reference_delay", "motion_offset",
+           "cross_talk"]
 PNGS = ("residual.png", "spectrum.png", "allan.png", "position.png")
 
 

@@ -14,7 +14,9 @@ import pytest
 
 from gateway.core.diagnosis.context import DiagnosisInput, prepare, reference_resolution_block
 from gateway.core.diagnosis.judgement import (
-    SENSITIVITY_TOLERANCE_FRAC, physical, setup_range,
+    SENSITIVITY_TOLERANCE_FRAC,
+    physical,
+    setup_range,
 )
 from tests.diagnosis_cases import estimator_settings
 from tests.independent_generator.cases import IN_VOCABULARY, make_case, run_case

@@ -8,8 +8,8 @@ is v·δt on every host-stamped sample (side_effects.host_time_position_mm, repo
 is named when the delays scatter by more than the board's own timing convention allows
 (half a sample period: judgement.HOST_SCATTER_PERIODS), at any speed.
 """
-from dataclasses import replace
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest

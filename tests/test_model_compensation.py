@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from gateway.cli import main
-from gateway.core.model_compensation import (ModelTerm, SampleContext, SensorModel, compensate,
-                                             compensated_estimate, model_from_dict)
+from gateway.core.model_compensation import (
+    ModelTerm,
+    SampleContext,
+    SensorModel,
+    compensate,
+    compensated_estimate,
+    model_from_dict,
+)
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_effects import PathTiltTerm, ScaleFactorTerm

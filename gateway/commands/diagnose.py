@@ -18,11 +18,11 @@ from gateway.core.model_compensation import ModelTerm, SensorModel
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
 from gateway.core.units import STANDARD_GRAVITY_MPS2
-from gateway.sensor_model_file import write_sensor_model
-from gateway.offline.diagnosis_report import jsonable, text_summary, write_report
 from gateway.errors import InputError
+from gateway.offline.diagnosis_report import jsonable, text_summary, write_report
 from gateway.offline.progress import reading_bar
 from gateway.offline.recording import REFERENCE_COLUMNS, open_recording, read_all, to_acceleration
+from gateway.sensor_model_file import write_sensor_model
 
 # below this the noise model, the whiteness test and the block means have too little to go on
 MIN_VALID_SAMPLES = 200

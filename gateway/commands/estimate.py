@@ -8,19 +8,19 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.core.drift_fit import FittedDrift
 from gateway.commands.model_option import add_model_argument, estimate_with_model
+from gateway.core.drift_fit import FittedDrift
 from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
-from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
+from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.evaluation import ErrorSummary, summarise_errors
 from gateway.core.evaluation_stream import StreamedErrors
 from gateway.core.reference_point import NoRestError, find_initial_rest, quiet_part
 from gateway.core.retiming import RetimingError, retime
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
-from gateway.offline.figures import save_figure
 from gateway.errors import InputError, RecordingError
+from gateway.offline.figures import save_figure
 from gateway.offline.progress import progress_bar, reading_bar
 from gateway.offline.recording import (
     AccelerationSeries,
@@ -157,7 +157,8 @@ def check_time_axis(path: str, t_s: np.ndarray) -> None:
                              "re-time them with 'adxlgw import --arrival-col' first")
 
 
-def settings_for(series: AccelerationSeries, form: str, noise_from: str, drift: FittedDrift | None) -> EstimatorSettings:
+def settings_for(series: AccelerationSeries, form: str, noise_from: str,
+                 drift: FittedDrift | None) -> EstimatorSettings:
     """The filter's settings for this recording (see estimator_settings for each source)."""
     source = noise_from if noise_from != "auto" else ("sensor" if form == "raw" else "rest")
     if source == "sensor":
@@ -333,7 +334,8 @@ def errors_of(t_s, pos_m, ref) -> tuple[ErrorSummary | None, bool]:
         return summarise_errors(t_s, pos_m, ref["ref_pos_m"], ref["ref_vel_mps"], ref.get("ref_acc_mps2")), True
     if "ref_pos_m" in ref:
         err = pos_m - ref["ref_pos_m"]
-        return ErrorSummary(stops=(), final_m=float(err[-1]), rms_m=math.sqrt(np.mean(err ** 2)), travelled_m=0.0), False
+        summary = ErrorSummary(stops=(), final_m=float(err[-1]), rms_m=math.sqrt(np.mean(err ** 2)), travelled_m=0.0)
+        return summary, False
     return None, False
 
 

@@ -27,8 +27,8 @@ are kept in the file for the record and listed as `not_compensated`.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -149,7 +149,7 @@ def compensated_estimate(model: SensorModel, acc: np.ndarray, ctx: SampleContext
     if not model.uses_estimate:
         return track, compensate(model, acc, ctx), passes
     corrected = acc
-    for passes in range(2, MAX_PASSES + 1):
+    for passes in range(2, MAX_PASSES + 1):  # noqa: B007 — the number of passes made is returned
         ctx.pos_m = np.asarray(track.pos_m, dtype=float)
         ctx.moving = ~np.asarray(track.standstill, dtype=bool)
         corrected = compensate(model, acc, ctx)

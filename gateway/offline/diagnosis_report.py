@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.core.diagnosis.identifiability import what_separates
 from gateway.core.diagnosis import DiagnosisResult
 from gateway.core.diagnosis.context import DRIFT_TIME_CONSTANT_S
+from gateway.core.diagnosis.identifiability import what_separates
 from gateway.errors import InputError
 from gateway.offline.figures import save_figure
 
@@ -117,7 +117,8 @@ def summary_lines(result: DiagnosisResult, path: str) -> list[str]:
         f"reference: {ref}",
         f"samples: {result.n_samples}, {result.duration_s:.3f} s",
         f"baseline: offset {_num(off)} ± {_num(off_s, '.2g')} m/s², drift {_num(dr)} ± {_num(dr_s, '.2g')} m/s² "
-        f"(amplitude of 1 − e^(−t/{DRIFT_TIME_CONSTANT_S:g} s): {_num(drift_over_record(result))} m/s² over the record)",
+        f"(amplitude of 1 − e^(−t/{DRIFT_TIME_CONSTANT_S:g} s): "
+        f"{_num(drift_over_record(result))} m/s² over the record)",
         f"residual whiteness p: {_p(result.whiteness_p_before)} before → {_p(result.whiteness_p_after)} after",
         f"residual RMS: {_num(result.residual_rms_before)} → {_num(result.residual_rms_after)} m/s²"
         + (f" (means over {result.compare_block} samples: the reference's resolution)" if result.compare_block > 1
@@ -161,7 +162,8 @@ def text_summary(result: DiagnosisResult, path: str) -> str:
         out.append(f"effects found ({len(result.effects)}), in order of acceptance:")
         for e in result.effects:
             out.append(f"  {e.name} ({e.kind}): {params_text(e.params)}")
-            out.append(f"      ΔBIC {_num(e.delta_bic, '.1f')}, p {_p(e.p_value)}" + (f"; {e.detail}" if e.detail else ""))
+            detail = f"; {e.detail}" if e.detail else ""
+            out.append(f"      ΔBIC {_num(e.delta_bic, '.1f')}, p {_p(e.p_value)}{detail}")
             if e.not_separable_from:
                 out.append(f"      cannot be told apart here from: {', '.join(e.not_separable_from)} — the record fits "
                            f"them as well; {what_separates(e.name, e.not_separable_from[0])} would separate them")
@@ -179,9 +181,10 @@ def text_summary(result: DiagnosisResult, path: str) -> str:
     rows = candidate_rows(result)
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(("effect", "status", "ΔBIC", "p"))]
     head = ("effect", "status", "ΔBIC", "p")
-    out.append("  " + "  ".join(h.ljust(w) for h, w in zip(head, widths)) + "  reason")
+    out.append("  " + "  ".join(h.ljust(w) for h, w in zip(head, widths, strict=False)) + "  reason")
     for r in rows:
-        out.append("  " + "  ".join(v.ljust(w) for v, w in zip(r[:4], widths)) + ("  " + r[4] if r[4] else ""))
+        cells = "  ".join(v.ljust(w) for v, w in zip(r[:4], widths, strict=False))
+        out.append("  " + cells + ("  " + r[4] if r[4] else ""))
     if result.cannot:
         out.append("")
         out.append("cannot analyse:")

@@ -66,7 +66,7 @@ class Part:
     tick_phase: float
 
     @staticmethod
-    def draw(rng: np.random.Generator) -> "Part":
+    def draw(rng: np.random.Generator) -> Part:
         return Part(
             d0_x=0.5 + rng.uniform(-0.004, 0.004), d0_y=0.5 + rng.uniform(-0.004, 0.004),
             s_x=0.125 * (1 + rng.uniform(-0.01, 0.01)), s_y=0.125 * (1 + rng.uniform(-0.01, 0.01)),

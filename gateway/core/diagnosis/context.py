@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gateway.core.diagnosis.reading import NoiseModel, WHITE, reading_from_steps, reference_steps
+from gateway.core.diagnosis.reading import WHITE, NoiseModel, reading_from_steps, reference_steps
 from gateway.core.filters import one_pole_lowpass
 from gateway.core.runs import true_runs
 from gateway.core.units import STANDARD_GRAVITY_MPS2

@@ -77,10 +77,10 @@ def block_ids(sample_index: np.ndarray, rest: np.ndarray) -> np.ndarray:
     longest = max(1, int(math.ceil(n / MIN_CV_BLOCKS)))
     ids = np.empty(n, dtype=np.int64)
     k = 0
-    for a, e in zip(starts, ends):
+    for a, e in zip(starts, ends, strict=False):
         pieces = max(1, int(math.ceil((e - a) / longest)))
         edges = np.linspace(a, e, pieces + 1).round().astype(np.int64)
-        for p0, p1 in zip(edges[:-1], edges[1:]):
+        for p0, p1 in zip(edges[:-1], edges[1:], strict=False):
             ids[p0:p1] = k
             k += 1
     return ids

@@ -22,7 +22,6 @@ from gateway.core.evaluation import summarise_errors
 from gateway.core.model_compensation import SampleContext
 from gateway.core.reference_point import NoRestError
 
-
 POSITION_ITERATIONS = 12
 POSITION_SETTLED_M = 1e-5
 
@@ -41,11 +40,11 @@ class EstimatePlan:
     def run(self, t_s, acc, valid, lost) -> EstimateTrack:
         return estimate_series(t_s, acc, valid, method="smoothed", settings=self.settings, lost_before=lost)
 
-    def baseline(self, data) -> "EstimatePlan":
+    def baseline(self, data) -> EstimatePlan:
         return EstimatePlan(self.settings, self.returns_to_start, data.t_s, data.acc_mps2, data.valid.copy(),
                             data.lost_before)
 
-    def _copy(self, **changes) -> "EstimatePlan":
+    def _copy(self, **changes) -> EstimatePlan:
         return replace(self, _cache={}, **changes)
 
     def track(self, prep: Prepared) -> EstimateTrack | None:
@@ -56,7 +55,7 @@ class EstimatePlan:
                 self._cache["track"] = None
         return self._cache["track"]
 
-    def with_signal(self, prep: Prepared, fit, effects) -> "EstimatePlan":
+    def with_signal(self, prep: Prepared, fit, effects) -> EstimatePlan:
         """The baseline plan corrected by each accepted signal effect, in order of acceptance."""
         plan = self._base_of_chain(prep)
         for e in effects:
@@ -64,7 +63,7 @@ class EstimatePlan:
             plan = self._compensated(prep, plan, e, theta)
         return plan
 
-    def _compensated(self, prep: Prepared, plan: "EstimatePlan", effect, theta) -> "EstimatePlan":
+    def _compensated(self, prep: Prepared, plan: EstimatePlan, effect, theta) -> EstimatePlan:
         """The plan corrected for one effect. An effect that needs the estimate (tilt: its
         position; motion_offset: where it moves) is corrected with the estimate's own,
         re-estimated until it settles: the estimate without the correction can be metres
@@ -96,11 +95,11 @@ class EstimatePlan:
                              moving=~np.asarray(track.standstill, bool) if track is not None else np.zeros(n, bool),
                              rest=prep.rest)
 
-    def _base_of_chain(self, prep: Prepared) -> "EstimatePlan":
+    def _base_of_chain(self, prep: Prepared) -> EstimatePlan:
         d = prep.data
         return EstimatePlan(self.settings, self.returns_to_start, d.t_s, d.acc_mps2, d.valid.copy(), d.lost_before)
 
-    def apply(self, comp) -> "EstimatePlan":
+    def apply(self, comp) -> EstimatePlan:
         if comp is None:
             return self
         acc = self.acc_mps2 if comp.acc_mps2 is None else comp.acc_mps2
@@ -117,17 +116,17 @@ class EstimatePlan:
         return self._copy(acc_mps2=acc, valid=valid, settings=settings,
                           ref_shift_s=self.ref_shift_s + comp.ref_shift_s)
 
-    def with_side(self, prep: Prepared, effect, test) -> "EstimatePlan":
+    def with_side(self, prep: Prepared, effect, test) -> EstimatePlan:
         return self.apply(test.compensation)
 
-    def as_host_timed(self, prep: Prepared) -> "EstimatePlan":
+    def as_host_timed(self, prep: Prepared) -> EstimatePlan:
         """What trusting the host's arrival times instead of the board's T2 clock gives."""
         d = prep.data
         host = d.t_host_s - d.t_host_s[0] + d.t_s[0]
         host = np.maximum.accumulate(host + np.arange(host.size) * 1e-9)  # strictly increasing
         return self._copy(t_s=host, lost_before=np.zeros(host.size, dtype=np.int64))
 
-    def as_gapless(self, prep: Prepared) -> "EstimatePlan":
+    def as_gapless(self, prep: Prepared) -> EstimatePlan:
         """What a model that loses no samples makes of the record: gaps closed up."""
         d = prep.data
         t = d.t_s - np.cumsum(d.lost_before) * d.period_s

@@ -71,22 +71,23 @@ def _ordered(effects):
 
 
 def predict(prep: Prepared, effects: tuple[SignalEffect, ...], theta: np.ndarray) -> np.ndarray:
-    sig = Signal(prep.reading_full.copy(), prep.where, None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
+    ref = None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy()
+    sig = Signal(prep.reading_full.copy(), prep.where, ref)
     chunks, i = [], len(BASELINE_PARAMS)
     for e in effects:
         k = len(e.param_names)
         chunks.append(theta[i:i + k])
         i += k
-    for e, th in zip(effects, chunks):
+    for e, th in zip(effects, chunks, strict=False):
         if e.stage < 2:
             e.apply(prep, th, sig)
     sig.out = sig.reading + theta[0] + theta[1] * prep.drift_shape
-    for e, th in zip(effects, chunks):
+    for e, th in zip(effects, chunks, strict=False):
         if e.stage >= 2:
             e.apply(prep, th, sig)
     # the baseline sensor saturates at its range too (the simulator clips at ±2 g), read
     # through what the effects make of full scale (the part's own sensitivity)
-    r = prep.data.range_mps2 * math.prod(e.full_scale_gain(th) for e, th in zip(effects, chunks))
+    r = prep.data.range_mps2 * math.prod(e.full_scale_gain(th) for e, th in zip(effects, chunks, strict=False))
     return np.clip(sig.out, -r, r)
 
 
@@ -155,7 +156,8 @@ def cv_gain_of(prep: Prepared, with_effect: ModelFit, without: ModelFit) -> CvGa
 
 def current_signal(prep: Prepared, fit: ModelFit) -> Signal:
     """The motion's reading with the accepted filters and delay applied (what new effects act on)."""
-    sig = Signal(prep.reading_full.copy(), prep.where, None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy())
+    ref = None if prep.data.ref_pos_m is None else prep.data.ref_pos_m.copy()
+    sig = Signal(prep.reading_full.copy(), prep.where, ref)
     i = len(BASELINE_PARAMS)
     for e in fit.effects:
         k = len(e.param_names)

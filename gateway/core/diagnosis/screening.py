@@ -79,7 +79,7 @@ def allan_slopes(prep: Prepared, residual: np.ndarray) -> list[dict]:
     a = allan_deviation(r, prep.data.period_s)
     slopes = np.diff(np.log(a.adev)) / np.diff(np.log(a.tau_s))
     return [{"tau_s": float(t), "adev_mps2": float(v), "slope": float(s)}
-            for t, v, s in zip(a.tau_s[1:], a.adev[1:], slopes)]
+            for t, v, s in zip(a.tau_s[1:], a.adev[1:], slopes, strict=False)]
 
 
 def candidate_regressors(prep: Prepared, reading: np.ndarray, pos: np.ndarray | None) -> dict[str, np.ndarray]:

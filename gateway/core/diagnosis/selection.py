@@ -16,28 +16,37 @@ residual is still not white: structure remains that no candidate explains.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy.stats import chi2, norm
 
 from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
 from gateway.core.diagnosis.criterion import ALPHA
-from gateway.core.diagnosis.gain import distance_gain, EstimatePlan
+from gateway.core.diagnosis.gain import EstimatePlan, distance_gain
 from gateway.core.diagnosis.identifiability import alternatives, temperature_in_line_with_drift
 from gateway.core.diagnosis.judgement import (
-    distance_interval, matters, physical, residual_share, setup_range,
+    distance_interval,
+    matters,
+    physical,
+    residual_share,
+    setup_range,
 )
 from gateway.core.diagnosis.model_fit import ModelFit, current_signal, cv_gain_of, fit_model
 from gateway.core.diagnosis.reading import fit_noise_model
 from gateway.core.diagnosis.screening import (
-    WHITENESS_BLOCK_S, allan_slopes, block_whiteness_p, candidate_regressors, correlations, spectrum_line,
+    WHITENESS_BLOCK_S,
+    allan_slopes,
+    block_whiteness_p,
+    candidate_regressors,
+    correlations,
+    spectrum_line,
     spectrum_peaks,
 )
-from gateway.core.diagnosis.side_effects import SIDE_EFFECTS, SideEffect, SideTest
-from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, Signal, SignalEffect
-from gateway.core.diagnosis.timestamps import HostClock, check_host_clock, check_sample_clock
+from gateway.core.diagnosis.side_effects import SIDE_EFFECTS
+from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, SignalEffect
+from gateway.core.diagnosis.timestamps import check_host_clock, check_sample_clock
 from gateway.core.estimator_settings import EstimatorSettings
 
 # side effects that have no block structure (host timing) still need "very strong"
@@ -309,12 +318,13 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         theta, std = current.effect_theta(e)
         progress(f"gain of {e.name}: distance estimate before and after")
         step_plan = _isolated(f"the compensation of {e.name}", failures,
-                              lambda: before_plan.with_signal(prep, after, accepted[: accepted.index(e) + 1]))
+                              lambda bp=before_plan, a=after, e=e:
+                              bp.with_signal(prep, a, accepted[: accepted.index(e) + 1]))
         if isinstance(step_plan, dict):  # failed: no distance for it, the chain goes on without it
             distance, step_plan = step_plan, before_plan
         else:
             distance = _isolated(f"distance gain of {e.name}", failures,
-                                 lambda: distance_gain(prep, before_plan, step_plan))
+                                 lambda bp=before_plan, sp=step_plan: distance_gain(prep, bp, sp))
         gain = {
             "residual_rms_mps2": [before.residual_rms, after.residual_rms],
             "loglik": [before.loglik, after.loglik],
@@ -334,7 +344,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             candidates[s.name] = Candidate(s.name, "not applicable", reason=why)
             continue
         progress(f"testing {s.name}")
-        test = _isolated(f"the {s.name} test", failures, lambda: s.test(prep, current.residual))
+        test = _isolated(f"the {s.name} test", failures, lambda s=s: s.test(prep, current.residual))
         if isinstance(test, dict):  # it failed: said in failures, the rest of the report stands
             candidates[s.name] = Candidate(s.name, "failed", reason=test["why"])
             continue
@@ -357,7 +367,8 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 without, step_plan = before_plan, before_plan.with_side(prep, s, test)
             gain = {"loglik": [test.loglik_before, test.loglik_after],
                     "distance": {"available": False, "why": no_estimate} if no_estimate else _isolated(
-                        f"distance gain of {s.name}", failures, lambda: distance_gain(prep, without, step_plan))}
+                        f"distance gain of {s.name}", failures,
+                        lambda w=without, sp=step_plan: distance_gain(prep, w, sp))}
             if test.rms_unit is not None:  # the same key shape as a signal effect's residual_rms_mps2
                 gain[f"residual_rms_{test.rms_unit}"] = [test.rms_before, test.rms_after]
             if test.position_mm is not None:
@@ -378,10 +389,11 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     regs = candidate_regressors(prep, prep.reading_mps2, data.ref_pos_m)
     screening = {
         when: {"correlations": _isolated(f"correlations {when}", failures,
-                                         lambda: correlations(prep, fit.residual, regs), []),
+                                         lambda fit=fit: correlations(prep, fit.residual, regs), []),
                "spectrum_peaks": _isolated(f"spectrum peaks {when}", failures,
-                                           lambda: spectrum_peaks(prep, fit.whitened), []),
-               "allan": _isolated(f"Allan slopes {when}", failures, lambda: allan_slopes(prep, fit.residual), [])}
+                                           lambda fit=fit: spectrum_peaks(prep, fit.whitened), []),
+               "allan": _isolated(f"Allan slopes {when}", failures,
+                                  lambda fit=fit: allan_slopes(prep, fit.residual), [])}
         for when, fit in (("before", base), ("after", current))
     }
     if data.reference == "estimated":

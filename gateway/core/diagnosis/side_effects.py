@@ -282,7 +282,7 @@ def local_level_loglik(y: np.ndarray, dt_s, k: float, sigma: float) -> float:
     r = sigma * sigma
     level, p = float(y[0]), r
     ll = 0.0
-    for v, qi in zip(y[1:], q):
+    for v, qi in zip(y[1:], q, strict=False):
         p += qi
         s = p + r
         e = v - level

@@ -23,10 +23,10 @@ import numpy as np
 
 from gateway.core.diagnosis.context import G, Prepared
 from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC
+from gateway.core.diagnosis.reading import shifted
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
 from gateway.core.model_compensation import SampleContext, compensate_term, other_axis_motion
 from gateway.core.sensor_model import edge_reading_excess_mps2
-from gateway.core.diagnosis.reading import shifted
 
 
 @dataclass
@@ -44,7 +44,7 @@ class Signal:
     def reading(self) -> np.ndarray:
         return self.full[self.where]
 
-    def copy(self) -> "Signal":
+    def copy(self) -> Signal:
         return Signal(self.full.copy(), self.where, None if self.pos_m is None else self.pos_m.copy())
 
 
@@ -82,14 +82,14 @@ class SignalEffect:
         raise NotImplementedError
 
     def report(self, theta: np.ndarray, std: np.ndarray) -> dict[str, tuple[float, float]]:
-        return {n: (float(v), float(s)) for n, v, s in zip(self.param_names, theta, std)}
+        return {n: (float(v), float(s)) for n, v, s in zip(self.param_names, theta, std, strict=False)}
 
     def compensate(self, prep: Prepared, theta: np.ndarray, acc: np.ndarray, est: SampleContext) -> Compensation | None:
         return None
 
     def model_params(self, prep: Prepared, theta: np.ndarray) -> dict[str, float]:
         """The parameters as the model file keeps them (SI units; model_compensation reads them)."""
-        return {n: float(v) for n, v in zip(self.param_names, theta)}
+        return {n: float(v) for n, v in zip(self.param_names, theta, strict=False)}
 
     def full_scale_gain(self, theta: np.ndarray) -> float:
         """How this effect changes where the part's saturation reads (1: not at all)."""
