@@ -236,7 +236,6 @@ def test_smoother_matches_a_generic_rts_with_pseudo_inverses(filtered):
 
 
 def test_motion_step_closed_form_q_is_van_loans():
-    prm = np.zeros(K.N_PARAMS)
     for dt in (2e-3, 0.05, 1.0):
         x, P = np.zeros(3), np.zeros((3, 3))
         K.propagate_motion(x, P, dt, 0.0, 0.0, 2.5e-6, 3e-9, 0.0, 0.0)

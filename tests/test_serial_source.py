@@ -153,7 +153,7 @@ def test_deliver_reads_once_per_arrival_and_keeps_the_reader_registered(make_pty
         await asyncio.sleep(0.05)
         for k, sample in enumerate(sent):
             os.write(pty.master, wire([sample]))
-            await wait_until(lambda: len(consumer.frames) == k + 1, f"frame {k}")
+            await wait_until(lambda k=k: len(consumer.frames) == k + 1, f"frame {k}")
         state = source.state
         await consumer.stop()
         return consumer.frames, state, registrations

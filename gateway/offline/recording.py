@@ -434,7 +434,9 @@ class CsvSource(RecordingSource):
                 raise self._locate(block, first_line, read_cols, err) from None
             cols = {n: table.column(n).to_numpy() for n in read_cols}
             if table.num_rows:
-                validator.check(cols, lambda i: f"{self.path}:{self._line_of_row(block, first_line, i)}")
+                # the row-to-line callback binds this block: it must not see the next one
+                validator.check(cols, lambda i, block=block, first_line=first_line:
+                                f"{self.path}:{self._line_of_row(block, first_line, i)}")
                 yield {n: cols[n] for n in wanted}
             if progress is not None:
                 progress.update(len(block))
@@ -569,8 +571,7 @@ class ParquetSource(RecordingSource):
                 for n in read_cols:
                     arr = batch.column(n).cast(pa.float64())
                     cols[n] = arr.fill_null(math.nan).to_numpy() if arr.null_count else arr.to_numpy()
-                base = start
-                validator.check(cols, lambda i: f"{self.path}: row {base + i + 1}")
+                validator.check(cols, lambda i, base=start: f"{self.path}: row {base + i + 1}")
                 start += batch.num_rows
                 yield {n: cols[n] for n in wanted}
                 if progress is not None:
