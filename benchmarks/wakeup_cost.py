@@ -184,8 +184,9 @@ def main() -> None:
         variants = {name: code for name, code in variants.items()
                     if name in ("asyncio reader (the floor)", "gateway, default config")}
     for other in args.compare:
-        variants[f"gateway @ {other}, default config"] = (
-            lambda link, root=str(Path(other).resolve()): GATEWAY.format(root=root, link=link, can=True, batch=5))
+        other_root = str(Path(other).resolve())
+        variants[f"gateway @ {other}, default config"] = (  # root bound now, not at the loop's end
+            lambda link, root=other_root: GATEWAY.format(root=root, link=link, can=True, batch=5))
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
           f"--repeat {args.repeat}" + (" --gateways-only" if args.gateways_only else "")
           + "".join(f" --compare {other}" for other in args.compare))

@@ -26,6 +26,7 @@ import numpy as np
 from gateway.core.chi2 import chi2_isf
 from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation
 from gateway.core.sensor_model import (
+    BOARD_SENSOR,
     CALIBRATED_SENSITIVITY_TOLERANCE_FRAC,
     NOMINAL_DUTY_PER_G,
     SensorParams,
@@ -265,7 +266,7 @@ def default_bias_random_walk(white_density: float, record_s: float = 4 * 3600.0)
     return white_density / math.sqrt(2.0 * tau) * math.sqrt(3.0 / tau)
 
 
-def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: FittedDrift | None = None,
+def from_sensor_model(sensor: SensorParams = BOARD_SENSOR, drift_fit: FittedDrift | None = None,
                       axis: str = "x", **overrides) -> EstimatorSettings:
     """Settings for the ADXL202 on the 8051 board.
 
