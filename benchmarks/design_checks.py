@@ -45,7 +45,7 @@ from tests.diagnosis_cases import SENSOR, STROKES, make_case, part_within_tolera
 from tests.robot_like_cases import robot_case  # noqa: E402
 from tests.test_diagnosis_walk_at_rest import LONG_DWELLS  # noqa: E402
 from tests.test_estimation_hint import SETTINGS as HINT_SETTINGS  # noqa: E402
-from tests.test_estimation_hint import _short_stop_case
+from tests.test_estimation_hint import _short_stop_case  # noqa: E402 (after the sys.path line, like the rest)
 
 
 def timing() -> None:

@@ -51,6 +51,7 @@ file is usable; no traceback; < 500 MB.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import math
@@ -123,7 +124,7 @@ class Daemon:
         )
         config.write_text(self.config_text)
         self.log_path = workdir / "daemon.log"
-        self._log = open(self.log_path, "wb")
+        self._log = open(self.log_path, "wb")  # noqa: SIM115 - the daemon's output for its whole life; closed in stop()
         limit = (fd_limit, fd_limit)
         self.process = subprocess.Popen(
             [str(ADXLGW), "run", "--config", str(config)], cwd=ROOT, stdout=self._log, stderr=subprocess.STDOUT,
@@ -328,10 +329,8 @@ def slowloris(daemon: Daemon, count: int = 200):
         def trickle():
             while not stop.wait(1.0):
                 for sock in socks:
-                    try:
+                    with contextlib.suppress(OSError):
                         sock.send(b"\x00")
-                    except OSError:
-                        pass
 
         threading.Thread(target=trickle, daemon=True).start()
         return {"sockets": socks, "stop": stop, "t0": time.monotonic()}
@@ -351,7 +350,7 @@ def malformed_then_valid(daemon: Daemon):
 
     def check(_):
         results = []
-        for label, (protocol, length) in headers.items():
+        for protocol, length in headers.values():
             with socket.create_connection(("127.0.0.1", daemon.port), timeout=2) as sock:
                 sock.sendall(mbap(1, READ_10, protocol=protocol, length=length) + b"".join(
                     mbap(t, READ_10) for t in range(2, 20)))

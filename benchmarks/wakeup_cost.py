@@ -137,7 +137,7 @@ def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[f
         proc = subprocess.Popen([sys.executable, "-c", code(str(pty.link))], cwd=ROOT,
                                 stdout=subprocess.PIPE if capture else subprocess.DEVNULL, text=True)
         readers.append((pty, proc))
-    for pty, proc in readers:
+    for pty, _proc in readers:
         if not pty.wait_for_reader(120):
             for _, p in readers:
                 p.kill()

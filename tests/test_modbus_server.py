@@ -308,10 +308,12 @@ def test_write_multiple_runs_commands_in_address_order() -> None:
     recorder = Recorder()
 
     async def scenario() -> None:
-        async with serving(tcp_config(writes_enabled=True), recorder) as server:
-            async with tcp_client(server.tcp_port) as client:
-                response = await client.write_registers(0, [1, 1], device_id=1)
-                assert not response.isError(), response
+        async with (
+            serving(tcp_config(writes_enabled=True), recorder) as server,
+            tcp_client(server.tcp_port) as client,
+        ):
+            response = await client.write_registers(0, [1, 1], device_id=1)
+            assert not response.isError(), response
 
     run(scenario())
     assert [c for c, _ in recorder.calls] == [Command.TARE, Command.REESTIMATE_BIAS]
@@ -364,10 +366,12 @@ def test_an_empty_allow_list_admits_nobody() -> None:
     recorder = Recorder()
 
     async def scenario() -> None:
-        async with serving(tcp_config(writes_enabled=True, write_allow=()), recorder) as server:
-            async with tcp_client(server.tcp_port) as client:
-                response = await client.write_register(0, 1, device_id=1)
-                assert response.isError() and response.exception_code == 1
+        async with (
+            serving(tcp_config(writes_enabled=True, write_allow=()), recorder) as server,
+            tcp_client(server.tcp_port) as client,
+        ):
+            response = await client.write_register(0, 1, device_id=1)
+            assert response.isError() and response.exception_code == 1
 
     run(scenario())
     assert recorder.calls == []

@@ -527,9 +527,11 @@ def test_a_file_that_is_not_a_tty_is_refused(tmp_path: Path):
 
 def test_second_reader_of_the_same_port_is_refused(make_pty):
     pty = make_pty()
-    with SerialSource(SerialSettings(port=pty.path)):
-        with pytest.raises(SerialPortError, match="another process holds the port"):
-            SerialSource(SerialSettings(port=pty.path)).open()
+    with (
+        SerialSource(SerialSettings(port=pty.path)),
+        pytest.raises(SerialPortError, match="another process holds the port"),
+    ):
+        SerialSource(SerialSettings(port=pty.path)).open()
 
 
 def test_settings_are_validated():

@@ -91,10 +91,7 @@ def _cells(row, now_s: float) -> tuple[str, ...]:
     def mm(x):
         return "—" if x is None else f"{x * 1000:.1f}"
 
-    if row.status is None:
-        status = "—"
-    else:
-        status = f"{'usable' if row.usable else 'NOT usable'} 0x{row.status:04x}"
+    status = "—" if row.status is None else f"{'usable' if row.usable else 'NOT usable'} 0x{row.status:04x}"
     seen = "never" if row.last_seen_unix_s is None else f"{max(0.0, now_s - row.last_seen_unix_s):.1f} s ago"
     return (row.group, row.node, row.device or "—", "online" if row.online else "DEAD", mm(row.position_m),
             mm(row.velocity_mps), status, seen, str(row.births), str(row.lost))

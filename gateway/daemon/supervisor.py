@@ -503,10 +503,11 @@ class Gateway:
         self._reloaded_at = self.clock()
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
-        if old.serial.port != new.serial.port or serial_settings_from(old, "port") != serial_settings_from(new, "port"):
-            # while the port is still being opened, the opener takes the new settings itself
-            if self.ready:
-                log.info("reload: reopening the board port")
-                self.board.reopen()
+        port_changed = (old.serial.port != new.serial.port
+                        or serial_settings_from(old, "port") != serial_settings_from(new, "port"))
+        # while the port is still being opened, the opener takes the new settings itself
+        if port_changed and self.ready:
+            log.info("reload: reopening the board port")
+            self.board.reopen()
         log.info("config reloaded from %s", new.source)
         self.notifier.ready()

@@ -302,7 +302,7 @@ def line_blocks(file: str, name: str, offset: int = 0, first_line: int = 1):
     than MAX_LINE_BYTES is a RecordingError naming `name` and the line. Also used by
     `adxlgw import` for foreign CSV files."""
     try:
-        fh = open(file, "rb")
+        fh = open(file, "rb")  # noqa: SIM115 - closed by `with fh` below; only open()'s error is "cannot read"
     except OSError as err:
         raise RecordingError(f"{name}: cannot read: {err.strerror or err}") from err
     with fh:
@@ -810,7 +810,7 @@ class ColumnWriter:
                 self._writer = pq.ParquetWriter(str(self._tmp), self._schema, compression="lz4",
                                                 use_dictionary=[n for n in self.names if n in ints])
             else:
-                self._fh = open(self._tmp, "wb")
+                self._fh = open(self._tmp, "wb")  # noqa: SIM115 - open across write() calls; closed in close()/abort()
                 head = "".join(f"# {k}={_one_line(v)}\n" for k, v in (metadata or {}).items())
                 self._fh.write((head + _csv_header(self.names)).encode("utf-8"))
         except OSError as err:
@@ -915,7 +915,7 @@ class RecordingWriter:
             self._pending: list[dict] = []
             return
         try:
-            self._fh = open(path, "w", encoding="utf-8", newline="")
+            self._fh = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115 - open across write_row(); closed in close()
         except OSError as err:
             raise RecordingError(f"{path}: cannot write: {err.strerror or err}") from err
         for key, value in {"format": FORMAT_ID, **metadata}.items():
