@@ -509,7 +509,8 @@ def main() -> None:
     print("errors in mm (daemon − truth); at stops: the last read in each of the next "
           f"{STOPS_SCORED} true stops after the fault, V = VALID set there")
     print("| case | error at the next stops (mm) | VALID clear / UNTRUSTED set after the fault | VALID clear until a "
-          "true stop (error when VALID again) | reads VALID with \\|error\\| > 5 mm | reads VALID with \\|error\\| > 3σ "
+          "true stop (error when VALID again) | reads VALID with \\|error\\| > 5 mm "
+          "| reads VALID with \\|error\\| > 3σ "
           "| \\|error\\| ≤ 3σ | goal met |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     covered = finite = 0

@@ -112,7 +112,8 @@ def _rich_table(rows):
 
     table = Table(title="Sparkplug B fleet")
     for name in COLUMNS:
-        table.add_column(name, justify="right" if name in ("position mm", "velocity mm/s", "births", "lost") else "left")
+        numeric = name in ("position mm", "velocity mm/s", "births", "lost")
+        table.add_column(name, justify="right" if numeric else "left")
     now = time.time()
     for r in rows:
         table.add_row(*_cells(r, now), style=None if r.online else "red")

@@ -231,7 +231,8 @@ class EstimatorSettings:
             f"{self.drift_c1_mps2 / G * 1e3:.3g} mg, T = {self.drift_time_constant_s:.4g} s",
             f"standstill: window {self.window_samples} samples, variance ≤ "
             f"{math.sqrt(self.window_variance_threshold_mps2_sq) / G * 1e3:.3g} mg rms (or a vibration swinging "
-            f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), |v| ≤ {self.standstill_speed_floor_mps:g} m/s "
+            f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), "
+            f"|v| ≤ {self.standstill_speed_floor_mps:g} m/s "
             f"known to {self.standstill_velocity_sigmas:g} σ_v ≤ {self.standstill_speed_floor_mps:g} m/s (else "
             f"undecidable: flag 256; a stop after {self.quiet_stop_s:g} s of quiet)",
             f"sensitivity known to {self.sensitivity_std_frac * 100:.3g} % (1σ): carried in the reported σ",

@@ -14,12 +14,13 @@ so no wire shows older numbers than with a wakeup per frame. Where the port cann
 batch (a pyserial URL, batch_frames = 1) the bytes are kept with their arrival time
 until something needs the numbers or MAX_DEFER_S has passed. Either way a batch goes
 through the sample pipeline (runs of SAMPLE frames in one compiled call,
-gateway/daemon/sample_pipeline.py; events and snapshots in gateway/daemon/board_intake.py) and published once (the values are built only when a
-Modbus read or a CAN frame needs them); the CAN frames of a due cycle go out from
-inside that publish, locked onto the wakeups (drivers/can_publisher.py). Nothing else
-wakes the process while samples flow: the publishing tick is a timer that the batches
-keep pushing back, and fires only once the board has been quiet for PUBLISH_TICK_S to
-3 × PUBLISH_TICK_S (then every PUBLISH_TICK_S).
+gateway/daemon/sample_pipeline.py; events and snapshots in gateway/daemon/board_intake.py)
+and published once (the values are built only when a Modbus read or a CAN frame needs
+them); the CAN frames of a due cycle go out from inside that publish, locked onto the
+wakeups (drivers/can_publisher.py). Nothing else wakes the process while samples flow:
+the publishing tick is a timer that the batches keep pushing back, and fires only once
+the board has been quiet for PUBLISH_TICK_S to 3 × PUBLISH_TICK_S (then every
+PUBLISH_TICK_S).
 """
 from __future__ import annotations
 
@@ -450,7 +451,8 @@ class Gateway:
         if self.modbus and self.modbus.tcp_port:
             parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         if self.can:
-            parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} ({self.can.counters.frames_sent} frames)")
+            parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} "
+                         f"({self.can.counters.frames_sent} frames)")
         if self.mqtt:
             parts.append(f"mqtt {self.mqtt.where} ({'connected' if self.mqtt.connected else 'not connected'})")
         return "  ".join(parts)

@@ -482,7 +482,8 @@ class CsvSource(RecordingSource):
         # every row has its cells: some cell is not a number. The block again as text, each
         # column cast as the reader does; the first failing row by bisection (a few casts,
         # not one per cell: a 4 MiB block has ~65 000 rows)
-        text = pacsv.read_csv(pa.py_buffer(block), read_options=pacsv.ReadOptions(column_names=self.names, use_threads=False),
+        text = pacsv.read_csv(pa.py_buffer(block),
+                              read_options=pacsv.ReadOptions(column_names=self.names, use_threads=False),
                               convert_options=pacsv.ConvertOptions(
                                   column_types={n: pa.string() for n in read_cols}, include_columns=read_cols,
                                   null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True))
@@ -692,7 +693,8 @@ class AccelerationConverter:
     def convert(self, c: dict[str, np.ndarray]) -> AccelerationSeries:
         main, other = ("x", "y") if self.axis == "x" else ("y", "x")
         if self.form == "raw":
-            flags = np.nan_to_num(c["flags"], nan=0.0).astype(np.int64) if "flags" in c else np.zeros(c["seq"].size, np.int64)
+            flags = (np.nan_to_num(c["flags"], nan=0.0).astype(np.int64) if "flags" in c
+                     else np.zeros(c["seq"].size, np.int64))
             try:
                 ch = self._raw.convert(c["seq"].astype(np.int64), c["t1x"], c["t1y"], c["t2"], flags)
             except ValueError as err:
