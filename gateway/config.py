@@ -265,9 +265,6 @@ class _Section:
         self._name = name
         self.__dict__.update(keys)
 
-    def as_tuple(self) -> tuple:
-        return tuple(sorted((k, repr(v)) for k, v in self.__dict__.items() if not k.startswith("_")))
-
     def __repr__(self) -> str:
         items = ", ".join(f"{k}={v!r}" for k, v in self.__dict__.items() if not k.startswith("_"))
         return f"[{self._name}] {items}"

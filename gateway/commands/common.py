@@ -82,7 +82,7 @@ class StopOnSignal:
         signal.signal(signal.SIGTERM, self._raise)
         signal.signal(signal.SIGINT, self._raise)
 
-    def _raise(self, signum, frame) -> None:
+    def _raise(self, _signum, frame) -> None:
         self.stop = True
 
     def __bool__(self) -> bool:

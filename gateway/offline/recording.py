@@ -870,7 +870,7 @@ class ColumnWriter:
     def __enter__(self):
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type, exc, _tb):
         if exc_type is None:
             self.commit()
         else:
