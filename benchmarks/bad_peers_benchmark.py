@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import datetime
 import resource
 import struct
@@ -89,10 +90,8 @@ async def attack(port: int, kind: str) -> tuple[int, float | None]:
             continue
         if kind == "slowloris":
             writer.write(READ)
-            try:
+            with contextlib.suppress(TimeoutError, OSError, asyncio.IncompleteReadError):
                 await asyncio.wait_for(reader.readexactly(11), 2.0)
-            except (TimeoutError, OSError, asyncio.IncompleteReadError):
-                pass
         held.append(writer)
     await asyncio.sleep(0.5)
     answers = []

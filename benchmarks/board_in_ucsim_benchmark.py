@@ -81,7 +81,8 @@ def record_through_pty(seconds: float, t2_error_frac: float | None) -> None:
     part = "the default part" if t2_error_frac is None else f"--t2-error-frac {t2_error_frac:g}"
     print(f"pty, {seconds:g} s of board time, {part}: {summary[0] if summary else rec.stderr.strip()}")
     print(f"  {len(recording)} samples over {board_s:.3f} s of board time: {len(recording) / board_s:.2f} samples/s "
-          f"(the board's rate 1/T2: {TICK_HZ / c['t2'].mean():.2f}); host arrivals {(len(recording) - 1) / host_s:.2f}/s; "
+          f"(the board's rate 1/T2: {TICK_HZ / c['t2'].mean():.2f}); "
+          f"host arrivals {(len(recording) - 1) / host_s:.2f}/s; "
           f"seq steps all +1: {bool(np.all(np.diff(c['seq']) == 1))}")
     for line in board_err.strip().splitlines():
         print("  board: " + line)

@@ -18,6 +18,7 @@ Numbers move with the host's load (printed): compare the venvs of one run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import os
 import statistics
@@ -41,10 +42,8 @@ def tree_mb(path: Path) -> float:
     total = 0
     for dirpath, _, files in os.walk(path):
         for name in files:
-            try:
+            with contextlib.suppress(OSError):
                 total += os.lstat(os.path.join(dirpath, name)).st_size
-            except OSError:
-                pass
     return total / 1e6
 
 

@@ -45,7 +45,7 @@ from tests.diagnosis_cases import SENSOR, STROKES, make_case, part_within_tolera
 from tests.robot_like_cases import robot_case  # noqa: E402
 from tests.test_diagnosis_walk_at_rest import LONG_DWELLS  # noqa: E402
 from tests.test_estimation_hint import SETTINGS as HINT_SETTINGS  # noqa: E402
-from tests.test_estimation_hint import _short_stop_case
+from tests.test_estimation_hint import _short_stop_case  # noqa: E402 (after the sys.path line, like the rest)
 
 
 def timing() -> None:
@@ -57,7 +57,8 @@ def timing() -> None:
         gains.append(e.gain["distance"]["improvement_mm"])
     ratio = [after / before for before, after in rms]
     print(f"1. timing, paper strokes, seeds 0–19: delay residual RMS after/before {min(ratio):.5f}–{max(ratio):.5f} "
-          f"(seed 0: {rms[0][0] * 1e3:.4f} → {rms[0][1] * 1e3:.4f} ms); distance gains {min(gains):.1f}–{max(gains):.1f} mm")
+          f"(seed 0: {rms[0][0] * 1e3:.4f} → {rms[0][1] * 1e3:.4f} ms); "
+          f"distance gains {min(gains):.1f}–{max(gains):.1f} mm")
     gentle = StrokeSettings(strokes=STROKES, max_speed_mps=0.5, max_acc_mps2=2.0)
     terms, data = make_case(("timing",), 0, strokes=gentle)
     result = run_diagnosis(data)
@@ -97,7 +98,8 @@ def robot_like() -> None:
         bias, bias_std = state.out[K.O_BIAS], float(np.sqrt(state.out[K.O_BIAS_VAR]))
         seen = prm[K.P_MEAN_SIGMAS] * np.sqrt(prm[K.P_R] / settings.window_samples + bias_std**2)
         print(f"   seed {seed}: bias at the end {bias:.4f} m/s², the final rest's mean {truth:.4f}: off by "
-              f"{(truth - bias) / bias_std:.1f} σ_b (σ_b {bias_std:.4f}); the mean test sees an offset error beyond {seen:.3f} m/s² (the step: {5e-3 * 9.80665:.3f})")
+              f"{(truth - bias) / bias_std:.1f} σ_b (σ_b {bias_std:.4f}); "
+              f"the mean test sees an offset error beyond {seen:.3f} m/s² (the step: {5e-3 * 9.80665:.3f})")
 
 
 def robot_hint() -> None:

@@ -336,7 +336,8 @@ def robot_table(results: dict[tuple[str, str], dict]) -> list[str]:
             inside = "—" if run["inside_3sigma"] is None else f"{run['inside_3sigma']}/{len(moves)}"
             flagged = "—" if run["untrusted_pct"] is None else f"{run['untrusted_pct']:.0f} %"
             lines.append(f"| {label} | {clock} ({res['period_ms']:.2f} ms median period) | {method} | {hint} "
-                         f"| {per} | **{worst:.1f} %** | {run['worst_rest_error_m'] * 1e3:.0f} mm | {inside} | {flagged} |")
+                         f"| {per} | **{worst:.1f} %** | {run['worst_rest_error_m'] * 1e3:.0f} mm "
+                         f"| {inside} | {flagged} |")
     return lines
 
 

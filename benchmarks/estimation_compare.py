@@ -87,8 +87,10 @@ for effect in [None] + [e for e in EFFECT_SIZES if e != "bias_random_walk"]:
                 errs.append(st.error_m)
                 inside.append(abs(st.error_m) <= 3 * tr.pos_std_m[st.index] + 1e-4)
         label = effect or "clean"
-        out[f"independent {label} {method}: stop RMS mm"] = float(np.sqrt(np.mean(np.square(errs)))) * 1e3 if errs else float("nan")
-        out[f"independent {label} {method}: stops inside 3σ %"] = 100.0 * float(np.mean(inside)) if inside else float("nan")
+        out[f"independent {label} {method}: stop RMS mm"] = (
+            float(np.sqrt(np.mean(np.square(errs)))) * 1e3 if errs else float("nan"))
+        out[f"independent {label} {method}: stops inside 3σ %"] = (
+            100.0 * float(np.mean(inside)) if inside else float("nan"))
 print(json.dumps(out))
 '''
 

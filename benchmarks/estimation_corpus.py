@@ -116,7 +116,8 @@ def robot_case(name: str, clock: str) -> Case:
     if series is None and clock == "arrival":
         # the importer refuses a file whose start-up backlog is most of it unless told the
         # sensor's configured rate — which a user knows (the dataset's README gives it)
-        series, err = imported(argv + ["--nominal-rate-hz", f"{NOMINAL_RATE_HZ[name.removesuffix('.csv').split('_')[1]]:g}"])
+        rate_hz = NOMINAL_RATE_HZ[name.removesuffix('.csv').split('_')[1]]
+        series, err = imported(argv + ["--nominal-rate-hz", f"{rate_hz:g}"])
         label += " (--nominal-rate-hz)"
     if series is None:
         return Case(label, "robot", *(np.zeros(0),) * 3, None, np.zeros(0, bool), error=err)
@@ -234,7 +235,8 @@ def run_perturbation(job: tuple) -> dict:
             return {"what": f"hint {shift * 1e3:+.0f} ms", "name": case.name, "error": case.error}
         hint = shifted(case.rest, case.t_s, shift)
         return {"what": f"hint {shift * 1e3:+.0f} ms", "name": case.name,
-                "rows": {"realtime hint": score(case, "realtime", hint), "smoothed hint": score(case, "smoothed", hint)}}
+                "rows": {"realtime hint": score(case, "realtime", hint),
+                         "smoothed hint": score(case, "smoothed", hint)}}
     seed, rate, noise = arg
     case = sim_robot_case(seed, rate, noise)
     return {"what": f"sim {rate:g} Hz noise ×{noise / SIM_NOISE_MPS2:g}", "name": case.name,

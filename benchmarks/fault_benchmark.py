@@ -301,46 +301,46 @@ def play(case: Case, script: BoardScript, tmp: Path) -> tuple[np.ndarray, list[t
     write_config(config, pty.link, port, tmp / "state.json", start_at_rest=True)
     if case.kind == "hostile":
         write_hostile_state(tmp / "state.json")
-    log = open(tmp / "daemon.log", "w")
-    daemon = start_daemon(config, port, pty, log)
-    start_ns = time.monotonic_ns() + int(1.0e9)
-    end_ns = start_ns + int(len(script.frames) * SLOT_S * 1e9) + int(0.3e9)
-    ctx = mp.get_context("fork")
-    w_recv, w_send = ctx.Pipe(False)
-    p_recv, p_send = ctx.Pipe(False)
-    wproc = ctx.Process(target=writer, args=(pty.master_fd, script.frames, start_ns, w_send, pty))
-    pproc = ctx.Process(target=poller, args=(port, end_ns, p_send))
-    wproc.start()
-    pproc.start()
-    kill_ns = None
-    try:
-        if script.kill_slot is not None:
-            due = start_ns + int(script.kill_slot * SLOT_S * 1e9)
-            time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
-            if case.kind == "moved":  # an orderly stop: the last state is written, at rest
-                daemon.send_signal(signal.SIGTERM)
-            else:
-                daemon.kill()  # SIGKILL: no shutdown, no last state write
-            daemon.wait(timeout=10)
-            kill_ns = time.monotonic_ns()
-            if script.restart_slot is not None:
-                due = start_ns + int(script.restart_slot * SLOT_S * 1e9)
-                time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
-            write_config(config, pty.link, port, tmp / "state.json", start_at_rest=case.restart_at_rest)
-            daemon = start_daemon(config, port, pty, log)
-        written = w_recv.recv()
-        reads = p_recv.recv()
-    finally:
-        wproc.join(timeout=30)
-        pproc.join(timeout=30)
-        daemon.send_signal(signal.SIGTERM)
+    # the log outlives each daemon start (a restart appends to it): closed after the last one
+    with open(tmp / "daemon.log", "w") as log:
+        daemon = start_daemon(config, port, pty, log)
+        start_ns = time.monotonic_ns() + int(1.0e9)
+        end_ns = start_ns + int(len(script.frames) * SLOT_S * 1e9) + int(0.3e9)
+        ctx = mp.get_context("fork")
+        w_recv, w_send = ctx.Pipe(False)
+        p_recv, p_send = ctx.Pipe(False)
+        wproc = ctx.Process(target=writer, args=(pty.master_fd, script.frames, start_ns, w_send, pty))
+        pproc = ctx.Process(target=poller, args=(port, end_ns, p_send))
+        wproc.start()
+        pproc.start()
+        kill_ns = None
         try:
-            daemon.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            daemon.kill()
-            daemon.wait()
-        log.close()
-        pty.close(remove_link=True)
+            if script.kill_slot is not None:
+                due = start_ns + int(script.kill_slot * SLOT_S * 1e9)
+                time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
+                if case.kind == "moved":  # an orderly stop: the last state is written, at rest
+                    daemon.send_signal(signal.SIGTERM)
+                else:
+                    daemon.kill()  # SIGKILL: no shutdown, no last state write
+                daemon.wait(timeout=10)
+                kill_ns = time.monotonic_ns()
+                if script.restart_slot is not None:
+                    due = start_ns + int(script.restart_slot * SLOT_S * 1e9)
+                    time.sleep(max(0.0, (due - time.monotonic_ns()) / 1e9))
+                write_config(config, pty.link, port, tmp / "state.json", start_at_rest=case.restart_at_rest)
+                daemon = start_daemon(config, port, pty, log)
+            written = w_recv.recv()
+            reads = p_recv.recv()
+        finally:
+            wproc.join(timeout=30)
+            pproc.join(timeout=30)
+            daemon.send_signal(signal.SIGTERM)
+            try:
+                daemon.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                daemon.kill()
+                daemon.wait()
+            pty.close(remove_link=True)
     return written, reads, start_ns, kill_ns
 
 
@@ -509,7 +509,8 @@ def main() -> None:
     print("errors in mm (daemon − truth); at stops: the last read in each of the next "
           f"{STOPS_SCORED} true stops after the fault, V = VALID set there")
     print("| case | error at the next stops (mm) | VALID clear / UNTRUSTED set after the fault | VALID clear until a "
-          "true stop (error when VALID again) | reads VALID with \\|error\\| > 5 mm | reads VALID with \\|error\\| > 3σ "
+          "true stop (error when VALID again) | reads VALID with \\|error\\| > 5 mm "
+          "| reads VALID with \\|error\\| > 3σ "
           "| \\|error\\| ≤ 3σ | goal met |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     covered = finite = 0

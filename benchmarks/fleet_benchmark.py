@@ -145,8 +145,9 @@ def real_daemon(tmp: Path, port: int, name: str, rate_hz: float, board: str = "e
             f'rate_hz = {rate_hz}\n') if port else ""
     config.write_text(f'[serial]\nport = "{board}"\n[modbus]\nport = 0\n[can]\nenabled = false\n'
                       f'[state]\npath = "{folder / "state.json"}"\n[service]\nlog_level = "warning"\n{mqtt}')
-    proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "run", "--config", str(config)], cwd=ROOT,
-                            stdout=subprocess.DEVNULL, stderr=open(folder / "stderr.log", "w"))
+    with open(folder / "stderr.log", "w") as stderr:  # the child keeps its own copy of the descriptor
+        proc = subprocess.Popen([sys.executable, "-m", "gateway.cli", "run", "--config", str(config)], cwd=ROOT,
+                                stdout=subprocess.DEVNULL, stderr=stderr)
     STARTED.append(proc)
     return proc
 
@@ -247,7 +248,7 @@ def fleet_run(args) -> dict:
             d.wait(timeout=20)
     time.sleep(2.0)  # the last messages reach the host
     with host.lock:
-        for (group, node), n in host.view.nodes.items():
+        for (_group, node), n in host.view.nodes.items():
             if node.startswith("real"):
                 dev = n.devices.get("axis")
                 real_counts[node] = (dev.last_count if dev else 0, 0, n.births)

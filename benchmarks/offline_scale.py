@@ -170,14 +170,18 @@ def main() -> int:
 
         print(f"| measure ({args.hours:g} h at 500 samples/s, one core) | plain-csv path | today | goal |")
         print("| --- | --- | --- | --- |")
-        print(f"| `adxlgw estimate --method realtime`, CSV in, CSV out | {old_w * scale:.0f} s wall, {old_c * scale:.0f} s CPU "
+        print(f"| `adxlgw estimate --method realtime`, CSV in, CSV out "
+              f"| {old_w * scale:.0f} s wall, {old_c * scale:.0f} s CPU "
               f"(×{scale:g} the {args.baseline_hours:g} h run) | {t('csv')} | < 60 s |")
         print(f"| same, Parquet in and out | – | {t('pq')} | < 15 s |")
         print(f"| `adxlgw estimate --method smoothed`, Parquet | – | {t('smoothed')} | < 30 s |")
         print(f"| `adxlgw fit-drift` on a {args.hours:g} h standstill, Parquet | – | {t('fit')} | < 30 s |")
-        print(f"| peak memory, realtime CSV / realtime Parquet / smoothed | {old_m:.0f} MB on {args.baseline_hours:g} h | "
-              f"{res['csv'][2]:.0f} / {res['pq'][2]:.0f} / {res['smoothed'][2]:.0f} MB | < 500 MB / stated and checked |")
-        print(f"| side by side on {args.baseline_hours:g} h, realtime CSV → CSV | {old_w:.1f} s wall, {old_c:.1f} s CPU, "
+        print(f"| peak memory, realtime CSV / realtime Parquet / smoothed "
+              f"| {old_m:.0f} MB on {args.baseline_hours:g} h | "
+              f"{res['csv'][2]:.0f} / {res['pq'][2]:.0f} / {res['smoothed'][2]:.0f} MB "
+              f"| < 500 MB / stated and checked |")
+        print(f"| side by side on {args.baseline_hours:g} h, realtime CSV → CSV "
+              f"| {old_w:.1f} s wall, {old_c:.1f} s CPU, "
               f"{old_m:.0f} MB | {new_w:.1f} s wall, {new_c:.1f} s CPU, {new_m:.0f} MB | "
               f"ratio {old_w / new_w:.1f}× wall, {old_c / new_c:.1f}× CPU |")
         print()

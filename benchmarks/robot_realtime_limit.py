@@ -73,9 +73,11 @@ def main() -> int:
     err = track.pos_m - d["ref_z_m"]
     print()
     hinted = "the robot's rest as the hint" if args.hint else "no hint"
+    mean_test_tolerance_g = (settings.standstill_mean_sigmas
+                             * np.sqrt(settings.zaru_variance_mps2_sq / settings.window_samples) / G)
     print(f"realtime filter, {hinted}; mean test tolerance at a stop ≈ {settings.standstill_mean_sigmas:g} σ of a "
           f"{settings.window_samples}-sample mean = "
-          f"{settings.standstill_mean_sigmas * np.sqrt(settings.zaru_variance_mps2_sq / settings.window_samples) / G * 1e3:.1f} mg")
+          f"{mean_test_tolerance_g * 1e3:.1f} mg")
     print()
     print("| stop entered at (s) | time since the previous stop (s) | velocity on entering (mm/s) | its σ_v (mm/s) "
           "| position error before → after the ZUPT (mm) |")

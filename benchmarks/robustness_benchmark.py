@@ -51,6 +51,7 @@ file is usable; no traceback; < 500 MB.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import math
@@ -123,7 +124,7 @@ class Daemon:
         )
         config.write_text(self.config_text)
         self.log_path = workdir / "daemon.log"
-        self._log = open(self.log_path, "wb")
+        self._log = open(self.log_path, "wb")  # noqa: SIM115 - the daemon's output for its whole life; closed in stop()
         limit = (fd_limit, fd_limit)
         self.process = subprocess.Popen(
             [str(ADXLGW), "run", "--config", str(config)], cwd=ROOT, stdout=self._log, stderr=subprocess.STDOUT,
@@ -282,7 +283,8 @@ def run_case(name: str, daemon: Daemon, polls: int, attack=None, check=None, plc
         except OSError:  # a check may have outlasted the idle timeout: a fresh connection
             plc.close()
             after = plc.counters()
-        counts = (f"clients {after['MODBUS_CLIENTS']}, refused +{after['MODBUS_REFUSED_CONNECTIONS'] - before['MODBUS_REFUSED_CONNECTIONS']}, "
+        counts = (f"clients {after['MODBUS_CLIENTS']}, "
+                  f"refused +{after['MODBUS_REFUSED_CONNECTIONS'] - before['MODBUS_REFUSED_CONNECTIONS']}, "
                   f"closed +{after['MODBUS_CLOSED_CONNECTIONS'] - before['MODBUS_CLOSED_CONNECTIONS']}, "
                   f"rejected frames +{after['MODBUS_REJECTED_FRAMES'] - before['MODBUS_REJECTED_FRAMES']}")
     except OSError as err:
@@ -328,10 +330,8 @@ def slowloris(daemon: Daemon, count: int = 200):
         def trickle():
             while not stop.wait(1.0):
                 for sock in socks:
-                    try:
+                    with contextlib.suppress(OSError):
                         sock.send(b"\x00")
-                    except OSError:
-                        pass
 
         threading.Thread(target=trickle, daemon=True).start()
         return {"sockets": socks, "stop": stop, "t0": time.monotonic()}
@@ -340,7 +340,8 @@ def slowloris(daemon: Daemon, count: int = 200):
         remaining = max(0.0, held["t0"] + 5.0 + 2.0 - time.monotonic())  # idle timeout 5 s, sweep margin
         time.sleep(remaining)
         closed = sum(closed_at_once(sock, 0.05) for sock in held["sockets"])
-        return closed == len(held["sockets"]), f"{closed} of {len(held['sockets'])} closed (refused at once or by the idle timeout)"
+        return (closed == len(held["sockets"]),
+                f"{closed} of {len(held['sockets'])} closed (refused at once or by the idle timeout)")
 
     return attack, check
 
@@ -351,7 +352,7 @@ def malformed_then_valid(daemon: Daemon):
 
     def check(_):
         results = []
-        for label, (protocol, length) in headers.items():
+        for protocol, length in headers.values():
             with socket.create_connection(("127.0.0.1", daemon.port), timeout=2) as sock:
                 sock.sendall(mbap(1, READ_10, protocol=protocol, length=length) + b"".join(
                     mbap(t, READ_10) for t in range(2, 20)))
@@ -563,7 +564,8 @@ def offline_run(name: str, command: str, args: list, cwd: Path) -> dict:
 
 
 def format_offline(r: dict) -> str:
-    return (f"{r['file']:<42} {r['command']:<18} goal: {'yes' if r['served'] else 'NO '}  exit {r['exit']:3d}  stderr lines {r['stderr_lines']:3d} "
+    return (f"{r['file']:<42} {r['command']:<18} goal: {'yes' if r['served'] else 'NO '}  exit {r['exit']:3d}  "
+            f"stderr lines {r['stderr_lines']:3d} "
             f"(errors {r['error_lines']})  "
             f"peak RSS {r['peak_rss_mb']:6.1f} MB  {r['wall_s']:6.2f} s  {'TRACEBACK  ' if r['traceback'] else ''}"
             f"{r['last_line']}")
@@ -662,7 +664,8 @@ def main() -> int:
         if args.only != "offline":
             rows += daemon_cases(workdir, args, polls)
         if args.only != "daemon":
-            print("# offline commands on hostile files, each in its own process (its own peak RSS: started from a bare launcher)")
+            print("# offline commands on hostile files, each in its own process "
+                  "(its own peak RSS: started from a bare launcher)")
             rows += offline_cases(workdir)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1) + "\n")
@@ -673,7 +676,8 @@ def format_row(r: dict) -> str:
     if "p99_ms" not in r:
         return f"{r['case']:<58} served: {'yes' if r['served'] else 'NO'}  {r['detail']}"
     return (f"{r['case']:<58} served: {'yes' if r['served'] else 'NO ':<3}  p99 {r['p99_ms']:7.2f} ms  "
-            f"failures {r['plc_failures']:3d}/{r['plc_polls']}  RSS {r['rss_mb']:6.1f} MB (peak {r['peak_rss_mb']:6.1f})"
+            f"failures {r['plc_failures']:3d}/{r['plc_polls']}  "
+            f"RSS {r['rss_mb']:6.1f} MB (peak {r['peak_rss_mb']:6.1f})"
             f"  log {r['log_bytes']:7d} B ({r['log_bytes_per_s']} B/s)  {r['detail']}")
 
 

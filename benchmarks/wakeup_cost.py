@@ -137,7 +137,7 @@ def together(codes: list, seconds: float, capture: bool = False) -> tuple[list[f
         proc = subprocess.Popen([sys.executable, "-c", code(str(pty.link))], cwd=ROOT,
                                 stdout=subprocess.PIPE if capture else subprocess.DEVNULL, text=True)
         readers.append((pty, proc))
-    for pty, proc in readers:
+    for pty, _proc in readers:
         if not pty.wait_for_reader(120):
             for _, p in readers:
                 p.kill()
@@ -184,8 +184,9 @@ def main() -> None:
         variants = {name: code for name, code in variants.items()
                     if name in ("asyncio reader (the floor)", "gateway, default config")}
     for other in args.compare:
-        variants[f"gateway @ {other}, default config"] = (
-            lambda link, root=str(Path(other).resolve()): GATEWAY.format(root=root, link=link, can=True, batch=5))
+        other_root = str(Path(other).resolve())
+        variants[f"gateway @ {other}, default config"] = (  # root bound now, not at the loop's end
+            lambda link, root=other_root: GATEWAY.format(root=root, link=link, can=True, batch=5))
     print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
           f"--repeat {args.repeat}" + (" --gateways-only" if args.gateways_only else "")
           + "".join(f" --compare {other}" for other in args.compare))

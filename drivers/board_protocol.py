@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from types import MappingProxyType
-from typing import Final, Protocol, Union
+from typing import Final, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -211,7 +211,7 @@ class Hello(_BoardReport):
     """Once after every board reset; ``seq`` is 0xFFFF so the next SAMPLE is seq 0."""
 
 
-Frame = Union[Sample, Status, Hello]
+Frame = Sample | Status | Hello
 
 
 # --- encoders -------------------------------------------------------------------------

@@ -222,7 +222,6 @@ def frame_table(base_id: int = DEFAULT_BASE_ID) -> FrameTable:
 
 DEFAULT_FRAMES = frame_table()
 FRAMES: tuple[FrameSpec, ...] = DEFAULT_FRAMES.frames
-CYCLIC_FRAMES: tuple[FrameSpec, ...] = DEFAULT_FRAMES.cyclic
 
 
 # --------------------------------------------------------------------------- #

@@ -14,7 +14,7 @@ import enum
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 
 class StatusBits(enum.IntFlag):
@@ -168,10 +168,6 @@ class PublishedValues:
     #: DDATA the MQTT edge node dropped since start (its queue was full), copied by the
     #: daemon like can_send_errors.
     mqtt_dropped: int = 0
-
-    def with_status(self, status: StatusBits) -> PublishedValues:
-        """The same snapshot with another status (publishers add SCALED_CLAMPED)."""
-        return replace(self, status=status)
 
     @property
     def usable(self) -> bool:

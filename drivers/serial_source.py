@@ -289,7 +289,7 @@ class SerialSource:
         self.open()
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, *_exc_info: object) -> None:
         self.close()
 
     def _lose(self, err: BaseException) -> None:

@@ -198,14 +198,14 @@ class FleetListener:
         self._client.disconnect()
         self._client.loop_stop()
 
-    def _connected(self, client, userdata, flags, reason, properties) -> None:
+    def _connected(self, client, _userdata, flags, reason, _properties) -> None:
         if reason.is_failure:
             self.connect_error = str(reason)
             return
         client.subscribe(f"{spb.NAMESPACE}/{self._group}/#", qos=1)
         self.connected.set()
 
-    def _message(self, client, userdata, message: mqtt.MQTTMessage) -> None:
+    def _message(self, client, _userdata, message: mqtt.MQTTMessage) -> None:
         arrived = time.time()
         with self.lock:
             handled = self.view.handle(message.topic, message.payload, arrived)

@@ -258,20 +258,20 @@ class SparkplugNode:
             client.loop_misc()
 
     # ------------------------------------------------ paho's callbacks (in polls) --
-    def _pre_connect(self, client: mqtt.Client, userdata: Any) -> None:
+    def _pre_connect(self, client: mqtt.Client, _userdata: Any) -> None:
         # a new session each CONNECT: the next bdSeq, and the will that ends this session
         self._bd_seq = (self._bd_seq + 1) % spb.SEQ_MODULO
         client.will_set(self.topics["NDEATH"], spb.node_death(self._bd_seq), qos=1, retain=False)
 
-    def _on_connect(self, client, userdata, flags, reason, properties) -> None:
+    def _on_connect(self, client, _userdata, flags, reason, _properties) -> None:
         self._connected(reason.is_failure, str(reason))
 
-    def _on_disconnect(self, client, userdata, flags, reason, properties) -> None:
+    def _on_disconnect(self, client, _userdata, flags, reason, _properties) -> None:
         self._socket_ready = False
         self._reconnect_now.set()
         self._disconnected(str(reason))
 
-    def _on_message(self, client, userdata, message: mqtt.MQTTMessage) -> None:
+    def _on_message(self, client, _userdata, message: mqtt.MQTTMessage) -> None:
         self._message(message.topic, message.payload)
 
     # ------------------------------------------------------------- Sparkplug --

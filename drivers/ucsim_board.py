@@ -15,6 +15,7 @@ the idle share is s51's count, not an estimate.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import shutil
@@ -232,10 +233,8 @@ def read_pipe(path: Path, chunks: list[bytes], done: threading.Event, lock: thre
 def _release_pipe_reader(path: Path) -> None:
     """A reader still blocked opening the pipe (its writer died before opening it) gets
     its end of file: open the write end once and close it."""
-    try:
+    with contextlib.suppress(OSError):  # no reader waiting in open(): nothing to release
         os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
-    except OSError:
-        pass  # no reader waiting in open(): nothing to release
 
 
 def relay_paced(pipe_path: Path, port: PtyPort, wait_for_reader_s: float | None = None,

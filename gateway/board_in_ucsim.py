@@ -299,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _interrupt(signum, frame) -> None:
+def _interrupt(_signum, frame) -> None:
     raise KeyboardInterrupt  # SIGTERM ends as Ctrl-C does: s51 stopped, the pty and its link removed
 
 

@@ -161,7 +161,8 @@ SCHEMA: tuple[Key, ...] = (
         "python-can interface: socketcan in production (the channel must exist: adxlgw config --check "
         "says so), virtual for tests and the demo.", _nonempty),
     Key("can", "channel", "can0", str, "CAN channel (can0, vcan0, or a virtual bus name).", _nonempty),
-    Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).", _range(10_000, 1_000_000)),
+    Key("can", "bitrate", 500000, int, "Bit rate where the interface sets it (not socketcan).",
+        _range(10_000, 1_000_000)),
     Key("can", "period_ms", 10, int, "Cycle time of the position/velocity/status frames (ms).", _range(1, 10_000)),
     Key("can", "sync_to_updates", True, bool,
         "Send each cycle's frames with the first new values (one per batch of board samples) from "
@@ -229,7 +230,8 @@ SCHEMA: tuple[Key, ...] = (
     # --- state and service -------------------------------------------------
     Key("state", "path", "/var/lib/adxl-gateway/state.json", str,
         "Where calibration and the tare offset survive a restart (written atomically).", _nonempty),
-    Key("service", "log_level", "info", str, "debug, info, warning or error.", _one_of("debug", "info", "warning", "error")),
+    Key("service", "log_level", "info", str, "debug, info, warning or error.",
+        _one_of("debug", "info", "warning", "error")),
     Key("service", "view", False, bool, "Draw a live terminal view of distance, velocity and status."),
 )
 
@@ -262,9 +264,6 @@ class _Section:
     def __init__(self, name: str, keys: dict[str, Any]):
         self._name = name
         self.__dict__.update(keys)
-
-    def as_tuple(self) -> tuple:
-        return tuple(sorted((k, repr(v)) for k, v in self.__dict__.items() if not k.startswith("_")))
 
     def __repr__(self) -> str:
         items = ", ".join(f"{k}={v!r}" for k, v in self.__dict__.items() if not k.startswith("_"))

@@ -89,7 +89,8 @@ def quiet_rest(path: Path, step_mg: float | None, strokes: int = 3, seed: int = 
     acc = run.ref_acc_mps2.copy()
     if step_mg is not None:
         step = step_mg * 1e-3 * STANDARD_GRAVITY_MPS2
-        acc = np.round((acc + np.random.default_rng(seed).normal(0, 2e-3 * STANDARD_GRAVITY_MPS2, acc.size)) / step) * step
+        noise = np.random.default_rng(seed).normal(0, 2e-3 * STANDARD_GRAVITY_MPS2, acc.size)
+        acc = np.round((acc + noise) / step) * step
     write_recording(path, {"axis": "x"}, {"t_s": run.t_s - run.t_s[0], "acc_x_mps2": acc,
                                           "ref_pos_m": run.ref_pos_m, "ref_vel_mps": run.ref_vel_mps})
     return path

@@ -87,7 +87,7 @@ def reference_decode(stream: bytes) -> list[Located]:
             continue
         p = stream[i + 4 : end - 2]
 
-        def u16(k: int) -> int:
+        def u16(k: int, p: bytes = p) -> int:  # binds this frame's payload
             return int.from_bytes(p[k : k + 2], "big")
 
         lost = 0

@@ -179,7 +179,8 @@ def test_cantools_decodes_the_published_values(position, velocity, acceleration,
     assert (pos["Pos_Valid"], pos["Pos_Standstill"], pos["Pos_Stale"], pos["Pos_BoardLost"]) == tuple(
         int(bool(status & bit)) for bit in (1, 2, 4, 8)
     )
-    for decoded, payload, frame in ((pos, frames[POSITION_FRAME], POSITION_FRAME), (vel, frames[VELOCITY_FRAME], VELOCITY_FRAME)):
+    for decoded, payload, frame in ((pos, frames[POSITION_FRAME], POSITION_FRAME),
+                                    (vel, frames[VELOCITY_FRAME], VELOCITY_FRAME)):
         prefix = frame.signals[0].name.split("_")[0]
         assert decoded[f"{prefix}_Counter"] == counter
         assert decoded[f"{prefix}_CRC"] == reference_p01_crc(frame.frame_id, payload)

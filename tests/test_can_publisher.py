@@ -645,14 +645,16 @@ def test_two_gateways_share_one_bus_on_their_own_identifiers(channel: str) -> No
 
     async def scenario() -> list:
         configs = [dataclasses.replace(virtual_config(channel, commands_enabled=True), frames=t) for t in tables]
-        async with publishing(configs[0], on_command=lambda c, s: received[0].append(c) or True) as (first, peer):
-            async with publishing(configs[1], on_command=lambda c, s: received[1].append(c) or True) as (second, _):
-                first.update(PublishedValues(position_m=1.5, status=StatusBits.VALID))
-                second.update(PublishedValues(position_m=-2.25, status=StatusBits.VALID))
-                frames = await peer.frames(40)
-                peer.send(tables[1].command.frame_id, encode_command(Command.TARE, 1, tables[1]))
-                acks = await peer.frames(1, tables[1].ack.frame_id)
-                return frames, acks
+        async with (
+            publishing(configs[0], on_command=lambda c, s: received[0].append(c) or True) as (first, peer),
+            publishing(configs[1], on_command=lambda c, s: received[1].append(c) or True) as (second, _),
+        ):
+            first.update(PublishedValues(position_m=1.5, status=StatusBits.VALID))
+            second.update(PublishedValues(position_m=-2.25, status=StatusBits.VALID))
+            frames = await peer.frames(40)
+            peer.send(tables[1].command.frame_id, encode_command(Command.TARE, 1, tables[1]))
+            acks = await peer.frames(1, tables[1].ack.frame_id)
+            return frames, acks
 
     frames, acks = run(scenario())
     dbs = [cantools.database.load_string(dbc_text(t), database_format="dbc") for t in tables]

@@ -20,7 +20,7 @@ def test_default_text_is_complete_valid_toml_with_every_key_commented():
     for key in SCHEMA:
         start = f"# {key.name} = " if key.default is None else f"{key.name} = "
         i = next(n for n, line in enumerate(lines) if line.startswith(start)
-                 and f"[{key.section}]" in [l for l in lines[:n] if l.startswith("[")][-1:])
+                 and f"[{key.section}]" in [head for head in lines[:n] if head.startswith("[")][-1:])
         assert lines[i - 1].startswith("# ")
         if key.default is None:
             assert tomllib.loads(lines[i][2:])[key.name] == key.example

@@ -185,7 +185,7 @@ def test_restart_keeps_position_but_flags_it_not_referenced(tmp_path):
     cfg = tmp_path / "gw.toml"
     write_config(cfg, str(emu.link), port)
     try:
-        for attempt in range(2):
+        for _attempt in range(2):
             daemon = subprocess.Popen([*CLI, "run", "--config", str(cfg)],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
             deadline = time.monotonic() + 30

@@ -236,7 +236,6 @@ def test_smoother_matches_a_generic_rts_with_pseudo_inverses(filtered):
 
 
 def test_motion_step_closed_form_q_is_van_loans():
-    prm = np.zeros(K.N_PARAMS)
     for dt in (2e-3, 0.05, 1.0):
         x, P = np.zeros(3), np.zeros((3, 3))
         K.propagate_motion(x, P, dt, 0.0, 0.0, 2.5e-6, 3e-9, 0.0, 0.0)
@@ -279,7 +278,8 @@ def test_realtime_class_reproduces_the_offline_track():
     np.testing.assert_allclose([e.pos_std_m for e in got], track.pos_std_m, rtol=1e-12, atol=1e-15)
 
 
-@pytest.mark.skipif(not JIT_ENABLED, reason="numba not available (not installed, or ADXLGW_NO_JIT set): no compiled loop to compare")
+@pytest.mark.skipif(not JIT_ENABLED,
+                    reason="numba not available (not installed, or ADXLGW_NO_JIT set): no compiled loop to compare")
 def test_compiled_loop_equals_the_plain_python_step():
     sensor, t, z, ok, lost, hint = _recording(seed=106, with_hint=True)
     settings = from_sensor_model(sensor)

@@ -28,14 +28,16 @@ def results():
     sensor = SensorParams()
     settings = from_sensor_model(sensor)
     profile = reciprocating_strokes(StrokeSettings(strokes=10))
-    out = {m: {"tenth": [], "rms": [], "vel_rms": [], "moving_max": []} for m in ("raw", "paper", "realtime", "smoothed", "floor")}
+    out = {m: {"tenth": [], "rms": [], "vel_rms": [], "moving_max": []}
+           for m in ("raw", "paper", "realtime", "smoothed", "floor")}
     for seed in SEEDS:
         run = simulate(profile, sensor, seed=seed)
         t = sample_times_s(run.t2, run.tick_hz)
         z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
         true_bias = (sensor.x.zero_g_offset_g + drift_g(t, sensor.x.drift)) * STANDARD_GRAVITY_MPS2
         for name, method, extra in (("raw", "raw", {}), ("paper", "paper", {}), ("realtime", "realtime", {}),
-                                    ("smoothed", "smoothed", {}), ("floor", "realtime", {"known_bias_mps2": true_bias})):
+                                    ("smoothed", "smoothed", {}),
+                                    ("floor", "realtime", {"known_bias_mps2": true_bias})):
             track = estimate_series(t, z, method=method, settings=settings, **extra)
             s = summarise_errors(t, track.pos_m, run.ref_pos_m, run.ref_vel_mps, run.ref_acc_mps2, track.vel_mps)
             assert len(s.stops) == 10

@@ -83,6 +83,7 @@ def test_object_selection_follows_the_spec() -> None:
 
 
 @pytest.mark.parametrize("text, numbers", [("0.1.0", (0, 1, 0)), ("2.10", (2, 10, 0)), ("1.2.3rc1", (1, 2, 3)),
-                                           ("0.0.0+unknown", (0, 0, 0)), ("x.y.z", (0, 0, 0)), ("99999.1.1", (65535, 1, 1))])
+                                           ("0.0.0+unknown", (0, 0, 0)), ("x.y.z", (0, 0, 0)),
+                                           ("99999.1.1", (65535, 1, 1))])
 def test_version_numbers(text: str, numbers: tuple[int, int, int]) -> None:
     assert version_numbers(text) == numbers

@@ -308,10 +308,12 @@ def test_write_multiple_runs_commands_in_address_order() -> None:
     recorder = Recorder()
 
     async def scenario() -> None:
-        async with serving(tcp_config(writes_enabled=True), recorder) as server:
-            async with tcp_client(server.tcp_port) as client:
-                response = await client.write_registers(0, [1, 1], device_id=1)
-                assert not response.isError(), response
+        async with (
+            serving(tcp_config(writes_enabled=True), recorder) as server,
+            tcp_client(server.tcp_port) as client,
+        ):
+            response = await client.write_registers(0, [1, 1], device_id=1)
+            assert not response.isError(), response
 
     run(scenario())
     assert [c for c, _ in recorder.calls] == [Command.TARE, Command.REESTIMATE_BIAS]
@@ -323,7 +325,8 @@ def test_writes_are_refused_when_disabled() -> None:
     async def scenario() -> None:
         async with serving(tcp_config(writes_enabled=False), recorder) as server:
             async with tcp_client(server.tcp_port) as client:
-                for request in (client.write_register(0, 1, device_id=1), client.write_registers(0, [1, 1], device_id=1)):
+                for request in (client.write_register(0, 1, device_id=1),
+                                client.write_registers(0, [1, 1], device_id=1)):
                     response = await request
                     assert response.isError() and response.exception_code == 1
                 words = await read_table(client)
@@ -364,10 +367,12 @@ def test_an_empty_allow_list_admits_nobody() -> None:
     recorder = Recorder()
 
     async def scenario() -> None:
-        async with serving(tcp_config(writes_enabled=True, write_allow=()), recorder) as server:
-            async with tcp_client(server.tcp_port) as client:
-                response = await client.write_register(0, 1, device_id=1)
-                assert response.isError() and response.exception_code == 1
+        async with (
+            serving(tcp_config(writes_enabled=True, write_allow=()), recorder) as server,
+            tcp_client(server.tcp_port) as client,
+        ):
+            response = await client.write_register(0, 1, device_id=1)
+            assert response.isError() and response.exception_code == 1
 
     run(scenario())
     assert recorder.calls == []
@@ -457,7 +462,8 @@ def test_malformed_requests_do_not_disturb_other_clients() -> None:
                 assert await raw_exchange(port, mbap(2, b"\x04\x00\x00\x00\x00")) == mbap(2, b"\x84\x03")  # count 0
                 assert await raw_exchange(port, mbap(3, b"\x04\x00\x00\x00\xc8")) == mbap(3, b"\x84\x03")  # count 200
                 assert await raw_exchange(port, mbap(4, b"\x04\x00")) == mbap(4, b"\x84\x03")  # truncated
-                assert await raw_exchange(port, mbap(5, b"\x03\x00\x00\x00\x01\x09")) != b""  # extra byte: still one answer
+                # an extra byte: still one answer
+                assert await raw_exchange(port, mbap(5, b"\x03\x00\x00\x00\x01\x09")) != b""
                 # not Modbus at all: no answer, no crash
                 assert await raw_exchange(port, mbap(6, b"\x04\x00\x00\x00\x01", protocol=5)) == b""
                 assert await raw_exchange(port, struct.pack(">HHHB", 7, 0, 60000, 1) + b"\x04") == b""

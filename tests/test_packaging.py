@@ -17,7 +17,7 @@ from gateway.config import default_config_text
 ROOT = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "gateway.cli"]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
-TEST_ONLY = {"pytest", "hypothesis", "filterpy", "cantools", "pyte"}
+TEST_ONLY = {"pytest", "hypothesis", "filterpy", "cantools", "pyte", "ruff"}
 
 
 def constraints() -> dict[str, str]:

@@ -42,7 +42,8 @@ def hostile_files(draw, bases):
         elif kind == "delete":
             del data[at:at + draw(st.integers(1, 200))]
         elif kind == "insert":
-            data[at:at] = draw(st.binary(min_size=1, max_size=40) | st.text("0123456789.,-e\n", max_size=40).map(str.encode))
+            garbage = st.binary(min_size=1, max_size=40) | st.text("0123456789.,-e\n", max_size=40).map(str.encode)
+            data[at:at] = draw(garbage)
         elif kind == "cell":
             data[at:at] = draw(st.sampled_from([b"nan", b"inf", b"-1e300", b"1e300", b"65536", b"-1", b"\"",
                                                 b",", b"\n", b"\r\n", b"#", b"abc", b"0x10", b"\xff", b"\xc3"]))

@@ -48,7 +48,10 @@ REPORT = dict(tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 G = STANDARD_GRAVITY_MPS2
 
 
-def pipeline(axis: str = "x", calibration: Calibration = Calibration(), start_at_rest: bool = True) -> SamplePipeline:
+UNCALIBRATED = Calibration()  # frozen: one shared default is safe
+
+
+def pipeline(axis: str = "x", calibration: Calibration = UNCALIBRATED, start_at_rest: bool = True) -> SamplePipeline:
     # the streams here start at rest (a board reset mid-stream still counts as possibly mid-move)
     return SamplePipeline(calibration, from_sensor_model(), axis, start_at_rest=start_at_rest)
 

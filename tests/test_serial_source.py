@@ -153,7 +153,7 @@ def test_deliver_reads_once_per_arrival_and_keeps_the_reader_registered(make_pty
         await asyncio.sleep(0.05)
         for k, sample in enumerate(sent):
             os.write(pty.master, wire([sample]))
-            await wait_until(lambda: len(consumer.frames) == k + 1, f"frame {k}")
+            await wait_until(lambda k=k: len(consumer.frames) == k + 1, f"frame {k}")
         state = source.state
         await consumer.stop()
         return consumer.frames, state, registrations
@@ -527,9 +527,11 @@ def test_a_file_that_is_not_a_tty_is_refused(tmp_path: Path):
 
 def test_second_reader_of_the_same_port_is_refused(make_pty):
     pty = make_pty()
-    with SerialSource(SerialSettings(port=pty.path)):
-        with pytest.raises(SerialPortError, match="another process holds the port"):
-            SerialSource(SerialSettings(port=pty.path)).open()
+    with (
+        SerialSource(SerialSettings(port=pty.path)),
+        pytest.raises(SerialPortError, match="another process holds the port"),
+    ):
+        SerialSource(SerialSettings(port=pty.path)).open()
 
 
 def test_settings_are_validated():

@@ -43,11 +43,16 @@ def add_scenario_options(p: argparse.ArgumentParser, default_strokes: int = 10) 
                    help="paper: reciprocating strokes; move: one move; standstill: at rest (default: paper)")
     g.add_argument("--strokes", type=positive_int, default=default_strokes,
                    help=f"one-way strokes, each followed by a stop (default: {default_strokes})")
-    g.add_argument("--stroke-m", type=positive_float, default=d.stroke_m, help=f"stroke length, m (default: {d.stroke_m})")
-    g.add_argument("--speed-mps", type=positive_float, default=d.max_speed_mps, help=f"cruise speed, m/s (default: {d.max_speed_mps})")
-    g.add_argument("--acc-mps2", type=positive_float, default=d.max_acc_mps2, help=f"acceleration, m/s² (default: {d.max_acc_mps2})")
-    g.add_argument("--dwell-s", type=non_negative_float, default=d.dwell_s, help=f"stop at each end, s (default: {d.dwell_s})")
-    g.add_argument("--rest-s", type=non_negative_float, default=d.rest_start_s, help=f"rest before the first stroke, s (default: {d.rest_start_s})")
+    g.add_argument("--stroke-m", type=positive_float, default=d.stroke_m,
+                   help=f"stroke length, m (default: {d.stroke_m})")
+    g.add_argument("--speed-mps", type=positive_float, default=d.max_speed_mps,
+                   help=f"cruise speed, m/s (default: {d.max_speed_mps})")
+    g.add_argument("--acc-mps2", type=positive_float, default=d.max_acc_mps2,
+                   help=f"acceleration, m/s² (default: {d.max_acc_mps2})")
+    g.add_argument("--dwell-s", type=non_negative_float, default=d.dwell_s,
+                   help=f"stop at each end, s (default: {d.dwell_s})")
+    g.add_argument("--rest-s", type=non_negative_float, default=d.rest_start_s,
+                   help=f"rest before the first stroke, s (default: {d.rest_start_s})")
     g.add_argument("--jerk-mps3", type=non_negative_float, default=d.jerk_mps3,
                    help="jerk limit of the drive, m/s³: each acceleration step becomes a ramp (an S-curve drive, "
                         "as servo drives and robots move; e.g. 400); 0: steps, the paper's drive (default: 0)")
@@ -77,7 +82,7 @@ class StopOnSignal:
         signal.signal(signal.SIGTERM, self._raise)
         signal.signal(signal.SIGINT, self._raise)
 
-    def _raise(self, signum, frame) -> None:
+    def _raise(self, _signum, frame) -> None:
         self.stop = True
 
     def __bool__(self) -> bool:

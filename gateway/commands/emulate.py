@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         threading.Thread(target=_stop_at_end_of_stdin, daemon=True, name="stdin-watch").start()
         # a parent that led a terminal's session (the demo on a terminal) takes its process
         # group with it by SIGHUP when it dies: stop in order then too (the link removed)
-        signal.signal(signal.SIGHUP, lambda signum, frame: setattr(stop, "stop", True))
+        signal.signal(signal.SIGHUP, lambda _signum, frame: setattr(stop, "stop", True))
 
     if not args.no_wait:
         while not stop and not out.wait_for_reader(timeout_s=0.2):

@@ -31,7 +31,8 @@ def add_parser(sub) -> None:
     p.add_argument("--block-s", type=positive_float, default=1.0,
                    help="block length for the fit and the whiteness test, s (default: 1)")
     p.add_argument("--plot", metavar="FILE.png", help="plot file (default: <recording name>_drift.png here)")
-    p.add_argument("--model-out", metavar="DRIFT.json", help="write the fitted model for 'adxlgw estimate --drift-model'")
+    p.add_argument("--model-out", metavar="DRIFT.json",
+                   help="write the fitted model for 'adxlgw estimate --drift-model'")
     p.set_defaults(run=run)
 
 
@@ -43,7 +44,8 @@ def report(fit: DriftFit) -> list[str]:
     m = fit.model
     wb = fit.whiteness
     n = fit.noise
-    verdict = "white: the model explains the drift" if wb.white() else "NOT white: drift is left that the model does not explain"
+    verdict = ("white: the model explains the drift" if wb.white()
+               else "NOT white: drift is left that the model does not explain")
     lines = [
         "zero-drift model ε(t) = C1·(1 − e^(−t/T)) + C2  (C2 includes the part's zero-g offset)",
         f"  C1 = {m.c1_g * 1e3:+.4f} ± {fit.c1_std_g * 1e3:.4f} mg",
@@ -104,7 +106,8 @@ def plot_fit(path: str, fit: DriftFit, t0_s: float, title: str) -> None:
     if n.bias_instability:
         ax.axhline(0.664 * n.bias_instability * 1e6, ls=":", color="g", label="0.664·B")
     k = n.rate_random_walk_per_rts or n.random_walk_bound_per_rts
-    ax.loglog(tau, k * np.sqrt(tau / 3) * 1e6, ":", label="K·√(τ/3)" + ("" if n.rate_random_walk_per_rts else " (bound)"))
+    ax.loglog(tau, k * np.sqrt(tau / 3) * 1e6, ":",
+              label="K·√(τ/3)" + ("" if n.rate_random_walk_per_rts else " (bound)"))
     ax.set_xlabel("τ (s)")
     ax.set_ylabel("σ_A (µg)")
     ax.legend(fontsize=8)

@@ -91,10 +91,7 @@ def _cells(row, now_s: float) -> tuple[str, ...]:
     def mm(x):
         return "—" if x is None else f"{x * 1000:.1f}"
 
-    if row.status is None:
-        status = "—"
-    else:
-        status = f"{'usable' if row.usable else 'NOT usable'} 0x{row.status:04x}"
+    status = "—" if row.status is None else f"{'usable' if row.usable else 'NOT usable'} 0x{row.status:04x}"
     seen = "never" if row.last_seen_unix_s is None else f"{max(0.0, now_s - row.last_seen_unix_s):.1f} s ago"
     return (row.group, row.node, row.device or "—", "online" if row.online else "DEAD", mm(row.position_m),
             mm(row.velocity_mps), status, seen, str(row.births), str(row.lost))
@@ -115,7 +112,8 @@ def _rich_table(rows):
 
     table = Table(title="Sparkplug B fleet")
     for name in COLUMNS:
-        table.add_column(name, justify="right" if name in ("position mm", "velocity mm/s", "births", "lost") else "left")
+        numeric = name in ("position mm", "velocity mm/s", "births", "lost")
+        table.add_column(name, justify="right" if numeric else "left")
     now = time.time()
     for r in rows:
         table.add_row(*_cells(r, now), style=None if r.online else "red")

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import os
 import sys
@@ -91,8 +92,6 @@ def exit_now(code: int) -> NoReturn:
     left to flush; nothing of ours is registered with atexit."""
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
-        try:
+        with contextlib.suppress(OSError, ValueError):  # a closed or broken stream: nothing more can be said on it
             stream.flush()
-        except (OSError, ValueError):  # a closed or broken stream: nothing more can be said on it
-            pass
     os._exit(code)

@@ -246,15 +246,13 @@ def propagate_motion(x, P, dt, u, ddrift, qv, qb, missing_var, missing_dt):
     x[0] += x[1] * dt + h * a
     x[1] += a * dt
     x[2] += ddrift
-    # A = Φ P
+    # A = Φ P: only the entries the upper triangle of Φ P Φ' reads (Φ's rows 1 and 2 are
+    # [0, 1, -dt] and [0, 0, 1], so A's lower-left entries never enter it)
     a00 = P[0, 0] + dt * P[1, 0] - h * P[2, 0]
     a01 = P[0, 1] + dt * P[1, 1] - h * P[2, 1]
     a02 = P[0, 2] + dt * P[1, 2] - h * P[2, 2]
-    a10 = P[1, 0] - dt * P[2, 0]
     a11 = P[1, 1] - dt * P[2, 1]
     a12 = P[1, 2] - dt * P[2, 2]
-    a20 = P[2, 0]
-    a21 = P[2, 1]
     a22 = P[2, 2]
     # Φ P Φ' (upper triangle), plus Q of white velocity noise qv and bias random walk qb
     d2 = dt * dt
@@ -430,7 +428,7 @@ def mark_velocity_unknown(state: KernelState) -> None:
 @jit
 def hint_code(hint):
     """A recording's or a wire's hint (1 at rest, 0 moving, NaN unknown) → M_HINT's +1/−1/0."""
-    if not (hint == hint):  # NaN
+    if hint != hint:  # NaN (the one value not equal to itself)
         return 0.0
     return 1.0 if hint >= 0.5 else -1.0
 

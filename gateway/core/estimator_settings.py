@@ -26,6 +26,7 @@ import numpy as np
 from gateway.core.chi2 import chi2_isf
 from gateway.core.drift_fit import FittedDrift, allan_deviation, autocorrelation
 from gateway.core.sensor_model import (
+    BOARD_SENSOR,
     CALIBRATED_SENSITIVITY_TOLERANCE_FRAC,
     NOMINAL_DUTY_PER_G,
     SensorParams,
@@ -230,7 +231,8 @@ class EstimatorSettings:
             f"{self.drift_c1_mps2 / G * 1e3:.3g} mg, T = {self.drift_time_constant_s:.4g} s",
             f"standstill: window {self.window_samples} samples, variance ≤ "
             f"{math.sqrt(self.window_variance_threshold_mps2_sq) / G * 1e3:.3g} mg rms (or a vibration swinging "
-            f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), |v| ≤ {self.standstill_speed_floor_mps:g} m/s "
+            f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), "
+            f"|v| ≤ {self.standstill_speed_floor_mps:g} m/s "
             f"known to {self.standstill_velocity_sigmas:g} σ_v ≤ {self.standstill_speed_floor_mps:g} m/s (else "
             f"undecidable: flag 256; a stop after {self.quiet_stop_s:g} s of quiet)",
             f"sensitivity known to {self.sensitivity_std_frac * 100:.3g} % (1σ): carried in the reported σ",
@@ -265,7 +267,7 @@ def default_bias_random_walk(white_density: float, record_s: float = 4 * 3600.0)
     return white_density / math.sqrt(2.0 * tau) * math.sqrt(3.0 / tau)
 
 
-def from_sensor_model(sensor: SensorParams = SensorParams(), drift_fit: FittedDrift | None = None,
+def from_sensor_model(sensor: SensorParams = BOARD_SENSOR, drift_fit: FittedDrift | None = None,
                       axis: str = "x", **overrides) -> EstimatorSettings:
     """Settings for the ADXL202 on the 8051 board.
 

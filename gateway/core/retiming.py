@@ -275,7 +275,8 @@ def retime(arrival_s, settings: RetimingSettings = RetimingSettings()) -> Retimi
     if not T > 0:  # most chunks arrived at one instant: the whole file's floor line, then
         T = _sensor_period(fit_floor_line(k, a, bounds)[1])
     t0 = float(np.min(a - T * k))
-    for passes in range(1, settings.max_passes + 1):
+    while passes < settings.max_passes:  # the count is reported (Retiming.passes)
+        passes += 1
         confirm = min(max(int(np.ceil(settings.confirm_s / T)), 2), n)
         new = _new_gaps(a - (t0 + T * k), T, confirm, settings.gap_min_periods)
         lost += new

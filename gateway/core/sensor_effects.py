@@ -16,11 +16,6 @@ import numpy as np
 
 from gateway.core.filters import mount_resonance, one_pole_lowpass
 from gateway.core.simulator import ErrorTerm, SignalContext
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
-
-
-def _true_motion_g(ctx: SignalContext) -> np.ndarray:
-    return ctx.ref_acc_mps2 / G
 
 
 def _sensed_motion_g(ctx: SignalContext) -> np.ndarray:

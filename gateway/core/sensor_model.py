@@ -116,6 +116,10 @@ class SensorParams:
         return self.noise_density_g_per_rthz * math.sqrt(math.pi / 2.0 * self.bandwidth_hz)
 
 
+# the board as built (the values above); frozen, so one shared instance is a safe default argument
+BOARD_SENSOR = SensorParams()
+
+
 @dataclass(frozen=True)
 class HostLinkParams:
     """How samples reach the host: UART time of a frame plus OS/USB latency.
@@ -131,3 +135,7 @@ class HostLinkParams:
     @property
     def frame_time_s(self) -> float:
         return self.frame_bytes * 10 / self.baud
+
+
+# the link as assumed above; frozen, so one shared instance is a safe default argument
+BOARD_HOST_LINK = HostLinkParams()

@@ -22,7 +22,7 @@ from scipy.signal import lfilter
 
 from gateway.core.drift_model import drift_g
 from gateway.core.motion_profiles import PiecewiseConstantAcceleration
-from gateway.core.sensor_model import HostLinkParams, SensorParams
+from gateway.core.sensor_model import BOARD_HOST_LINK, BOARD_SENSOR, HostLinkParams, SensorParams
 from gateway.core.units import SEQ_MODULUS, STANDARD_GRAVITY_MPS2
 
 
@@ -177,10 +177,10 @@ def timer_counts(edges_s: np.ndarray, duty_x, duty_y, tick_hz: float, rng: np.ra
 
 def simulate(
     profile: PiecewiseConstantAcceleration,
-    sensor: SensorParams = SensorParams(),
+    sensor: SensorParams = BOARD_SENSOR,
     seed: int = 0,
     error_terms: tuple[ErrorTerm, ...] = (),
-    host: HostLinkParams = HostLinkParams(),
+    host: HostLinkParams = BOARD_HOST_LINK,
     duration_s: float | None = None,
 ) -> SimulatedRun:
     """Simulate the board's sample stream for a motion (along the sensor's X axis)."""

@@ -135,10 +135,6 @@ class BoardIntake:
         self._published_at = now_s
         self._values_built = False
 
-    @property
-    def published_at_s(self) -> float:
-        return self._published_at
-
     def snapshot(self, health: LinkHealth) -> PublishedValues:
         """What the wires show as of the last publish: built once per publish."""
         if not self._values_built:

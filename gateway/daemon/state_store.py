@@ -11,6 +11,7 @@ published. A temporary file left by a kill during a save is removed at load.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -243,10 +244,8 @@ class StateStore:
             return None
         old = sorted(self.path.parent.glob(f"{self.path.name}.bad-*"))[:-KEEP_BAD_FILES]
         for path in old:
-            try:
+            with contextlib.suppress(OSError):  # keeping one too many is harmless
                 path.unlink()
-            except OSError:
-                pass  # keeping one too many is harmless
         return target
 
 

@@ -14,12 +14,13 @@ so no wire shows older numbers than with a wakeup per frame. Where the port cann
 batch (a pyserial URL, batch_frames = 1) the bytes are kept with their arrival time
 until something needs the numbers or MAX_DEFER_S has passed. Either way a batch goes
 through the sample pipeline (runs of SAMPLE frames in one compiled call,
-gateway/daemon/sample_pipeline.py; events and snapshots in gateway/daemon/board_intake.py) and published once (the values are built only when a
-Modbus read or a CAN frame needs them); the CAN frames of a due cycle go out from
-inside that publish, locked onto the wakeups (drivers/can_publisher.py). Nothing else
-wakes the process while samples flow: the publishing tick is a timer that the batches
-keep pushing back, and fires only once the board has been quiet for PUBLISH_TICK_S to
-3 × PUBLISH_TICK_S (then every PUBLISH_TICK_S).
+gateway/daemon/sample_pipeline.py; events and snapshots in gateway/daemon/board_intake.py)
+and published once (the values are built only when a Modbus read or a CAN frame needs
+them); the CAN frames of a due cycle go out from inside that publish, locked onto the
+wakeups (drivers/can_publisher.py). Nothing else wakes the process while samples flow:
+the publishing tick is a timer that the batches keep pushing back, and fires only once
+the board has been quiet for PUBLISH_TICK_S to 3 × PUBLISH_TICK_S (then every
+PUBLISH_TICK_S).
 """
 from __future__ import annotations
 
@@ -154,7 +155,7 @@ class Gateway:
         await self.start()
         return self
 
-    async def __aexit__(self, *exc_info: object) -> None:
+    async def __aexit__(self, *_exc_info: object) -> None:
         await self.stop()
 
     async def start(self) -> None:
@@ -450,7 +451,8 @@ class Gateway:
         if self.modbus and self.modbus.tcp_port:
             parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         if self.can:
-            parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} ({self.can.counters.frames_sent} frames)")
+            parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} "
+                         f"({self.can.counters.frames_sent} frames)")
         if self.mqtt:
             parts.append(f"mqtt {self.mqtt.where} ({'connected' if self.mqtt.connected else 'not connected'})")
         return "  ".join(parts)
@@ -503,10 +505,11 @@ class Gateway:
         self._reloaded_at = self.clock()
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
-        if old.serial.port != new.serial.port or serial_settings_from(old, "port") != serial_settings_from(new, "port"):
-            # while the port is still being opened, the opener takes the new settings itself
-            if self.ready:
-                log.info("reload: reopening the board port")
-                self.board.reopen()
+        port_changed = (old.serial.port != new.serial.port
+                        or serial_settings_from(old, "port") != serial_settings_from(new, "port"))
+        # while the port is still being opened, the opener takes the new settings itself
+        if port_changed and self.ready:
+            log.info("reload: reopening the board port")
+            self.board.reopen()
         log.info("config reloaded from %s", new.source)
         self.notifier.ready()

@@ -302,7 +302,7 @@ def line_blocks(file: str, name: str, offset: int = 0, first_line: int = 1):
     than MAX_LINE_BYTES is a RecordingError naming `name` and the line. Also used by
     `adxlgw import` for foreign CSV files."""
     try:
-        fh = open(file, "rb")
+        fh = open(file, "rb")  # noqa: SIM115 - closed by `with fh` below; only open()'s error is "cannot read"
     except OSError as err:
         raise RecordingError(f"{name}: cannot read: {err.strerror or err}") from err
     with fh:
@@ -434,7 +434,9 @@ class CsvSource(RecordingSource):
                 raise self._locate(block, first_line, read_cols, err) from None
             cols = {n: table.column(n).to_numpy() for n in read_cols}
             if table.num_rows:
-                validator.check(cols, lambda i: f"{self.path}:{self._line_of_row(block, first_line, i)}")
+                # the row-to-line callback binds this block: it must not see the next one
+                validator.check(cols, lambda i, block=block, first_line=first_line:
+                                f"{self.path}:{self._line_of_row(block, first_line, i)}")
                 yield {n: cols[n] for n in wanted}
             if progress is not None:
                 progress.update(len(block))
@@ -480,7 +482,8 @@ class CsvSource(RecordingSource):
         # every row has its cells: some cell is not a number. The block again as text, each
         # column cast as the reader does; the first failing row by bisection (a few casts,
         # not one per cell: a 4 MiB block has ~65 000 rows)
-        text = pacsv.read_csv(pa.py_buffer(block), read_options=pacsv.ReadOptions(column_names=self.names, use_threads=False),
+        text = pacsv.read_csv(pa.py_buffer(block),
+                              read_options=pacsv.ReadOptions(column_names=self.names, use_threads=False),
                               convert_options=pacsv.ConvertOptions(
                                   column_types={n: pa.string() for n in read_cols}, include_columns=read_cols,
                                   null_values=[""], strings_can_be_null=True, quoted_strings_can_be_null=True))
@@ -569,8 +572,7 @@ class ParquetSource(RecordingSource):
                 for n in read_cols:
                     arr = batch.column(n).cast(pa.float64())
                     cols[n] = arr.fill_null(math.nan).to_numpy() if arr.null_count else arr.to_numpy()
-                base = start
-                validator.check(cols, lambda i: f"{self.path}: row {base + i + 1}")
+                validator.check(cols, lambda i, base=start: f"{self.path}: row {base + i + 1}")
                 start += batch.num_rows
                 yield {n: cols[n] for n in wanted}
                 if progress is not None:
@@ -691,7 +693,8 @@ class AccelerationConverter:
     def convert(self, c: dict[str, np.ndarray]) -> AccelerationSeries:
         main, other = ("x", "y") if self.axis == "x" else ("y", "x")
         if self.form == "raw":
-            flags = np.nan_to_num(c["flags"], nan=0.0).astype(np.int64) if "flags" in c else np.zeros(c["seq"].size, np.int64)
+            flags = (np.nan_to_num(c["flags"], nan=0.0).astype(np.int64) if "flags" in c
+                     else np.zeros(c["seq"].size, np.int64))
             try:
                 ch = self._raw.convert(c["seq"].astype(np.int64), c["t1x"], c["t1y"], c["t2"], flags)
             except ValueError as err:
@@ -809,7 +812,7 @@ class ColumnWriter:
                 self._writer = pq.ParquetWriter(str(self._tmp), self._schema, compression="lz4",
                                                 use_dictionary=[n for n in self.names if n in ints])
             else:
-                self._fh = open(self._tmp, "wb")
+                self._fh = open(self._tmp, "wb")  # noqa: SIM115 - open across write() calls; closed in close()/abort()
                 head = "".join(f"# {k}={_one_line(v)}\n" for k, v in (metadata or {}).items())
                 self._fh.write((head + _csv_header(self.names)).encode("utf-8"))
         except OSError as err:
@@ -867,7 +870,7 @@ class ColumnWriter:
     def __enter__(self):
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, exc_type, exc, _tb):
         if exc_type is None:
             self.commit()
         else:
@@ -914,7 +917,7 @@ class RecordingWriter:
             self._pending: list[dict] = []
             return
         try:
-            self._fh = open(path, "w", encoding="utf-8", newline="")
+            self._fh = open(path, "w", encoding="utf-8", newline="")  # noqa: SIM115 - open across write_row(); closed in close()
         except OSError as err:
             raise RecordingError(f"{path}: cannot write: {err.strerror or err}") from err
         for key, value in {"format": FORMAT_ID, **metadata}.items():

@@ -5,6 +5,7 @@ virtual bus: a frame written by one raw socket must come back, unchanged, on
 another socket bound to the same interface.
 """
 
+import contextlib
 import re
 import shutil
 import subprocess
@@ -57,10 +58,8 @@ def test_candump_captures_frame_sent_by_cansend():
         deadline = time.monotonic() + CANDUMP_WAIT_S
         while dump.poll() is None and time.monotonic() < deadline:
             subprocess.run(["cansend", CHANNEL, "123#DEADBEEF"], check=True)
-            try:
+            with contextlib.suppress(subprocess.TimeoutExpired):
                 dump.wait(timeout=0.1)
-            except subprocess.TimeoutExpired:
-                pass
         stdout, stderr = dump.communicate(timeout=1.0)
     finally:
         if dump.poll() is None:
