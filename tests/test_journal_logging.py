@@ -59,7 +59,8 @@ def test_the_command_line_prefixes_errors_and_warnings_for_the_journal(tmp_path)
         r = subprocess.run([*CLI, "config", "--check", str(bad)], stderr=stderr, stdout=subprocess.DEVNULL,
                            env=env, timeout=60)
     assert r.returncode == 2
-    assert log.read_text().splitlines() == [f"<3>adxlgw config: error: {bad}: unknown key modbus.prot"]
+    unknown = "unknown key modbus.prot (did you mean modbus.port?)"
+    assert log.read_text().splitlines() == [f"<3>adxlgw config: error: {bad}: {unknown}"]
     fake = tmp_path / "site" / "numba"  # numba that cannot start: one warning, priority 4
     fake.mkdir(parents=True)
     (fake / "__init__.py").write_text('raise PermissionError("cannot allocate executable memory")\n')
@@ -77,4 +78,5 @@ def test_off_the_journal_lines_are_plain(tmp_path):
     bad.write_text("[modbus]\nprot = 1\n")
     r = subprocess.run([*CLI, "config", "--check", str(bad)], capture_output=True, text=True, timeout=60,
                        env={**os.environ, "JOURNAL_STREAM": "1:1"})
-    assert r.stderr.splitlines() == [f"adxlgw config: error: {bad}: unknown key modbus.prot"]
+    unknown = "unknown key modbus.prot (did you mean modbus.port?)"
+    assert r.stderr.splitlines() == [f"adxlgw config: error: {bad}: {unknown}"]

@@ -2,6 +2,7 @@
 test-only libraries in the test extra, the unit, DBC and default config installable
 from the package itself."""
 import ast
+import contextlib
 import shutil
 import subprocess
 import sys
@@ -135,10 +136,8 @@ def _runtime_closure() -> set[str]:
         if name in seen or (req.marker is not None and not req.marker.evaluate({"extra": ""})):
             continue
         seen.add(name)
-        try:
+        with contextlib.suppress(PackageNotFoundError):  # an optional one not installed here
             todo.extend(Requirement(r) for r in requires(name) or [])
-        except PackageNotFoundError:
-            pass
     return seen
 
 

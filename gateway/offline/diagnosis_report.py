@@ -134,15 +134,6 @@ def candidate_rows(result: DiagnosisResult) -> list[tuple[str, str, str, str, st
     return [(c.name, c.status, _num(c.delta_bic, ".1f"), _p(c.p_value), c.reason) for c in result.candidates]
 
 
-def _size_text(row: dict) -> str:
-    parts = []
-    if row.get("residual_share") is not None:
-        parts.append(f"{100 * row['residual_share']:.2f} % of the residual variance")
-    if row.get("distance_improvement_mm") is not None:
-        parts.append(f"distance {row['distance_improvement_mm']:+.2f} mm")
-    return ", ".join(parts)
-
-
 def side_lists(result: DiagnosisResult) -> list[tuple[str, list[str]]]:
     """The three lists beside the named effects, as (heading, lines)."""
     return [
