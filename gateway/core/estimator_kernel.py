@@ -800,6 +800,10 @@ def step(state, prm, t_s, z, z_valid, lost_before):
                 # position this update moved: the reported σ covers both (disagreement_var)
                 m[M_DISAGREE_VAR] += disagreement_var(k0, zupt_y)
             flags |= F_ENTRY
+            if hint > 0.0:
+                # entered while the machine says "at rest": the hint's stop, whether its gate
+                # opened it or its soft update (step 3c) made the velocity test decide it
+                flags |= F_HINT_REST
         if zaru_ok:
             zaru_y = z - x[2]
             zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
