@@ -202,3 +202,25 @@ def test_the_machines_standstill_hint_over_modbus_and_can(tmp_path, pty):
             client.close()
 
     run(scenario())
+
+
+def test_a_reload_shows_at_once_on_modbus_even_while_the_board_is_silent(tmp_path, pty):
+    """CONFIG_RELOADED is news on the wires when the reload is applied, not at the board's
+    next sample: a reload that changes no wire leaves each wire as it was, and a silent
+    board (a slow emulated CPU) publishes nothing new."""
+    from drivers.published_values import StatusBits
+
+    cfg = gateway_config(tmp_path, str(pty.link), can={"enabled": False})
+    source = Reloadable(cfg)
+
+    async def scenario():
+        async with running_gateway(cfg, reload=source) as gw:
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
+            await client.connect()
+            assert StatusBits.CONFIG_RELOADED not in StatusBits((await read_inputs(client))["STATUS"])
+            await gw.reload()  # the same config: no wire changes
+            assert gw.counters.config_reloads == 1
+            assert StatusBits.CONFIG_RELOADED in StatusBits((await read_inputs(client))["STATUS"])
+            client.close()
+
+    run(scenario())

@@ -503,6 +503,10 @@ class Gateway:
         self.cfg = new
         self.counters.config_reloads += 1
         self._reloaded_at = self.clock()
+        # the reload is news on every wire (CONFIG_RELOADED) now, not at the next sample: a
+        # wire whose settings did not change is not touched by apply, and its image would
+        # show the values from before the reload until the board speaks again
+        self._publish(self._reloaded_at)
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
         port_changed = (old.serial.port != new.serial.port
