@@ -334,17 +334,25 @@ def validate(data: dict[str, Any], source: str) -> Config:
 MAX_CONFIG_BYTES = 1 << 20  # a real config is a few kB; anything this big is not one
 
 
+def read_bounded(path: str, max_bytes: int, where: str, kind: str) -> bytes:
+    """The bytes of a small file an operator points to (a config, a credentials file),
+    read no further than `max_bytes`: ConfigError starting with `where` when it cannot be
+    read or is larger — a wrong path (a log, a device) must not be read whole."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(max_bytes + 1)
+    except OSError as err:
+        raise ConfigError(f"{where}: cannot read: {err.strerror or err}") from err
+    if len(raw) > max_bytes:
+        raise ConfigError(f"{where}: larger than {max_bytes} bytes; not a {kind}")
+    return raw
+
+
 def load_config(path: str | Path | None) -> Config:
     if path is None:
         return validate({}, "<defaults>")
     path = str(path)
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CONFIG_BYTES + 1)
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read: {err.strerror or err}") from err
-    if len(raw) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES} bytes; not a config file")
+    raw = read_bounded(path, MAX_CONFIG_BYTES, path, "config file")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as err:

@@ -11,7 +11,7 @@ from drivers.can_publisher import CanPublisherConfig
 from drivers.modbus_server import ModbusServerConfig
 from drivers.serial_source import SerialSettings
 from drivers.sparkplug_node import SparkplugSettings
-from gateway.config import Config
+from gateway.config import Config, read_bounded
 from gateway.core.conversion import AxisCalibration, Calibration
 from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
 from gateway.core.sensor_model import SensorParams
@@ -77,13 +77,7 @@ MAX_CREDENTIALS_BYTES = 4096  # one line of user:password; anything bigger is no
 def read_credentials(path: str, where: str) -> tuple[str, str]:
     """(username, password) from the first line, username:password, of `path`; ConfigError
     starting with `where` when it cannot be read or is not that."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CREDENTIALS_BYTES + 1)
-    except OSError as err:
-        raise ConfigError(f"{where}: cannot read: {err.strerror or err}") from err
-    if len(raw) > MAX_CREDENTIALS_BYTES:
-        raise ConfigError(f"{where}: larger than {MAX_CREDENTIALS_BYTES} bytes; not a credentials file")
+    raw = read_bounded(path, MAX_CREDENTIALS_BYTES, where, "credentials file")
     try:
         first = raw.decode("utf-8").splitlines()[0] if raw.strip() else ""
     except UnicodeDecodeError as err:
