@@ -246,7 +246,8 @@ class SparkplugNode:
         client = self._client
         if client is None:
             return
-        if self._socket_ready and (now >= self._read_due_s or not self.connected):
+        read_now = self._socket_ready and (now >= self._read_due_s or not self.connected)
+        if read_now:
             self._read_due_s = now + READ_EVERY_S
             client.loop_read()  # every packet waiting; callbacks run here
         try:
@@ -254,8 +255,10 @@ class SparkplugNode:
         except Exception:  # a bug: say it, keep the node (and the daemon) alive
             log.exception("MQTT data tick failed")
         if self._socket_ready:
-            client.loop_write()
-            client.loop_misc()
+            if client.want_write():  # (a publish writes at once; this is what the kernel did not take)
+                client.loop_write()
+            if read_now:  # keep-alive: a ping due, a ping unanswered — seconds, checked with the reads
+                client.loop_misc()
 
     # ------------------------------------------------ paho's callbacks (in polls) --
     def _pre_connect(self, client: mqtt.Client, _userdata: Any) -> None:
@@ -321,16 +324,16 @@ class SparkplugNode:
         self._seq = 0
         self._publish(self.topics["NBIRTH"], spb.node_birth(now_ms, self._next_seq(), self._bd_seq, self._version))
         row = self._row()
+        row[spb.DDATA_COUNT] = self.counters.ddata_made
+        row[spb.MQTT_DROPPED] = self.counters.dropped
         self._publish(self.topics["DBIRTH"], spb.device_birth(now_ms, self._next_seq(), row))
         self._last_sent = row
         self._born = True
         self.counters.births += 1
 
     def _row(self) -> dict[str, Any]:
-        row = spb.device_row(current(self._values))
-        row[spb.DDATA_COUNT] = self.counters.ddata_made
-        row[spb.MQTT_DROPPED] = self.counters.dropped
-        return row
+        """The device metrics of the newest snapshot, the node's own counters aside."""
+        return spb.device_row(current(self._values))
 
     def _publish(self, topic: str, payload: bytes) -> bool:
         info = self._client.publish(topic, payload, qos=self.settings.qos)
@@ -342,8 +345,6 @@ class SparkplugNode:
     def _tick(self) -> None:
         """One rate period: a DDATA with what changed, or into the backlog while away."""
         row = self._row()
-        row.pop(spb.DDATA_COUNT)
-        row.pop(spb.MQTT_DROPPED)
         previous = self._last_sent if self._born else (self._backlog[-1][1] if self._backlog else self._last_sent)
         changed = spb.changes(previous, row)
         if not changed:
@@ -357,11 +358,12 @@ class SparkplugNode:
             self._backlog.append((now_ms, {**row, spb.DDATA_COUNT: self.counters.ddata_made}))
             return
         changed[spb.DDATA_COUNT] = self.counters.ddata_made
-        if self.counters.dropped != (self._last_sent or {}).get(spb.MQTT_DROPPED):
+        last_sent = self._last_sent  # (born: the DBIRTH's row, the node's own dict)
+        if self.counters.dropped != last_sent.get(spb.MQTT_DROPPED):
             changed[spb.MQTT_DROPPED] = self.counters.dropped
         if self._publish(self.topics["DDATA"], spb.device_data(now_ms, self._next_seq(), changed)):
             self.counters.ddata_sent += 1
-        self._last_sent = {**(self._last_sent or {}), **changed}
+        last_sent.update(changed)
 
     def _send_backlog(self) -> None:
         """What was made while the broker was away, after the births, flagged historical."""
