@@ -24,6 +24,12 @@ simulated ones) drives itself with `drive_itself=True`.
 - Each connection: subscribe to NCMD/DCMD, then NBIRTH (seq 0) and DBIRTH. An NCMD
   "Node Control/Rebirth" repeats the births; a DCMD carries commands, refused and
   counted unless commands_enabled (as Modbus and CAN refuse them).
+- With a primary host (Sparkplug 3.0, `primary_host_id`): each connection also
+  subscribes to the host's STATE (retained by the broker) and is born only once the host
+  says online=true; meanwhile the DDATA wait in the backlog as while the broker is away.
+  An offline STATE no older than the last one (the timestamp tells a late death of the
+  host's previous session from the current one) ends a born session: NDEATH, disconnect,
+  and the connection starts over (with one broker it then waits for the host there).
 - A broker that is missing or refuses the node: one log line per kind of failure,
   reconnects with back-off (RECONNECT_MIN_S doubling to RECONNECT_MAX_S); the other
   wires never notice.
@@ -83,6 +89,8 @@ class SparkplugSettings:
     password: str | None = field(default=None, repr=False)
     tls_ca_file: str | None = None
     commands_enabled: bool = False
+    #: Sparkplug 3.0 primary host application: wait for its STATE online before birth
+    primary_host_id: str | None = None
 
     @property
     def backlog_len(self) -> int:
@@ -99,6 +107,7 @@ class NodeCounters:
     commands_done: int = 0
     commands_refused: int = 0  # commands disabled, or the daemon declined
     bad_payloads: int = 0
+    host_offline_ends: int = 0  # sessions ended because the primary host said it is offline
 
 
 class SparkplugNode:
@@ -133,6 +142,8 @@ class SparkplugNode:
         self._reconnect_now = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
         self._failure_said: str | None = None  # the last failure logged (said once until it changes)
+        self._host_online = False  # the primary host said online=true in this connection
+        self._host_state_ms: int | None = None  # timestamp of the newest valid STATE (kept across connections)
         s = settings
         self.topics = {
             "NBIRTH": spb.node_topic(s.group_id, "NBIRTH", s.edge_node_id),
@@ -142,11 +153,18 @@ class SparkplugNode:
             "DDATA": spb.device_topic(s.group_id, "DDATA", s.edge_node_id, s.device_id),
             "DCMD": spb.device_topic(s.group_id, "DCMD", s.edge_node_id, s.device_id),
         }
+        if s.primary_host_id:
+            self.topics["STATE"] = spb.state_topic(s.primary_host_id)
 
     @property
     def bd_seq(self) -> int:
         """The current (or last) session's bdSeq."""
         return self._bd_seq
+
+    @property
+    def publishing(self) -> bool:
+        """Connected and born: a host sees this node's data now."""
+        return self.connected and self._born
 
     @property
     def where(self) -> str:
@@ -301,7 +319,16 @@ class SparkplugNode:
         else:
             log.info("MQTT connected to %s (session bdSeq %d)", self.where, self._bd_seq)
         self._failure_said = None
-        self._client.subscribe([(self.topics["NCMD"], 1), (self.topics["DCMD"], 1)])
+        self._host_online = False
+        subscriptions = [(self.topics["NCMD"], 1), (self.topics["DCMD"], 1)]
+        if "STATE" in self.topics:  # the broker retains the host's last STATE: it comes at once if there is one
+            subscriptions.append((self.topics["STATE"], 1))
+            log.info("MQTT waiting for primary host %s to be online before birth", self.settings.primary_host_id)
+        self._client.subscribe(subscriptions)
+        if "STATE" not in self.topics:
+            self._be_born()
+
+    def _be_born(self) -> None:
         self._birth()
         self._send_backlog()
 
@@ -380,6 +407,9 @@ class SparkplugNode:
     def _message(self, topic: str, data: bytes) -> None:
         if self._client is None:
             return
+        if topic == self.topics.get("STATE"):
+            self._host_state(data)
+            return
         try:
             _, metrics = spb.decode(data)
         except ValueError as err:
@@ -389,7 +419,7 @@ class SparkplugNode:
         if topic == self.topics["NCMD"]:
             if any(m.name == spb.REBIRTH and m.value for m in metrics):
                 log.info("MQTT rebirth asked (NCMD)")
-                if self.connected:
+                if self._born:  # (not while waiting for the primary host)
                     self._birth()
             return
         if topic == self.topics["DCMD"]:
@@ -397,6 +427,37 @@ class SparkplugNode:
                 command = spb.COMMANDS.get(m.name)
                 if command is not None and m.value:
                     self._command(command, topic)
+
+    def _host_state(self, data: bytes) -> None:
+        """The primary host's STATE: online → born (once per connection); offline → a born
+        session ends (NDEATH, disconnect, start over). Older than the newest seen: a late
+        message of a host session already over, ignored."""
+        try:
+            state = spb.decode_state(data)
+        except ValueError as err:
+            self.counters.bad_payloads += 1
+            log.warning("MQTT %s: %s", self.topics["STATE"], err)
+            return
+        if self._host_state_ms is not None and state.timestamp_ms < self._host_state_ms:
+            log.info("MQTT primary host %s: a STATE older than the last one, ignored", self.settings.primary_host_id)
+            return
+        self._host_state_ms = state.timestamp_ms
+        host = self.settings.primary_host_id
+        if state.online:
+            if self.connected and not self._host_online:
+                self._host_online = True
+                log.info("MQTT primary host %s is online: birth", host)
+                self._be_born()
+            return
+        self._host_online = False
+        if not self._born:
+            log.info("MQTT primary host %s is offline: waiting for it before birth", host)
+            return
+        log.warning("MQTT primary host %s went offline: NDEATH, disconnect, connect again", host)
+        self.counters.host_offline_ends += 1
+        self._born = False  # the data wait in the backlog from now on
+        self._client.publish(self.topics["NDEATH"], spb.node_death(self._bd_seq), qos=1)
+        self._client.disconnect()  # (sent with the NDEATH at this poll's write; then the reconnect loop)
 
     def _command(self, command: Command, topic: str) -> None:
         if not self.settings.commands_enabled or self._on_command is None:

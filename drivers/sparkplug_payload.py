@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import json
 import math
 import operator
 from collections.abc import Iterable, Mapping
@@ -153,6 +154,35 @@ def node_topic(group: str, kind: str, node: str) -> str:
 
 def device_topic(group: str, kind: str, node: str, device: str) -> str:
     return f"{NAMESPACE}/{group}/{kind}/{node}/{device}"
+
+
+def state_topic(host_id: str) -> str:
+    """Where a primary host application says whether it is online (Sparkplug 3.0)."""
+    return f"{NAMESPACE}/STATE/{host_id}"
+
+
+@dataclass(frozen=True, slots=True)
+class HostState:
+    online: bool
+    timestamp_ms: int
+
+
+MAX_STATE_BYTES = 1024  # {"online": true, "timestamp": <ms>}: tens of bytes; more is not that
+
+
+def decode_state(data: bytes) -> HostState:
+    """A STATE payload (JSON: online, timestamp in UTC ms); ValueError naming what is wrong."""
+    if len(data) > MAX_STATE_BYTES:
+        raise ValueError(f"STATE payload of {len(data)} bytes (at most {MAX_STATE_BYTES})")
+    try:
+        state = json.loads(data)
+    except (ValueError, RecursionError) as err:  # (UnicodeDecodeError is a ValueError)
+        raise ValueError(f"STATE payload is not JSON: {err}") from err
+    online = state.get("online") if isinstance(state, dict) else None
+    timestamp = state.get("timestamp") if isinstance(state, dict) else None
+    if not isinstance(online, bool) or isinstance(timestamp, bool) or not isinstance(timestamp, int) or timestamp < 0:
+        raise ValueError('STATE payload is not {"online": true|false, "timestamp": <UTC ms>}')
+    return HostState(online, timestamp)
 
 
 @dataclass(frozen=True, slots=True)
