@@ -73,6 +73,18 @@ class SparkplugError(Exception):
     """The edge node cannot be set up (a TLS file that cannot be read)."""
 
 
+def tls_ca_problem(path: str) -> str | None:
+    """Why the TLS CA file `path` cannot be used (missing, unreadable, no PEM certificate
+    in it), or None: loaded as the node loads it, into a client TLS context."""
+    try:
+        ssl.create_default_context(cafile=path)
+    except ssl.SSLError as err:  # read, but not a certificate the TLS library can load
+        return f"holds no CA certificate TLS can load ({err.reason or err})"
+    except OSError as err:
+        return f"cannot be read ({err.strerror or err})"
+    return None
+
+
 @dataclass(frozen=True, slots=True)
 class SparkplugSettings:
     """Settings; the names match the [mqtt] section of the daemon's config."""
@@ -178,10 +190,10 @@ class SparkplugNode:
         if s.username is not None:
             client.username_pw_set(s.username, s.password)
         if s.tls_ca_file:
-            try:
-                client.tls_set(ca_certs=s.tls_ca_file, tls_version=ssl.PROTOCOL_TLS_CLIENT)
-            except (OSError, ssl.SSLError) as err:
-                raise SparkplugError(f"MQTT TLS CA file {s.tls_ca_file}: {err}") from err
+            problem = tls_ca_problem(s.tls_ca_file)  # (checked before start too; the file may have changed since)
+            if problem:
+                raise SparkplugError(f"MQTT TLS CA file {s.tls_ca_file}: {problem}")
+            client.tls_set(ca_certs=s.tls_ca_file, tls_version=ssl.PROTOCOL_TLS_CLIENT)
         client.max_queued_messages_set(MAX_PAHO_QUEUE)
         client.on_pre_connect = self._pre_connect
         client.on_connect = self._on_connect
