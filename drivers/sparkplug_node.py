@@ -142,8 +142,10 @@ class SparkplugNode:
         # each CONNECT takes the next; a node that replaces another (a reload) goes on from its
         # last, so that a late NDEATH of the old session never matches the new birth
         self._bd_seq = (first_bd_seq - 1) % spb.SEQ_MODULO
-        self._last_sent: dict[str, Any] | None = None
-        self._backlog: collections.deque[tuple[int, dict[str, Any]]] = collections.deque()
+        self._last_reading: spb.Reading | None = None  # what the last birth or DDATA carried
+        self._dropped_sent = 0  # the mqtt/dropped last sent
+        #: DDATA made while not born: (timestamp ms, the reading, its mqtt/ddata_count)
+        self._backlog: collections.deque[tuple[int, spb.Reading, int]] = collections.deque()
         self._drive_itself = drive_itself
         self._period_s = 1.0 / settings.rate_hz
         self._due_s = 0.0  # time.monotonic() of the next due poll
@@ -362,17 +364,18 @@ class SparkplugNode:
         now_ms = self._now_ms()
         self._seq = 0
         self._publish(self.topics["NBIRTH"], spb.node_birth(now_ms, self._next_seq(), self._bd_seq, self._version))
-        row = self._row()
+        reading = self._reading()
+        row = spb.row_of(reading)
         row[spb.DDATA_COUNT] = self.counters.ddata_made
-        row[spb.MQTT_DROPPED] = self.counters.dropped
+        row[spb.MQTT_DROPPED] = self._dropped_sent = self.counters.dropped
         self._publish(self.topics["DBIRTH"], spb.device_birth(now_ms, self._next_seq(), row))
-        self._last_sent = row
+        self._last_reading = reading
         self._born = True
         self.counters.births += 1
 
-    def _row(self) -> dict[str, Any]:
+    def _reading(self) -> spb.Reading:
         """The device metrics of the newest snapshot, the node's own counters aside."""
-        return spb.device_row(current(self._values))
+        return spb.device_reading(current(self._values))
 
     def _publish(self, topic: str, payload: bytes) -> bool:
         info = self._client.publish(topic, payload, qos=self.settings.qos)
@@ -383,34 +386,35 @@ class SparkplugNode:
 
     def _tick(self) -> None:
         """One rate period: a DDATA with what changed, or into the backlog while away."""
-        row = self._row()
-        previous = self._last_sent if self._born else (self._backlog[-1][1] if self._backlog else self._last_sent)
-        changed = spb.changes(previous, row)
+        reading = self._reading()
+        previous = self._backlog[-1][1] if self._backlog and not self._born else self._last_reading
+        changed = spb.reading_changes(previous, reading)
         if not changed:
             return
-        self.counters.ddata_made += 1
+        counters = self.counters
+        counters.ddata_made += 1
         now_ms = self._now_ms()
         if not self._born:
             if len(self._backlog) >= self.settings.backlog_len:
                 self._backlog.popleft()
-                self.counters.dropped += 1
-            self._backlog.append((now_ms, {**row, spb.DDATA_COUNT: self.counters.ddata_made}))
+                counters.dropped += 1
+            self._backlog.append((now_ms, reading, counters.ddata_made))
             return
-        changed[spb.DDATA_COUNT] = self.counters.ddata_made
-        last_sent = self._last_sent  # (born: the DBIRTH's row, the node's own dict)
-        if self.counters.dropped != last_sent.get(spb.MQTT_DROPPED):
-            changed[spb.MQTT_DROPPED] = self.counters.dropped
+        changed[spb.DDATA_COUNT] = counters.ddata_made
+        if counters.dropped != self._dropped_sent:
+            changed[spb.MQTT_DROPPED] = self._dropped_sent = counters.dropped
         if self._publish(self.topics["DDATA"], spb.device_data(now_ms, self._next_seq(), changed)):
-            self.counters.ddata_sent += 1
-        last_sent.update(changed)
+            counters.ddata_sent += 1
+        self._last_reading = reading
 
     def _send_backlog(self) -> None:
         """What was made while the broker was away, after the births, flagged historical."""
-        previous: dict[str, Any] | None = None
+        previous: spb.Reading | None = None
         while self._backlog and self._born:
-            stamp_ms, row = self._backlog.popleft()
-            changed = spb.changes(previous, row)
-            previous = row
+            stamp_ms, reading, count = self._backlog.popleft()
+            changed = spb.reading_changes(previous, reading)
+            changed[spb.DDATA_COUNT] = count
+            previous = reading
             if self._publish(self.topics["DDATA"], spb.device_data(stamp_ms, self._next_seq(), changed,
                                                                   historical=True)):
                 self.counters.ddata_sent += 1

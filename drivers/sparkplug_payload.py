@@ -136,8 +136,6 @@ BY_ALIAS: dict[int, MetricDef] = {ALIASES[m.name]: m for m in NODE_METRICS + DEV
 #: DCMD metric name → the command it carries.
 COMMANDS: dict[str, Command] = {f"{COMMAND_PREFIX}{c.name}": c for c in Command}
 _READABLE = tuple(m for m in DEVICE_METRICS if m.source is not None)
-#: Every row key but the status bits.
-_WORD_KEYS = tuple(m.name for m in _READABLE) + (DDATA_COUNT, MQTT_DROPPED)
 # device_row's work, prepared once: it runs rate_hz times a second in the daemon's event
 # loop, cold each time, so it reads the snapshot with one C call and loops only over the
 # few metrics that need converting
@@ -215,20 +213,50 @@ def _bits(status: int, status_ext: int) -> dict[str, bool]:
     return bits
 
 
-def device_row(values: PublishedValues) -> dict[str, Any]:
-    """The readable device metrics of one snapshot (commands and the node's counters
-    aside); a Double that is not finite (NaN: no estimate) is None, sent as null."""
+Reading = tuple[Any, ...]
+
+
+def device_reading(values: PublishedValues) -> Reading:
+    """The readable device metrics of one snapshot but the status bits, in table order,
+    as one tuple: what the node compares each 1/rate_hz (a tuple equal to the last one is
+    one C comparison; the bits follow from the two words). A Double that is not finite
+    (NaN: no estimate) is None, sent as null."""
     read = list(_READ_SOURCES(values))
     for i in _DOUBLE_INDEXES:
         x = read[i]
         if x is not None and not math.isfinite(x):
             read[i] = None
     i, j = _WORD_INDEXES
-    status = read[i] = int(read[i])
-    status_ext = read[j] = int(read[j])
-    row = dict(zip(_READABLE_NAMES, read, strict=True))
-    row.update(_bits(status, status_ext))
+    read[i], read[j] = int(read[i]), int(read[j])
+    return tuple(read)
+
+
+def row_of(reading: Reading) -> dict[str, Any]:
+    """Every readable device metric by name, the status bits included (a birth's row)."""
+    row = dict(zip(_READABLE_NAMES, reading, strict=True))
+    i, j = _WORD_INDEXES
+    row.update(_bits(reading[i], reading[j]))
     return row
+
+
+def device_row(values: PublishedValues) -> dict[str, Any]:
+    """The readable device metrics of one snapshot (commands and the node's counters aside)."""
+    return row_of(device_reading(values))
+
+
+def reading_changes(previous: Reading | None, reading: Reading) -> dict[str, Any]:
+    """The metrics whose value differs from `previous` (all of them without one), the
+    status bits that flipped included."""
+    if previous is None:
+        return row_of(reading)
+    if previous == reading:
+        return {}
+    changed = {name: new for name, old, new in zip(_READABLE_NAMES, previous, reading, strict=True) if old != new}
+    i, j = _WORD_INDEXES
+    if previous[i] != reading[i] or previous[j] != reading[j]:
+        old_bits, new_bits = _bits(previous[i], previous[j]), _bits(reading[i], reading[j])
+        changed.update((name, bit) for name, bit in new_bits.items() if old_bits[name] != bit)
+    return changed
 
 
 #: name → (alias, datatype number, the Metric's value field): what encoding a metric needs,
@@ -298,20 +326,6 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
         else:
             setattr(metric, value_field, value)
     return p.SerializeToString()
-
-
-def changes(previous: Mapping[str, Any] | None, row: Mapping[str, Any]) -> dict[str, Any]:
-    """The metrics of `row` whose value differs from `previous` (all of them without one).
-    The status bits follow from the two status words: compared only when a word changed
-    (most ticks it did not, and they are 23 of the 40 metrics)."""
-    if previous is None:
-        return dict(row)
-    words_same = previous.get("status") == row.get("status") and previous.get("status_ext") == row.get("status_ext")
-    keys = _WORD_KEYS if words_same else row.keys()
-    return {k: row[k] for k in keys if k in row and previous.get(k, _MISSING) != row[k]}
-
-
-_MISSING = object()
 
 
 @dataclass(frozen=True, slots=True)
