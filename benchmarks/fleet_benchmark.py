@@ -2,7 +2,7 @@
 reading all of them; and the daemon's CPU with MQTT on vs off, side by side.
 
     nice .venv/bin/python benchmarks/fleet_benchmark.py [--nodes 50] [--real 2] [--rate-hz 20]
-        [--seconds 40] [--restart-at-s 15] [--cpu-seconds 20] [--cpu-rounds 3] [--json FILE]
+        [--seconds 40] [--restart-at-s 15] [--cpu-seconds 20] [--cpu-rounds 3] [--probe-rounds 4] [--json FILE]
 
 Part 1, the fleet. A mosquitto (persistence on, as a plant runs it) on a free loopback
 port. `--real` edge nodes are real `adxlgw run` daemons (the built-in emulated board,
@@ -31,7 +31,8 @@ difference per round and its median.
 
 Part 3, the node's own cost without a daemon's noise: an asyncio loop woken 100 times a
 second (as the daemon is, once per batch of board samples), calling the node's poll()
-at each wakeup or not, each in a fresh process; CPU % and µs per DDATA.
+at each wakeup or not, each in a fresh process, the two at the same time; `--probe-rounds`
+rounds; CPU % and µs per DDATA, the difference's median and spread.
 
 The machine is small and shared: the load average is printed at the start and the end.
 Numbers go in commit messages and docs/mqtt.md with the command, date and machine line.
@@ -371,22 +372,27 @@ def probe_process(port: int, poll: bool, qos: int, seconds: float, conn) -> None
 
 
 def node_probe(args) -> dict:
+    """`--probe-rounds` rounds per QoS; in each, the polling and the idle process run at the
+    same time (side by side: the machine's load, shared with other work, is the same for both)."""
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-probe-"))
     ctx = mp.get_context("fork")
     out = {}
     with Broker(tmp) as broker:
         for qos in args.cpu_qos:
             pairs = []
-            for _ in range(2):
-                row = {}
+            for _ in range(args.probe_rounds):
+                started = {}
                 for poll in (False, True):
                     r, w = ctx.Pipe(False)
                     p = ctx.Process(target=probe_process, args=(broker.port, poll, qos, args.probe_seconds, w))
                     p.start()
-                    row["on" if poll else "off"] = r.recv()
+                    started["on" if poll else "off"] = (p, r)
+                row = {role: r.recv() for role, (_, r) in started.items()}
+                for p, _ in started.values():
                     p.join()
                 pairs.append(row)
-            out[f"qos{qos}"] = pairs
+            diffs = [row["on"][0] - row["off"][0] for row in pairs]
+            out[f"qos{qos}"] = {"rounds": pairs, "diff_points": diffs, "diff_median": float(np.median(diffs))}
     return out
 
 
@@ -403,6 +409,7 @@ def main() -> None:
                     help="the MQTT QoS values to compare, e.g. 0,1")
     ap.add_argument("--sim-processes", type=int, default=2, help="processes the simulated nodes share")
     ap.add_argument("--probe-seconds", type=float, default=20.0)
+    ap.add_argument("--probe-rounds", type=int, default=4)
     ap.add_argument("--skip-fleet", action="store_true")
     ap.add_argument("--skip-probe", action="store_true")
     ap.add_argument("--skip-cpu", action="store_true")
@@ -443,12 +450,15 @@ def main() -> None:
     if not args.skip_probe:
         pr = results["probe"] = node_probe(args)
         print("\nthe node alone: an asyncio loop woken 100 times a second, polling the node (20 Hz) or not, "
-              "% of one core:")
+              "both at once, % of one core:")
         for qos in args.cpu_qos:
-            for row in pr[f"qos{qos}"]:
+            q = pr[f"qos{qos}"]
+            for row in q["rounds"]:
                 (on, sent), (off, _) = row["on"], row["off"]
                 print(f"  QoS {qos}: on {on:.2f} % ({sent} DDATA), off {off:.2f} %, difference {on - off:+.2f} points"
                       f" ({1e4 * (on - off) / max(1, sent / args.probe_seconds):.0f} µs per DDATA)")
+            print(f"  QoS {qos}: median difference {q['diff_median']:+.2f} points "
+                  f"(spread {min(q['diff_points']):+.2f} … {max(q['diff_points']):+.2f})")
     print(f"\nload average at the end (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1))

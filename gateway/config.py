@@ -200,6 +200,10 @@ SCHEMA: tuple[Key, ...] = (
         "A file whose first line is username:password (keep it readable by the gateway only). Empty: none."),
     Key("mqtt", "tls_ca_file", "", str,
         "Connect with TLS, trusting the broker certificates this CA file signs. Empty: plain TCP."),
+    Key("mqtt", "primary_host_id", "", str,
+        "Sparkplug 3.0 primary host application (the SCADA or historian that must get the data): be born "
+        "only once its STATE topic spBv1.0/STATE/<id> says online, keep the data meanwhile (60 s), end the "
+        "session when it says offline. Empty: none, born at each connection.", _sparkplug_id_or_empty),
     Key("mqtt", "commands_enabled", False, bool,
         "Accept commands as DCMD (tare, the machine's standstill hint, bias re-estimation); else refused and "
         "counted, as over Modbus and CAN."),

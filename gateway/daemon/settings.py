@@ -67,7 +67,7 @@ def mqtt_settings_from(cfg: Config) -> SparkplugSettings | None:
         host=m.host, port=m.port, group_id=m.group_id, edge_node_id=m.edge_node_id or socket.gethostname(),
         device_id=m.device_id, qos=m.qos, rate_hz=m.rate_hz, keepalive_s=m.keepalive_s,
         username=username, password=password, tls_ca_file=m.tls_ca_file or None,
-        commands_enabled=m.commands_enabled,
+        commands_enabled=m.commands_enabled, primary_host_id=m.primary_host_id or None,
     )
 
 
