@@ -65,7 +65,8 @@ INDEPENDENT_SEED0 = 30000
 
 def independent_table(outs: list) -> tuple[list[str], dict]:
     """Per hidden effect: found, correct (found and nothing else named), wrong names."""
-    head = (f"{'hidden':<19}{'cases':>6}{'found':>9}{'correct':>9}{'unexpl.':>9}{'err med':>9}"
+    head = (f"{'hidden':<19}{'cases':>6}{'found':>9}{'correct':>9}{'in set':>9}{'unexpl.':>9}{'errors':>7}"
+            f"{'err med':>9}"
             f"{'s/case':>8}  other names")
     rows, stats = [head, "-" * (len(head) + 12)], {}
     order = list(independent.EFFECT_SIZES) + [None]
@@ -78,6 +79,8 @@ def independent_table(outs: list) -> tuple[list[str], dict]:
                 if k in o.estimates and v]
         wrong = Counter(w for o in group for w in o.wrong)
         st = {"cases": n, "found": sum(o.found for o in group) / n, "correct": sum(o.correct for o in group) / n,
+              "found_in_set": sum(o.found_in_set for o in group) / n,
+              "errors": [f"{o.seed}: {o.error}" for o in group if o.error],
               "unexplained": sum(o.unexplained for o in group) / n,
               "rel_error_median": _q(errs, 0.5), "wrong_names": dict(wrong.most_common()),
               "setup": dict(Counter(x for o in group for x in o.setup).most_common()),
@@ -88,8 +91,9 @@ def independent_table(outs: list) -> tuple[list[str], dict]:
         stats[eff or "clean"] = st
         found = _pct(st["found"]) if eff in independent.IN_VOCABULARY else "      –"
         err = f"{100 * st['rel_error_median']:>7.1f} %" if np.isfinite(st["rel_error_median"]) else f"{'–':>9}"
-        rows.append(f"{eff or 'clean':<19}{n:>6}{found:>9}{_pct(st['correct']):>9}{_pct(st['unexplained']):>9}"
-                    f"{err}{st['seconds_per_case']:>8.2f}  "
+        in_set = _pct(st["found_in_set"]) if eff in independent.IN_VOCABULARY else "      –"
+        rows.append(f"{eff or 'clean':<19}{n:>6}{found:>9}{_pct(st['correct']):>9}{in_set:>9}"
+                    f"{_pct(st['unexplained']):>9}{len(st['errors']):>7}{err}{st['seconds_per_case']:>8.2f}  "
                     + (", ".join(f"{k} ×{v}" for k, v in wrong.most_common()) or "–"))
     return rows, stats
 
@@ -254,7 +258,12 @@ def main() -> int:
         print("\n".join(rows))
         print("  found: the hidden effect named; correct: found and nothing else named (clean: nothing named;")
         print("  hum, outside the vocabulary: nothing named and unexplained structure said); unexpl.: the")
-        print("  verdict 'unexplained structure remains'; err: relative error of the named effect's parameters")
+        print("  verdict 'unexplained structure remains'; err: relative error of the named effect's parameters;")
+        print("  in set: the hidden effect named or in a named effect's not_separable_from; errors: the")
+        print("  diagnosis raised (each listed below)")
+        for st in ind_stats.values():
+            for line in st["errors"]:
+                print(f"  error, seed {line}")
         print()
         for key in ("setup", "negligible", "not_physical"):
             c = Counter()
