@@ -27,6 +27,7 @@ and the goals: ≥ 95 % detection at the documented sizes, ≤ 2 % false positiv
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import json
 import shlex
@@ -175,6 +176,69 @@ def independent_rows(chosen: str | None) -> list[str | None]:
     return [None if n == "clean" else n for n in names]
 
 
+def report_independent(ind_outs: list, cases_label: str) -> dict:
+    """Print the independent generator's table and goals; return its per-row stats."""
+    rows, ind_stats = independent_table(ind_outs)
+    print(f"independent generator (tests/independent_generator), {cases_label}; "
+          f"{np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
+    print()
+    print("\n".join(rows))
+    print("  found: the hidden effect named; correct: found and nothing else named (clean: nothing named;")
+    print("  hum, outside the vocabulary: nothing named and unexplained structure said); unexpl.: the")
+    print("  verdict 'unexplained structure remains'; err: relative error of the named effect's parameters;")
+    print("  in set: the hidden effect named or in a named effect's not_separable_from; errors: the")
+    print("  diagnosis raised (each listed below)")
+    for st in ind_stats.values():
+        for line in st["errors"]:
+            print(f"  error, seed {line}")
+    print()
+    for key in ("setup", "negligible", "not_physical"):
+        c = Counter()
+        for st in ind_stats.values():
+            c.update(st[key])
+        listed = ", ".join(f"{k} ×{v}" for k, v in c.most_common()) or "none"
+        print(f"  {key.replace('_', ' ')} (all rows): {listed}")
+    print()
+    print(f"goals (independent): correct ≥ {DETECTION_GOAL:.0%} per effect, clean cases with any name "
+          f"≤ {FALSE_POSITIVE_GOAL:.0%}, hum named as nothing")
+    ind_ok = True
+    for e in list(independent.EFFECT_SIZES) + ["clean"]:
+        if e not in ind_stats:
+            continue
+        st = ind_stats[e]
+        if e == "clean":
+            rate = 1.0 - st["correct"]
+            # counted, not compared as floats: 1 of 50 is 2 % (1 − 0.98 is 0.020000000000000018)
+            ok = round(rate * st["cases"]) <= FALSE_POSITIVE_GOAL * st["cases"] + 1e-9
+            print(f"  {'clean':<19} any name {_pct(rate)}  {'met' if ok else 'NOT MET'}")
+        else:
+            ok = st["correct"] >= DETECTION_GOAL if e in independent.IN_VOCABULARY else \
+                sum(bool(o.named) for o in ind_outs if o.effect == e) <= FALSE_POSITIVE_GOAL * st["cases"] + 1e-9
+            print(f"  {e:<19} correct {_pct(st['correct'])}  {'met' if ok else 'NOT MET'}"
+                  + (f"  (seeds {st['incorrect_seeds'][:8]})" if st["incorrect_seeds"] else ""))
+        ind_ok &= ok
+    print(f"independent goals {'met' if ind_ok else 'NOT met'}")
+    print()
+    return ind_stats
+
+
+def merged_independent(paths: list[str]) -> int:
+    """The independent table over the cases of several runs (each its own seeds)."""
+    outs = []
+    for path in paths:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+        print(f"run:     {doc['command']}  ({doc['date']}, {doc['wall_s']:.0f} s wall)")
+        print(f"machine: {doc['machine']}")
+        outs += [independent.Outcome(**{k: tuple(v) if isinstance(v, list) else v for k, v in o.items()})
+                 for o in doc["independent_outcomes"]]
+    seeds = sorted({o.seed for o in outs})
+    per_row = Counter(o.effect for o in outs)
+    print()
+    report_independent(outs, f"{min(per_row.values())}–{max(per_row.values())} cases per row, "
+                             f"seeds {seeds[0]}–{seeds[-1]}")
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", type=int, default=100, help="seeded cases per effect and clean (seeds 0…N−1)")
@@ -204,7 +268,12 @@ def main() -> int:
     parser.add_argument("--independent-effects", default=None,
                         help="comma-separated rows of the independent generator (its effects, 'clean', 'hum'; "
                              "default: all)")
+    parser.add_argument("--from-json", metavar="A.json,B.json", default=None,
+                        help="print the independent generator's table over the cases of earlier runs' --json "
+                             "files (a run made in chunks of seeds), running nothing")
     args = parser.parse_args()
+    if args.from_json:
+        return merged_independent(args.from_json.split(","))
     effects = [e.strip() for e in args.effects.split(",") if e.strip()]
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown or args.cases < 1 or args.jobs < 1:
@@ -250,52 +319,13 @@ def main() -> int:
     print(f"wall time {wall:.0f} s for {len(tasks)} cases")
     ind_stats = None
     if ind_outs:
-        rows, ind_stats = independent_table(ind_outs)
-        print(f"independent generator (tests/independent_generator), {args.independent_cases} cases per row, "
-              f"seeds {args.independent_seed0}…; "
-              f"{np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
-        print()
-        print("\n".join(rows))
-        print("  found: the hidden effect named; correct: found and nothing else named (clean: nothing named;")
-        print("  hum, outside the vocabulary: nothing named and unexplained structure said); unexpl.: the")
-        print("  verdict 'unexplained structure remains'; err: relative error of the named effect's parameters;")
-        print("  in set: the hidden effect named or in a named effect's not_separable_from; errors: the")
-        print("  diagnosis raised (each listed below)")
-        for st in ind_stats.values():
-            for line in st["errors"]:
-                print(f"  error, seed {line}")
-        print()
-        for key in ("setup", "negligible", "not_physical"):
-            c = Counter()
-            for st in ind_stats.values():
-                c.update(st[key])
-            listed = ", ".join(f"{k} ×{v}" for k, v in c.most_common()) or "none"
-            print(f"  {key.replace('_', ' ')} (all rows): {listed}")
-        print()
-        print(f"goals (independent): correct ≥ {DETECTION_GOAL:.0%} per effect, clean cases with any name "
-              f"≤ {FALSE_POSITIVE_GOAL:.0%}, hum named as nothing")
-        ind_ok = True
-        for e in list(independent.EFFECT_SIZES) + ["clean"]:
-            if e not in ind_stats:
-                continue
-            st = ind_stats[e]
-            if e == "clean":
-                rate = 1.0 - st["correct"]
-                # counted, not compared as floats: 1 of 50 is 2 % (1 − 0.98 is 0.020000000000000018)
-                ok = round(rate * st["cases"]) <= FALSE_POSITIVE_GOAL * st["cases"] + 1e-9
-                print(f"  {'clean':<19} any name {_pct(rate)}  {'met' if ok else 'NOT MET'}")
-            else:
-                ok = st["correct"] >= DETECTION_GOAL if e in independent.IN_VOCABULARY else \
-                    sum(bool(o.named) for o in ind_outs if o.effect == e) <= FALSE_POSITIVE_GOAL * st["cases"] + 1e-9
-                print(f"  {e:<19} correct {_pct(st['correct'])}  {'met' if ok else 'NOT MET'}"
-                      + (f"  (seeds {st['incorrect_seeds'][:8]})" if st["incorrect_seeds"] else ""))
-            ind_ok &= ok
-        print(f"independent goals {'met' if ind_ok else 'NOT met'}")
-        print()
+        ind_stats = report_independent(
+            ind_outs, f"{args.independent_cases} cases per row, seeds {args.independent_seed0}…")
     if not outcomes:
         if args.json:
             doc = {"command": command.rstrip(), "date": date, "machine": machine(), "wall_s": wall,
-                   "independent": ind_stats}
+                   "independent": ind_stats,
+                   "independent_outcomes": [dataclasses.asdict(o) for o in ind_outs]}
             Path(args.json).write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
             print(f"wrote {args.json}")
         return 0
