@@ -15,7 +15,7 @@ import numpy as np
 from scipy.signal import find_peaks, welch
 from scipy.stats import norm
 
-from gateway.core.diagnosis.context import Prepared
+from gateway.core.diagnosis.context import USABLE_COLUMN_FRACTION, Prepared
 from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.drift_fit import allan_deviation, ljung_box
 
@@ -113,7 +113,7 @@ def correlations(prep: Prepared, residual: np.ndarray, regressors: dict[str, np.
     for name, x in regressors.items():
         x = np.asarray(x, dtype=float)
         good = np.isfinite(x)
-        if good.mean() < 0.9:
+        if good.mean() < USABLE_COLUMN_FRACTION:
             continue
         x = np.where(good, x, np.nanmean(x))
         if float(np.std(x[m])) == 0.0:
