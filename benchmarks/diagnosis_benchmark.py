@@ -226,11 +226,19 @@ def merged_independent(paths: list[str]) -> int:
     """The independent table over the cases of several runs (each its own seeds)."""
     outs = []
     for path in paths:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-        print(f"run:     {doc['command']}  ({doc['date']}, {doc['wall_s']:.0f} s wall)")
-        print(f"machine: {doc['machine']}")
+        text = Path(path).read_text(encoding="utf-8")
+        if path.endswith(".jsonl"):
+            lines = [json.loads(line) for line in text.splitlines() if line.strip()]
+            head = next(line for line in lines if "command" in line)
+            rows = [line for line in lines if "command" not in line]
+            print(f"run:     {head['command']}  ({head['date']}, {len(rows)} cases finished)")
+        else:
+            head = json.loads(text)
+            rows = head["independent_outcomes"]
+            print(f"run:     {head['command']}  ({head['date']}, {head['wall_s']:.0f} s wall)")
+        print(f"machine: {head['machine']}")
         outs += [independent.Outcome(**{k: tuple(v) if isinstance(v, list) else v for k, v in o.items()})
-                 for o in doc["independent_outcomes"]]
+                 for o in rows]
     seeds = sorted({o.seed for o in outs})
     per_row = Counter(o.effect for o in outs)
     print()
@@ -268,9 +276,12 @@ def main() -> int:
     parser.add_argument("--independent-effects", default=None,
                         help="comma-separated rows of the independent generator (its effects, 'clean', 'hum'; "
                              "default: all)")
-    parser.add_argument("--from-json", metavar="A.json,B.json", default=None,
+    parser.add_argument("--from-json", metavar="A.json,B.jsonl", default=None,
                         help="print the independent generator's table over the cases of earlier runs' --json "
-                             "files (a run made in chunks of seeds), running nothing")
+                             "or --cases-jsonl files (a run made in chunks, or cut short), running nothing")
+    parser.add_argument("--cases-jsonl", metavar="OUT.jsonl", default=None,
+                        help="append each independent case's outcome here as it finishes (one JSON a line): "
+                             "a run cut short keeps every case it finished")
     args = parser.parse_args()
     if args.from_json:
         return merged_independent(args.from_json.split(","))
@@ -305,15 +316,25 @@ def main() -> int:
         tasks += [((), seed, tolerance, jerk, reading) for seed in range(args.cases)]
     if args.generator in ("independent", "both"):
         seeds = range(args.independent_seed0, args.independent_seed0 + args.independent_cases)
-        tasks += [("independent", e, seed) for e in independent_rows(args.independent_effects) for seed in seeds]
+        # seed by seed across the rows: a run cut short has the same number of cases in each
+        tasks += [("independent", e, seed) for seed in seeds for e in independent_rows(args.independent_effects)]
     start = time.perf_counter()
     outcomes: list[CaseOutcome] = []
+    jsonl = open(args.cases_jsonl, "a", encoding="utf-8") if args.cases_jsonl else None  # noqa: SIM115
+    if jsonl:
+        jsonl.write(json.dumps({"command": command.rstrip(), "date": date, "machine": machine()}) + "\n")
+        jsonl.flush()
     with Pool(args.jobs) as pool:
         for i, out in enumerate(pool.imap_unordered(_work, tasks, chunksize=1), 1):
             outcomes.append(out)
+            if jsonl and isinstance(out, independent.Outcome):
+                jsonl.write(json.dumps(dataclasses.asdict(out), default=float) + "\n")
+                jsonl.flush()
             if i % 25 == 0 or i == len(tasks):
                 print(f"  {i}/{len(tasks)} cases, {time.perf_counter() - start:.0f} s", file=sys.stderr, flush=True)
     wall = time.perf_counter() - start
+    if jsonl:
+        jsonl.close()
     ind_outs = [o for o in outcomes if isinstance(o, independent.Outcome)]
     outcomes = [o for o in outcomes if not isinstance(o, independent.Outcome)]
     print(f"wall time {wall:.0f} s for {len(tasks)} cases")
