@@ -56,8 +56,9 @@ from gateway.core.diagnosis.timestamps import check_host_clock, check_sample_clo
 from gateway.core.estimator_settings import EstimatorSettings
 
 WHITE_ALPHA = 1e-3  # a 60 s record has 6000 blocks: a small misfit of the noise model must not read as a cause
-# the Ljung–Box statistic's χ² law is an approximation for n ≳ 50 (Box, Jenkins & Reinsel):
-# fewer values at rest (no reference: only the rests count) and whiteness is not judged
+# without a reference only the rests are judged for whiteness: 50 samples at rest make the
+# 10 block means of WHITENESS_BLOCK_S (at 500 samples/s) that a Ljung–Box test needs at
+# the least (drift_fit.ljung_box: h = n/5 lags, one at n = 5, and its χ² law wants more)
 MIN_WHITENESS_SAMPLES = 50
 
 ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
