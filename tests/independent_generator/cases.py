@@ -290,21 +290,22 @@ class Outcome:
 
 
 def truth_of(case: Case) -> dict:
-    """The hidden cause's parameters under diagnose's parameter names (SI), where the
-    physical parameter is the quantity diagnose reports; the others are judged by name."""
+    """The hidden cause's parameters under the names and units diagnose reports them in
+    (EffectResult.params), where the physical parameter is the quantity diagnose
+    reports; the others are judged by name."""
     p, e = case.params, case.effect
     if e == "scale_factor":
         return {"scale_error_frac": (1 + p["scale"]) * (case.part.s_x / 0.125) - 1}
     if e == "vibration":
         return {"frequency_hz": p["f_hz"], "damping_ratio": p["zeta"]}
-    same = {"tilt": ("tilt_gradient_rad_per_m", p.get("kappa1")),
-            "temperature_offset": ("offset_mps2_per_c", board.G * p.get("g_per_c", 0.0)),
+    same = {"tilt": ("tilt_coefficient", p.get("kappa1")),
+            "temperature_offset": ("offset_mg_per_c", 1e3 * p.get("g_per_c", 0.0)),
             "cross_talk": ("gain", p.get("c")),
             "nonlinearity": ("quadratic_per_g", p.get("beta2")),
-            "clipping": ("upper_mps2", board.G * p.get("upper_g", 0.0)),
+            "clipping": ("upper_g", p.get("upper_g")),
             # the motion at t is the reference at t + d: a command leads the servo's motion
             # (d = −lag); a late-stamped encoder lags it (d = +lag)
-            "reference_delay": ("delay_s", p.get("lag_s", 0.0) * (-1.0 if p.get("servo") else 1.0)),
+            "reference_delay": ("delay_ms", 1e3 * p.get("lag_s", 0.0) * (-1.0 if p.get("servo") else 1.0)),
             "sample_loss": ("lost_fraction", p.get("fraction"))}
     if e in same:
         key, value = same[e]
