@@ -12,10 +12,13 @@ Built on a fine time grid (FINE_HZ), in this order:
    D0 + S·y reached at that moment has passed (D0, S per part: offset within ±0.4 %
    duty, sensitivity within 1 %) — the reading is the filtered value at the falling
    edge, not a period mean;
-5. the 8051 captures edges on a free-running 921 600 Hz counter of random phase: T1 and
-   T2 are differences of floored edge counts (quantisation by capture, not rounding);
-6. each SAMPLE frame leaves when its period ends, 15 bytes at 115 200 baud, and reaches
-   the host after 4 ms with 0.3 ms (1σ) jitter, in order.
+5. the 8051 counts ticks of its 921 600 Hz timer (random phase) while each duty output is
+   high (Timers 0 and 1 gated by INT0/INT1): T1 is a difference of floored edge counts.
+   Timer 2 makes the baud rate (spec correction of 2026-11-27), so T2 is timed only on
+   every T2_EVERY-th period and each frame carries the latest value;
+6. each SAMPLE frame leaves when its period ends, 15 bytes at 115 200 baud; the board's
+   USB side is a full-speed device polled once per 1 ms frame, the host reads it 4 ms
+   later with 0.3 ms (1σ) jitter, one reader thread, in order.
 """
 from __future__ import annotations
 
@@ -34,6 +37,8 @@ CX_NOMINAL_F = 0.1e-6
 UART_FRAME_S = 15 * 10 / 115_200
 HOST_LATENCY_S = 4e-3
 HOST_JITTER_S = 0.3e-3
+USB_FRAME_S = 1e-3  # full-speed USB: the host polls the device once per 1 ms frame
+T2_EVERY = 16  # the board times T2 on one period in 16 (its third timer makes the baud rate)
 G = 9.80665
 
 
@@ -44,13 +49,6 @@ def rc_lowpass(x: np.ndarray, cutoff_hz: float, fs: float) -> np.ndarray:
     zi = x[0] * (b[1] - a[1]) if a.size > 1 else 0.0  # steady state of the transposed form
     y, _ = lfilter(b, a, x, zi=[zi])
     return y
-
-
-def resonance(x: np.ndarray, f_hz: float, zeta: float, fs: float) -> np.ndarray:
-    """Base excitation of a mount: (2ζωs + ω²)/(s² + 2ζωs + ω²), bilinear, from rest."""
-    w = 2.0 * math.pi * f_hz
-    b, a = bilinear([2 * zeta * w, w * w], [1.0, 2 * zeta * w, w * w], fs)
-    return lfilter(b, a, x - x[0]) + x[0]
 
 
 @dataclass
@@ -125,18 +123,20 @@ def capture(rise_s: np.ndarray, fall_x: np.ndarray, fall_y: np.ndarray, phase: f
         return np.floor(t * TICK_HZ + phase).astype(np.int64)
 
     r = count(rise_s)
-    t2 = np.diff(r)
+    timed = np.diff(r)
+    # each frame carries the latest period the board has timed (one in T2_EVERY)
+    latest = (np.arange(timed.size) // T2_EVERY) * T2_EVERY
+    t2 = timed[latest]
     t1x = count(fall_x) - r[:-1]
     t1y = count(fall_y) - r[:-1]
     return t1x, t1y, t2
 
 
-def host_arrivals(end_s: np.ndarray, rng: np.random.Generator, hold_back_s: float = 0.0) -> np.ndarray:
-    """Arrival times: the frame's end + UART + 4 ms latency ± 0.3 ms, in order; with a
-    USB adapter's latency timer (hold_back_s > 0) frames wait for its next expiry."""
+def host_arrivals(end_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Arrival times of an ordinary link: the frame's end + UART, at the next 1 ms USB
+    poll, + 4 ms ± 0.3 ms, stamped in order by one reader thread."""
     t = end_s + UART_FRAME_S
-    if hold_back_s > 0:
-        phase = rng.uniform(0, hold_back_s)
-        t = np.ceil((t - phase) / hold_back_s) * hold_back_s + phase
+    phase = rng.uniform(0, USB_FRAME_S)
+    t = np.ceil((t - phase) / USB_FRAME_S) * USB_FRAME_S + phase
     t = t + HOST_LATENCY_S + HOST_JITTER_S * rng.standard_normal(t.size)
     return np.maximum.accumulate(t)
