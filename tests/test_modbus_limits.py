@@ -15,7 +15,8 @@ from pathlib import Path
 import pytest
 
 from drivers.modbus_map import BY_NAME, MAP_VERSION, WordOrder
-from drivers.modbus_server import MAX_QUEUED_REQUESTS, ModbusServer, ModbusServerConfig, ModbusServerError
+from drivers.modbus_requests import MAX_QUEUED_REQUESTS
+from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from tests.test_modbus_server import (
     SAMPLE,
     Recorder,
