@@ -1,7 +1,7 @@
 """Measured-like recordings with hidden effects, for the diagnosis tests and benchmark.
 
 One place builds every case, so the tests (tests/test_diagnosis.py) and the benchmark
-(benchmarks/diagnosis_benchmark.py) judge the diagnosis the same way:
+(benchmarks/accuracy/diagnosis_benchmark.py) judge the diagnosis the same way:
 
     terms, data = make_case(("scale_factor",), seed)   # the effect is chosen here...
     result = run_diagnosis(data)                        # ...and diagnose is never told

@@ -26,7 +26,7 @@ from gateway.core.diagnosis.side_effects import local_level_loglik
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.simulator import period_mean_lowpass
-from tests.diagnosis_cases import CHECKS, EFFECTS, SENSOR, make_case, run_case
+from testing.diagnosis_cases import CHECKS, EFFECTS, SENSOR, make_case, run_case
 
 ROOT = Path(__file__).resolve().parents[1]
 SINGLE_SEEDS = (9000, 9001)
@@ -94,7 +94,7 @@ def test_clean_recordings_name_nothing_and_are_mostly_white():
 
 # either generator: the simulator and its effects, or the independent one in tests/
 FORBIDDEN = ("gateway.core.sensor_effects", "gateway.core.simulator", "gateway.core.motion_profiles",
-             "tests.independent_generator", "tests")
+             "testing.independent_generator", "tests")
 
 
 def _imported_modules(path: Path) -> list[str]:

@@ -18,9 +18,9 @@ from gateway.core.diagnosis.judgement import (
     physical,
     setup_range,
 )
-from tests.diagnosis_cases import estimator_settings
-from tests.independent_generator.cases import IN_VOCABULARY, make_case, run_case
-from tests.independent_generator.motion import strokes
+from testing.diagnosis_cases import estimator_settings
+from testing.independent_generator.cases import IN_VOCABULARY, make_case, run_case
+from testing.independent_generator.motion import strokes
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATOR_FILES = sorted((ROOT / "tests" / "independent_generator").glob("*.py"))

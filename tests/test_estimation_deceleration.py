@@ -4,7 +4,7 @@ A 5 mg offset step in a 0.2 m/s cruise hides under 10 mg of per-sample noise (on
 mean cannot see it); the filter's velocity then drifts from the cruise's speed to ~0 inside
 one quiet stretch, and the velocity test used to take the still-cruising axis for a stop:
 velocity zeroed, metres off afterwards, outside ±3σ at a third of the rest ends
-(benchmarks/robot_like_sweep.py, 500 Hz, 0.1 m/s², 5 mg). Now such a drop opens the step
+(benchmarks/accuracy/robot_like_sweep.py, 500 Hz, 0.1 m/s², 5 mg). Now such a drop opens the step
 hypothesis instead (estimator_kernel step 2): undecidable, flagged, σ covering the error.
 """
 import numpy as np
@@ -12,7 +12,7 @@ import pytest
 
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import estimate_series
-from tests.robot_like_cases import robot_case, worst_move_and_inside
+from testing.robot_like_cases import robot_case, worst_move_and_inside
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -40,7 +40,7 @@ def test_the_end_of_a_deceleration_is_no_offset_step(rate_hz, noise_mps2, jerk_m
     """The last part of a steady deceleration (1 m/s², the robot's) is as quiet in variance
     as a stretch whose offset stepped, off the bias beyond any step, and slow: it used to
     set the offset-step flag and "not trustworthy" at every stop of a clean run (14 % of
-    the time at 100 Hz, benchmarks/robot_like_sweep.py), and keep it through the next move
+    the time at 100 Hz, benchmarks/accuracy/robot_like_sweep.py), and keep it through the next move
     after the 0.1 s stop. Its acceleration opposes the velocity and stops the axis within
     a window: a deceleration, not a step (standstill.stopping_within_a_window)."""
     for seed in range(3):

@@ -11,7 +11,7 @@ import pytest
 
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import estimate_series, lost_before_reversed, lost_from_times
-from tests.robot_like_cases import robot_case, worst_move_and_inside
+from testing.robot_like_cases import robot_case, worst_move_and_inside
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -1,6 +1,6 @@
 """How well `adxlgw diagnose` names hidden effects, estimates them, and keeps quiet on clean data.
 
-    PYTHONPATH=. python benchmarks/diagnosis_benchmark.py [--cases 100] [--effects a,b] \
+    python -m benchmarks.accuracy.diagnosis_benchmark [--cases 100] [--effects a,b] \
         [--parts nominal|tolerance] [--jobs 2] [--json OUT]
 
 Per effect of gateway.core.sensor_effects (EFFECT_SIZES, the documented sizes): N
@@ -38,13 +38,12 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
+from gateway.core.sensor_model import DCM_READINGS
+from testing.diagnosis_cases import CHECKS, EFFECTS, STROKES, CaseOutcome, estimator_settings, run_case
+from testing.independent_generator import cases as independent
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
-from tests.diagnosis_cases import CHECKS, EFFECTS, STROKES, CaseOutcome, estimator_settings, run_case  # noqa: E402
-from tests.independent_generator import cases as independent  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 DETECTION_GOAL = 0.95
 FALSE_POSITIVE_GOAL = 0.02
@@ -207,7 +206,7 @@ def main() -> int:
         parser.error(f"unknown effect(s) {unknown}; known: {', '.join(EFFECTS)}" if unknown
                      else "--cases and --jobs must be ≥ 1")
 
-    command = "PYTHONPATH=. python benchmarks/diagnosis_benchmark.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    command = "python -m benchmarks.accuracy.diagnosis_benchmark " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     date = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
     print(f"command: {command.rstrip()}")
     print(f"date:    {date}")

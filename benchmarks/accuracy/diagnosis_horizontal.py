@@ -2,7 +2,7 @@
 and the extended model's gain measured predictively — fitted on one sensor's recording,
 applied to the other sensors' recordings of the same move.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_horizontal.py [--out DIR] [--model-with tilt]
+    .venv/bin/python -m benchmarks.accuracy.diagnosis_horizontal [--out DIR] [--model-with tilt]
 
 Each file becomes an acceleration-form recording: t_s = sensor_time_s (the sensor's own
 clock), the measured axis = acc_along_g (parallel to the robot's y; ≈ 0 g at rest), the
@@ -29,13 +29,12 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
+from gateway.cli import main as adxlgw
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+from gateway.offline.recording import read_recording, to_acceleration, write_recording
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.cli import main as adxlgw  # noqa: E402
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.offline.recording import read_recording, to_acceleration, write_recording  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 FILES = ("eV50p_MPU6050RM3100_y605", "eV50p_LSM9DS0_y605", "eV50p_SENTRAL_y605", "V1000_LSM9DS0_y605")
 
@@ -67,7 +66,7 @@ def main() -> int:
     args = p.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_horizontal.py --model-with {args.model_with}")
+    print(f"command: .venv/bin/python -m benchmarks.accuracy.diagnosis_horizontal --model-with {args.model_with}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     recs, models = {}, {}
     for name in FILES:

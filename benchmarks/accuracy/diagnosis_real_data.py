@@ -1,6 +1,6 @@
 """`adxlgw diagnose` on the Leiria robot recordings, as a user would run it.
 
-    PYTHONPATH=. python benchmarks/diagnosis_real_data.py datasets/leiria-robot/eV50p_MPU6050RM3100.csv \
+    python -m benchmarks.accuracy.diagnosis_real_data datasets/leiria-robot/eV50p_MPU6050RM3100.csv \
         [--out DIR] [--report]
 
 The file (datasets/leiria-robot/README.md) becomes an acceleration-form recording:
@@ -22,12 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from gateway.cli import main as adxlgw
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+from gateway.offline.recording import write_recording
 
-from gateway.cli import main as adxlgw  # noqa: E402
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.offline.recording import write_recording  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 
 def convert(src: Path, dst: Path) -> None:

@@ -1,6 +1,6 @@
 """Accuracy of the four estimators on the paper's experiment and on real recordings.
 
-    PYTHONPATH=. python benchmarks/estimation_benchmark.py [--seeds 20] [--img docs/img]
+    python -m benchmarks.accuracy.estimation_benchmark [--seeds 20] [--img docs/img]
 
 Part 1 — what `adxlgw simulate --scenario paper --strokes 10 --seed S` writes, for
 S = 0…19 (data-sheet noise), read back as `adxlgw estimate` reads it; errors against the
@@ -35,20 +35,19 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
+from gateway.cli import main as adxlgw
+from gateway.commands.estimate import settings_for
+from gateway.core.drift_model import drift_g
+from gateway.core.estimator import EstimateTrack, estimate_series
+from gateway.core.estimator_settings import from_rest, from_sensor_model
+from gateway.core.evaluation import move_errors, summarise_errors
+from gateway.core.reference_point import find_initial_rest
+from gateway.core.sensor_model import SensorParams
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+from gateway.offline.recording import read_recording, to_acceleration
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.cli import main as adxlgw  # noqa: E402
-from gateway.commands.estimate import settings_for  # noqa: E402
-from gateway.core.drift_model import drift_g  # noqa: E402
-from gateway.core.estimator import EstimateTrack, estimate_series  # noqa: E402
-from gateway.core.estimator_settings import from_rest, from_sensor_model  # noqa: E402
-from gateway.core.evaluation import move_errors, summarise_errors  # noqa: E402
-from gateway.core.reference_point import find_initial_rest  # noqa: E402
-from gateway.core.sensor_model import SensorParams  # noqa: E402
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from gateway.offline.recording import read_recording, to_acceleration  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 METHODS = ("raw", "paper", "realtime", "smoothed", "floor")
 DATASETS = REPO / "datasets" / "airbrakes-imu"
@@ -429,7 +428,7 @@ def main() -> int:
     args = parser.parse_args()
     img = Path(args.img)
     img.mkdir(parents=True, exist_ok=True)
-    print(f"command: PYTHONPATH=. python benchmarks/estimation_benchmark.py --seeds {args.seeds} "
+    print(f"command: python -m benchmarks.accuracy.estimation_benchmark --seeds {args.seeds} "
           f"--drift-hours {args.drift_hours:g}" + (" --robot-only" if args.robot_only else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

@@ -1,6 +1,6 @@
 """The estimator over the whole corpus: every real recording in the repo and the simulator's runs.
 
-    PYTHONPATH=. nice .venv/bin/python benchmarks/estimation_corpus.py [--seeds 3] [--json OUT.json]
+    nice .venv/bin/python -m benchmarks.accuracy.estimation_corpus [--seeds 3] [--json OUT.json]
 
 One instrument for every design choice of the estimator (docs/estimation.md, "The corpus"):
 judged on the median and the worst over the corpus, never on one file.
@@ -12,7 +12,7 @@ Cases
   importer); the robot's "in position" is the hint and the rests' ends are where the
   moves are scored; the airbrakes recordings that end at rest (zplus, zminus: up and back,
   so the final position is the error).
-- simulated: the robot-like path (benchmarks/robot_like_sweep.py: 100 samples/s, 5 mm/s²
+- simulated: the robot-like path (benchmarks/accuracy/robot_like_sweep.py: 100 samples/s, 5 mm/s²
   noise) and the paper's strokes (`adxlgw simulate --scenario paper --strokes 10`), seeds
   0 … --seeds − 1, settings from the sensor model.
 Per file and case: the worst move's error (% of the move), the worst position error at a
@@ -38,10 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
 
-from benchmarks.machine_info import machine  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 ROBOT = REPO / "datasets" / "leiria-robot"
 AIRBRAKES = REPO / "datasets" / "airbrakes-imu"
@@ -146,7 +145,7 @@ def airbrakes_case(name: str) -> Case:
 
 
 def sim_robot_case(seed: int, rate_hz: float = 100.0, noise_mps2: float = SIM_NOISE_MPS2) -> Case:
-    from tests.robot_like_cases import robot_case as build
+    from testing.robot_like_cases import robot_case as build
 
     t, z, ref, resting, settings = build(seed, 0.0, rate_hz=rate_hz, noise_mps2=noise_mps2)
     return Case(f"sim robot-like {rate_hz:g} Hz noise {noise_mps2 * 1e3:g} mm/s² seed {seed}", "sim-robot", t, z,
@@ -294,7 +293,7 @@ def main() -> int:
     parser.add_argument("--no-perturbations", action="store_true")
     parser.add_argument("--json", help="write the results here too")
     args = parser.parse_args()
-    print(f"command: PYTHONPATH=. python benchmarks/estimation_corpus.py --seeds {args.seeds}"
+    print(f"command: python -m benchmarks.accuracy.estimation_corpus --seeds {args.seeds}"
           + (" --no-perturbations" if args.no_perturbations else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

@@ -1,6 +1,6 @@
 """A new user's first try: `adxlgw run` with the shipped config on `adxlgw emulate --loop`.
 
-    PYTHONPATH=. nice .venv/bin/python benchmarks/estimation_default_board.py [--seconds 60] [--seed 0]
+    nice .venv/bin/python -m benchmarks.accuracy.estimation_default_board [--seconds 60] [--seed 0]
 
 The default emulated board (the paper's strokes, 1 s dwells, looped) on a pty; the daemon
 with the shipped defaults except where this machine needs others (the board's port, a
@@ -28,15 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
+from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register
+from drivers.published_values import StatusBits
+from gateway.core.scenarios import ScenarioSettings, build_profile
+from gateway.core.sensor_model import SensorParams
+from gateway.core.simulator import simulate
 
-from benchmarks.machine_info import machine  # noqa: E402
-from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register  # noqa: E402
-from drivers.published_values import StatusBits  # noqa: E402
-from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
-from gateway.core.sensor_model import SensorParams  # noqa: E402
-from gateway.core.simulator import simulate  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 POLL_S = 0.05
 ERROR_GOAL_M = 0.005
@@ -83,7 +82,7 @@ def main() -> int:
                         help="appended to the config (to measure an alternative, e.g. "
                              "'[estimator]\\nstart_at_rest = false\\n')")
     args = parser.parse_args()
-    print(f"command: PYTHONPATH=. python benchmarks/estimation_default_board.py --seconds {args.seconds:g} "
+    print(f"command: python -m benchmarks.accuracy.estimation_default_board --seconds {args.seconds:g} "
           f"--seed {args.seed}" + (f" --extra-config {args.extra_config!r}" if args.extra_config else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

@@ -1,6 +1,6 @@
 """Re-timing foreign loggers' arrival times, scored on the Leiria robot recordings.
 
-    PYTHONPATH=. python benchmarks/retiming_benchmark.py
+    python -m benchmarks.accuracy.retiming_benchmark
 
 For each file of datasets/leiria-robot/ (V1000_LSM9DS0.csv is held out: reported, never
 tuned on), three imports with `adxlgw import`: on the sensor's own clock
@@ -23,13 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
+from gateway.cli import main as adxlgw
+from gateway.core.evaluation import move_errors
+from gateway.offline.recording import HINT_COLUMN, read_recording
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.cli import main as adxlgw  # noqa: E402
-from gateway.core.evaluation import move_errors  # noqa: E402
-from gateway.offline.recording import HINT_COLUMN, read_recording  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 LEIRIA = REPO / "datasets" / "leiria-robot"
 # file, role, the sensor's configured rate (the dataset README's period: 11.5 ms, 10.0 ms)

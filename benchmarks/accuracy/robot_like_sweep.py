@@ -1,6 +1,6 @@
 """The estimator on generated robot-like motion across rates, noise levels and offset steps.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/robot_like_sweep.py [--seeds 5]
+    .venv/bin/python -m benchmarks.accuracy.robot_like_sweep [--seeds 5]
 
 Issue 13's design ground besides the robot's design file: our simulator (the ADXL202
 board model, its rate set by RSET and its noise by the density) driven through the
@@ -17,52 +17,16 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import math
-import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s  # noqa: E402
-from gateway.core.estimator import estimate_series  # noqa: E402
-from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
-from gateway.core.evaluation import move_errors  # noqa: E402
-from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment, jerk_limited  # noqa: E402
-from gateway.core.sensor_model import INTERNAL_FILTER_RESISTOR_OHM, SensorParams  # noqa: E402
-from gateway.core.simulator import simulate  # noqa: E402
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-
-SPEED_MPS = 0.2
-ACC_MPS2 = 1.0
-MOVES_M = (-0.634, +0.961, -0.327)
-STOPS_S = (0.5, 0.1)
-REST_S = 3.0
-
-
-def robot_path(jerk_mps3: float = 0.0) -> PiecewiseConstantAcceleration:
-    """The path; jerk_mps3 > 0: driven jerk-limited (an S-curve, as a robot controller moves)."""
-    ramp = SPEED_MPS / ACC_MPS2
-    segments = [Segment(REST_S, 0.0)]
-    for i, d in enumerate(MOVES_M):
-        sign = math.copysign(1.0, d)
-        cruise = (abs(d) - SPEED_MPS * ramp) / SPEED_MPS
-        segments += [Segment(ramp, sign * ACC_MPS2), Segment(cruise, 0.0), Segment(ramp, -sign * ACC_MPS2)]
-        segments.append(Segment(STOPS_S[i] if i < len(STOPS_S) else REST_S, 0.0))
-    return jerk_limited(PiecewiseConstantAcceleration(segments), jerk_mps3)
-
-
-def sensor_for(rate_hz: float, sample_noise_mps2: float) -> SensorParams:
-    """The board at rate_hz (RSET), its filter at a fifth of the rate (CX), the density that
-    gives sample_noise_mps2 per sample at rest."""
-    base = SensorParams()
-    rset = base.rset_ohm * (500.0 / rate_hz)
-    bandwidth = rate_hz / 10.0
-    cx = 1.0 / (2.0 * math.pi * INTERNAL_FILTER_RESISTOR_OHM * bandwidth)
-    density = sample_noise_mps2 / G / math.sqrt(math.pi / 2.0 * bandwidth)
-    return SensorParams(rset_ohm=rset, filter_capacitor_f=cx, noise_density_g_per_rthz=density)
+from benchmarks.harness import machine
+from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
+from gateway.core.estimator import estimate_series
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.evaluation import move_errors
+from gateway.core.simulator import simulate
+from testing.robot_like_cases import SPEED_MPS, G, robot_path, sensor_for
 
 
 def one(rate_hz: float, noise: float, step_mg: float, seed: int, jerk_mps3: float = 0.0) -> dict:
@@ -94,7 +58,7 @@ def main() -> None:
     ap.add_argument("--jerk-mps3", type=float, default=0.0,
                     help="drive the path jerk-limited at this jerk, m/s³ (e.g. 10: 0.1 s ramps); 0: steps (default)")
     args = ap.parse_args()
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/robot_like_sweep.py --seeds {args.seeds}"
+    print(f"command: .venv/bin/python -m benchmarks.accuracy.robot_like_sweep --seeds {args.seeds}"
           + (f" --jerk-mps3 {args.jerk_mps3:g}" if args.jerk_mps3 else ""))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

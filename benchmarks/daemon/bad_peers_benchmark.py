@@ -1,6 +1,6 @@
 """Peers that try to hold the gateway, against the real daemon, shipped config (issue 31).
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bad_peers_benchmark.py [--root CHECKOUT ...]
+    .venv/bin/python -m benchmarks.daemon.bad_peers_benchmark [--root CHECKOUT ...]
 
 `adxlgw run` of each checkout (default: this one) in a child process with the shipped
 config but for the wires here: a pty as the board (nobody writes: Modbus serves anyway),
@@ -29,12 +29,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.daemon.service_timing import first_answer, free_port
+from benchmarks.harness import machine
+from drivers.pty_port import PtyPort
 
-from benchmarks.machine_info import machine  # noqa: E402
-from benchmarks.service_timing import first_answer, free_port  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 READ = struct.pack(">HHHBBHH", 1, 0, 6, 1, 4, 0, 1)  # FC04, one input register
 ATTACKER, PLC = "127.0.0.2", "127.0.0.3"
@@ -111,7 +110,7 @@ def main() -> None:
     roots = args.root or [ROOT]
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))  # the attacker's own sockets
-    print("command: PYTHONPATH=. .venv/bin/python benchmarks/bad_peers_benchmark.py "
+    print("command: .venv/bin/python -m benchmarks.daemon.bad_peers_benchmark "
           + " ".join(f"--root {r}" for r in args.root or []))
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     print(f"| daemon | attack | PLC reads answered within {ANSWER_WITHIN_S:g} s | slowest answer, s |")

@@ -1,7 +1,7 @@
 """The firmware in s51: its CPU budget, its timing, the gateway's position from its stream,
 and `adxlgw record` reading it through a pty (docs/board-link.md, "The firmware").
 
-    PYTHONPATH=. .venv/bin/python benchmarks/board_in_ucsim_benchmark.py [--seeds 0 1 2] [--pty-seconds 60]
+    .venv/bin/python -m benchmarks.daemon.board_in_ucsim_benchmark [--seeds 0 1 2] [--pty-seconds 60]
 
 Part 1, per seed: the paper scenario (16.9 s of board time) run to a file; the worst
 timing error of T1x, T1y, T2 against the waveform, the board clock's error, the position
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.machine_info import machine
+from benchmarks.harness import machine
 from gateway.board_in_ucsim import (
     BoardRunSettings,
     budget_lines,
@@ -35,7 +35,7 @@ from gateway.core.scenarios import build_profile
 from gateway.core.simulator import simulate
 from gateway.offline.recording import read_recording
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TICK_HZ = 921_600
 
 

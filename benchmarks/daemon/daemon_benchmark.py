@@ -1,7 +1,7 @@
 """Daemon benchmark: sample latency to Modbus and CAN, CPU use, Modbus client load.
 
-    .venv/bin/python benchmarks/daemon_benchmark.py [--seconds 20] [--clients 0,10,25,50,75]
-    .venv/bin/python benchmarks/daemon_benchmark.py --cpu-only [--repeat 3]
+    .venv/bin/python -m benchmarks.daemon.daemon_benchmark [--seconds 20] [--clients 0,10,25,50,75]
+    .venv/bin/python -m benchmarks.daemon.daemon_benchmark --cpu-only [--repeat 3]
 
 A writer process plays the board on a real pty: SAMPLE frames at 500 samples/s (the
 paper's strokes), timestamping the moment the last byte of each frame is written
@@ -53,15 +53,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from drivers.board_protocol import encode_hello, encode_sample_records, encode_status
+from drivers.modbus_map import INPUT_SIZE, REGISTERS
+from drivers.pty_port import PtyPort
+from gateway.core.motion_profiles import StrokeSettings
+from gateway.core.scenarios import ScenarioSettings, build_profile
+from gateway.core.simulator import simulate
 
-from drivers.board_protocol import encode_hello, encode_sample_records, encode_status  # noqa: E402
-from drivers.modbus_map import INPUT_SIZE, REGISTERS  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
-from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
-from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
-from gateway.core.simulator import simulate  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 SAMPLE_COUNTER_ADDR = next(r.address for r in REGISTERS if r.name == "SAMPLE_COUNTER")
 RATE_HZ = 500.0
@@ -173,7 +172,6 @@ def client_load(port: int, clients: int, rate_hz: float, until_monotonic: float,
 # --------------------------------------------------------------------------- gateway child
 CHILD = r"""
 import asyncio, json, sys, time
-sys.path.insert(0, {root!r})
 from gateway.config import load_config
 from gateway.daemon import Gateway
 
@@ -373,7 +371,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="with --cpu-only: runs, then median and range")
     args = ap.parse_args()
     if args.cpu_only:
-        print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_benchmark.py --cpu-only "
+        print(f"command: .venv/bin/python -m benchmarks.daemon.daemon_benchmark --cpu-only "
               f"--seconds {args.seconds:g} --repeat {args.repeat}")
         print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
         print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
@@ -390,7 +388,7 @@ def main() -> None:
                   f"over {len(runs)} runs")
         return
     clients = [int(c) for c in args.clients.split(",")]
-    print(f"command: .venv/bin/python benchmarks/daemon_benchmark.py --seconds {args.seconds:g} "
+    print(f"command: .venv/bin/python -m benchmarks.daemon.daemon_benchmark --seconds {args.seconds:g} "
           f"--clients {args.clients}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")

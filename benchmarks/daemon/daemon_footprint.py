@@ -1,6 +1,6 @@
 """The daemon's install size and its start to the first Modbus answer, side by side.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/daemon_footprint.py --venv today=/tmp/full --venv slim=/tmp/slim [--runs 5]
+    .venv/bin/python -m benchmarks.daemon.daemon_footprint --venv today=/tmp/full --venv slim=/tmp/slim [--runs 5]
 
 Each --venv is a virtual environment with adxl-gateway installed the way a user would
 (`pip install -c constraints.txt PATH`, not editable). Per venv:
@@ -28,12 +28,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.daemon.service_timing import first_answer, free_port
+from benchmarks.harness import machine
+from drivers.pty_port import PtyPort
 
-from benchmarks.machine_info import machine  # noqa: E402
-from benchmarks.service_timing import first_answer, free_port  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
@@ -99,7 +98,7 @@ def main() -> None:
         for name, venv in venvs.items():
             times[name].append(one_start(venv, tmp))
     load_after = os.getloadavg()
-    print("command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_footprint.py "
+    print("command: .venv/bin/python -m benchmarks.daemon.daemon_footprint "
           + " ".join(f"--venv {v}" for v in args.venv) + f" --runs {args.runs}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
           f"machine: {machine()}; load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")

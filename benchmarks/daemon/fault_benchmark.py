@@ -1,7 +1,7 @@
 """Faults played into the real daemon on a pty, scored against the truth (issues 13 and 31).
 
-    PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py [--cases NAME,...] [--seed 0]
-    PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py --trace "outage 2 s"   # every read of one case
+    .venv/bin/python -m benchmarks.daemon.fault_benchmark [--cases NAME,...] [--seed 0]
+    .venv/bin/python -m benchmarks.daemon.fault_benchmark --trace "outage 2 s"   # every read of one case
 
 Each case is one board script: the paper's strokes (30 cm, 1 m/s, 1 s dwells, 2 s rest
 first) simulated with the project's simulator (the truth), encoded as the board's
@@ -59,18 +59,17 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.daemon.daemon_benchmark import RATE_HZ, free_port, writer
+from benchmarks.harness import machine
+from drivers.board_protocol import encode_hello, encode_sample_records
+from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register
+from drivers.pty_port import PtyPort
+from drivers.published_values import StatusBits
+from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment, StrokeSettings, reciprocating_strokes
+from gateway.core.scenarios import ScenarioSettings, build_profile
+from gateway.core.simulator import ErrorTerm, simulate
 
-from benchmarks.daemon_benchmark import RATE_HZ, free_port, writer  # noqa: E402
-from benchmarks.machine_info import machine  # noqa: E402
-from drivers.board_protocol import encode_hello, encode_sample_records  # noqa: E402
-from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
-from drivers.published_values import StatusBits  # noqa: E402
-from gateway.core.motion_profiles import PiecewiseConstantAcceleration, Segment, StrokeSettings, reciprocating_strokes  # noqa: E402
-from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
-from gateway.core.simulator import ErrorTerm, simulate  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 SLOT_S = 1.0 / RATE_HZ
 STROKE = StrokeSettings()  # the paper's: 0.1 s acceleration, 0.2 s cruise, 0.1 s deceleration, 1 s dwell
@@ -502,7 +501,7 @@ def main() -> None:
         cases = [c for c in cases if any(w in c.name for w in wanted)]
         if not cases:
             raise SystemExit(f"--cases: no case matches {args.cases!r} (see the module doc for the names)")
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/fault_benchmark.py"
+    print(f"command: .venv/bin/python -m benchmarks.daemon.fault_benchmark"
           f"{f' --cases {args.cases!r}' if args.cases else ''} --seed {args.seed}")
     print(f"date:    {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

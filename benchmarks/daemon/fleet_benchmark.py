@@ -1,7 +1,7 @@
 """Fleet benchmark: N Sparkplug B edge nodes into one local mosquitto, the host view
 reading all of them; and the daemon's CPU with MQTT on vs off, side by side.
 
-    nice .venv/bin/python benchmarks/fleet_benchmark.py [--nodes 50] [--real 2] [--rate-hz 20]
+    nice .venv/bin/python -m benchmarks.daemon.fleet_benchmark [--nodes 50] [--real 2] [--rate-hz 20]
         [--seconds 40] [--restart-at-s 15] [--cpu-seconds 20] [--cpu-rounds 3] [--json FILE]
 
 Part 1, the fleet. A mosquitto (persistence on, as a plant runs it) on a free loopback
@@ -24,7 +24,7 @@ again 2 s later. Printed:
 
 Part 2, daemon CPU at 500 samples/s. Two `adxlgw run` daemons at once, each with a
 writer process playing the board on a real pty at 500 samples/s (as
-benchmarks/daemon_benchmark.py does), one with [mqtt] on (20 Hz, QoS 1, to the
+benchmarks/daemon/daemon_benchmark.py does), one with [mqtt] on (20 Hz, QoS 1, to the
 broker), one off; CPU % of one core from /proc over the run; `--cpu-rounds` rounds per
 QoS (`--cpu-qos`, default 0 and 1), the roles' start order swapped each round; the
 difference per round and its median.
@@ -54,17 +54,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from benchmarks.daemon.daemon_benchmark import board_frames, cpu_seconds, pct, writer
+from benchmarks.harness import machine
+from drivers.pty_port import PtyPort
+from drivers.published_values import PublishedValues, StatusBits
+from drivers.sparkplug_host import FleetListener
+from testing.mqtt_helpers import Broker
 
-from daemon_benchmark import board_frames, cpu_seconds, pct, writer  # noqa: E402
-from machine_info import machine  # noqa: E402
-
-from drivers.pty_port import PtyPort  # noqa: E402
-from drivers.published_values import PublishedValues, StatusBits  # noqa: E402
-from drivers.sparkplug_host import FleetListener  # noqa: E402
-from tests.mqtt_helpers import Broker  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 GROUP = "bench"
 #: Every daemon and broker this run started: ended at exit, whatever ended the run
@@ -408,7 +405,7 @@ def main() -> None:
     ap.add_argument("--skip-cpu", action="store_true")
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
-    print(f"command: nice .venv/bin/python benchmarks/fleet_benchmark.py {' '.join(sys.argv[1:])}")
+    print(f"command: nice .venv/bin/python -m benchmarks.daemon.fleet_benchmark {' '.join(sys.argv[1:])}")
     print(f"date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; machine: {machine()}; "
           f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
           f"load average (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")

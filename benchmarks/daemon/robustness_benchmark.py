@@ -1,6 +1,6 @@
 """Robustness benchmark: the attacks of issue 16 rerun against the real daemon, 127.0.0.1 only.
 
-    .venv/bin/python benchmarks/robustness_benchmark.py [--flood 1100] [--fd-limit 1024] [--hold-s 6]
+    .venv/bin/python -m benchmarks.daemon.robustness_benchmark [--flood 1100] [--fd-limit 1024] [--hold-s 6]
         [--reloads 20] [--only daemon|offline] [--json FILE]
 
 The daemon (`adxlgw run`, emulated board, CAN off) runs as its own process with its
@@ -67,13 +67,12 @@ import threading
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
+from drivers.modbus_map import BY_NAME, WordOrder, decode_register
+from drivers.published_values import StatusBits
+from testing import hostile_files as hostile
 
-from benchmarks.machine_info import machine  # noqa: E402
-from drivers.modbus_map import BY_NAME, WordOrder, decode_register  # noqa: E402
-from drivers.published_values import StatusBits  # noqa: E402
-from tests import hostile_files as hostile  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 ADXLGW = Path(sys.executable).with_name("adxlgw")
 PLC_IP = "127.0.0.2"

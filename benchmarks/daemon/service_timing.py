@@ -1,6 +1,6 @@
 """How long `adxlgw run` takes to start, to answer, to ping the watchdog and to stop.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/service_timing.py [--runs 5]
+    .venv/bin/python -m benchmarks.daemon.service_timing [--runs 5]
 
 What systemd and a PLC see of the daemon's lifetime, on this machine's real CPU (the
 qemu VM of tests/test_systemd_vm.py runs the same under emulation, slower). Each run
@@ -31,10 +31,9 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
 
-from benchmarks.machine_info import machine  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 WATCHDOG_USEC = 10_000_000
 READ_INPUT_ALL = bytes.fromhex("000100000006010400000001")  # MBAP + read 1 input register
@@ -135,7 +134,7 @@ def main() -> None:
     one_run(tmp)  # warm-up: the numba cache and the page cache, not counted
     runs = [one_run(tmp) for _ in range(args.runs)]
     load_after = os.getloadavg()
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/service_timing.py --runs {args.runs}")
+    print(f"command: .venv/bin/python -m benchmarks.daemon.service_timing --runs {args.runs}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
           f"machine: {machine()}")
     print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f}; {args.runs} runs after a warm-up")

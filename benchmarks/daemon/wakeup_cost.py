@@ -1,6 +1,6 @@
 """What being woken 500 times a second costs here, and what the gateway adds to it.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py [--seconds 8] [--repeat 5]
+    .venv/bin/python -m benchmarks.daemon.wakeup_cost [--seconds 8] [--repeat 5]
 
 Several readers of the board's stream run at the same time, each on its own pty with
 its own writer process playing the board (500 SAMPLE frames/s, one write per frame,
@@ -41,12 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.daemon.daemon_benchmark import FLOOR_READER, board_frames, cpu_seconds, writer
+from benchmarks.harness import machine
+from drivers.pty_port import PtyPort
 
-from benchmarks.daemon_benchmark import FLOOR_READER, board_frames, cpu_seconds, writer  # noqa: E402
-from benchmarks.machine_info import machine  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 THREAD_READER = """
 import os, signal, tty
@@ -59,7 +58,6 @@ while True:
 
 GATEWAY = """
 import asyncio, sys, tempfile
-sys.path.insert(0, {root!r})
 from gateway.config import validate
 from gateway.daemon import Gateway
 tmp = tempfile.mkdtemp(prefix="adxlgw-wake-")
@@ -71,7 +69,6 @@ asyncio.run(Gateway(cfg).run())
 
 PROBE = """
 import asyncio, os, signal, sys, tempfile, time, tty
-sys.path.insert(0, {root!r})
 from gateway.core.conversion import Calibration
 from gateway.core.estimator_settings import from_sensor_model
 from gateway.daemon.sample_pipeline import SamplePipeline
@@ -187,7 +184,7 @@ def main() -> None:
         other_root = str(Path(other).resolve())
         variants[f"gateway @ {other}, default config"] = (  # root bound now, not at the loop's end
             lambda link, root=other_root: GATEWAY.format(root=root, link=link, can=True, batch=5))
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/wakeup_cost.py --seconds {args.seconds:g} "
+    print(f"command: .venv/bin/python -m benchmarks.daemon.wakeup_cost --seconds {args.seconds:g} "
           f"--repeat {args.repeat}" + (" --gateways-only" if args.gateways_only else "")
           + "".join(f" --compare {other}" for other in args.compare))
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")

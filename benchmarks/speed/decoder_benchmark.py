@@ -5,7 +5,7 @@ the board's default output, 10 minutes unless told otherwise) with the vectorise
 encoder, then decodes it in chunks of several sizes and as one chunk, and prints the
 rates next to the board's ~7.5 kB/s.
 
-    PYTHONPATH=. /work/venv/bin/python benchmarks/decoder_benchmark.py [--minutes 10] [--repeats 3]
+    PYTHONPATH=. /work/venv/bin/python -m benchmarks.speed.decoder_benchmark [--minutes 10] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="best of N timings")
     args = parser.parse_args()
 
-    print(f"command: .venv/bin/python benchmarks/decoder_benchmark.py "
+    print(f"command: .venv/bin/python -m benchmarks.speed.decoder_benchmark "
           f"--minutes {args.minutes:g} --repeats {args.repeats}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
     print(f"python: {platform.python_implementation()} {platform.python_version()}")

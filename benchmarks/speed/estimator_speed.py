@@ -1,6 +1,6 @@
 """How fast the estimators run: a 12-hour recording offline, and one realtime step.
 
-    PYTHONPATH=. python benchmarks/estimator_speed.py [--hours 12]
+    python -m benchmarks.speed.estimator_speed [--hours 12]
 
 The 12-hour recording is made in memory by the simulator (no CSV): the paper's strokes
 (0.3 m at 1 m/s, 1 s dwells) back to back for the whole time, at exactly 500 samples/s
@@ -21,17 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from gateway.core import estimator_kernel as K
+from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
+from gateway.core.estimator import RealtimeEstimator, estimate_series
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.jit import JIT_ENABLED
+from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes
+from gateway.core.sensor_model import SensorParams
+from gateway.core.simulator import simulate
 
-from gateway.core import estimator_kernel as K  # noqa: E402
-from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s  # noqa: E402
-from gateway.core.estimator import RealtimeEstimator, estimate_series  # noqa: E402
-from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
-from gateway.core.jit import JIT_ENABLED  # noqa: E402
-from gateway.core.motion_profiles import StrokeSettings, reciprocating_strokes  # noqa: E402
-from gateway.core.sensor_model import SensorParams  # noqa: E402
-from gateway.core.simulator import simulate  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 
 def cpu_name() -> str:
@@ -61,7 +60,7 @@ def main() -> int:
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-    print(f"command: PYTHONPATH=. python benchmarks/estimator_speed.py --hours {args.hours:g}")
+    print(f"command: python -m benchmarks.speed.estimator_speed --hours {args.hours:g}")
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {cpu_name()}, pinned to 1 of {os.cpu_count()} cores, Python {platform.python_version()}, "
           f"numba {'on' if JIT_ENABLED else 'OFF (plain Python loops)'}")

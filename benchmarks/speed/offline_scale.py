@@ -1,6 +1,6 @@
 """Offline at the paper's scale (issue 17): 12-hour recordings through the commands, timed.
 
-    PYTHONPATH=. python benchmarks/offline_scale.py [--hours 12] [--baseline-hours 1] [--workdir /tmp]
+    python -m benchmarks.speed.offline_scale [--hours 12] [--baseline-hours 1] [--workdir /tmp]
 
 Makes two simulated recordings of --hours at 500 samples/s (seeded): the paper's strokes
 back to back (raw form, with the truth in ref_pos_m/ref_vel_mps/ref_acc_mps2) as CSV and
@@ -31,10 +31,9 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
 
-from benchmarks.machine_info import machine  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 # the last commit before issue 17's recordings (the plain-csv path)
 BASELINE_COMMIT = "99a982d980d96ab814b709bbf26213960010ab3c"
@@ -112,15 +111,15 @@ def main() -> int:
         make_recordings(Path(args.make_into), args.hours, args.baseline_hours)
         return 0
     began = time.perf_counter()
-    print(f"command: PYTHONPATH=. python benchmarks/offline_scale.py --hours {args.hours:g} "
+    print(f"command: python -m benchmarks.speed.offline_scale --hours {args.hours:g} "
           f"--baseline-hours {args.baseline_hours:g}")
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}; each command pinned to one core")
     work = Path(tempfile.mkdtemp(prefix="offline_scale_", dir=args.workdir))
     try:
         t0 = time.perf_counter()
-        subprocess.run([sys.executable, __file__, "--hours", str(args.hours), "--baseline-hours",
-                        str(args.baseline_hours), "--make-into", str(work)], check=True)
+        subprocess.run([sys.executable, "-m", "benchmarks.speed.offline_scale", "--hours", str(args.hours),
+                        "--baseline-hours", str(args.baseline_hours), "--make-into", str(work)], check=True, cwd=REPO)
         files = recording_paths(work)
         sizes = {k: p.stat().st_size / 1e6 for k, p in files.items()}
         print(f"made the recordings in {time.perf_counter() - t0:.0f} s (not counted): "

@@ -1,9 +1,9 @@
 """Python and C calls the gateway makes per batch of board samples, in the flow.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/call_count.py [--checkout DIR] [--top 60]
+    .venv/bin/python -m benchmarks.tools.call_count [--checkout DIR] [--top 60]
 
 A gateway in this process reads a real pty while a writer process plays the board at
-500 samples/s (as benchmarks/daemon_hot_path.py); for 3 s `sys.setprofile` counts every
+500 samples/s (as benchmarks/tools/profile.py); for 3 s `sys.setprofile` counts every
 call on the event loop's thread. Printed per batch of 5 samples (the default
 serial.batch_frames): the total and the most frequent functions. A count, not a time:
 on a VM each wakeup runs cold, and how much code a wakeup touches is what its CPU
@@ -30,14 +30,14 @@ BATCH = 5
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--checkout", type=Path, default=Path(__file__).resolve().parents[1],
+    ap.add_argument("--checkout", type=Path, default=Path(__file__).resolve().parents[2],
                     help="the checkout whose gateway to count (default: this one)")
     ap.add_argument("--top", type=int, default=60, help="functions listed")
     args = ap.parse_args()
     sys.path.insert(0, str(args.checkout.resolve()))
-    from benchmarks.daemon_benchmark import board_frames, writer
-    from benchmarks.daemon_hot_path import config
-    from benchmarks.machine_info import machine
+    from benchmarks.daemon.daemon_benchmark import board_frames, writer
+    from benchmarks.harness import machine
+    from benchmarks.tools.profile import config
     from drivers.pty_port import PtyPort
     from gateway.daemon import Gateway
 
@@ -87,7 +87,7 @@ def main() -> None:
     board.terminate()
     board.join()
     pty.close(remove_link=True)
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/call_count.py --checkout {args.checkout}")
+    print(f"command: .venv/bin/python -m benchmarks.tools.call_count --checkout {args.checkout}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     per_batch = BATCH / max(samples, 1)
     print(f"{samples} samples in {COUNT_S:g} s; calls per batch of {BATCH} samples: "

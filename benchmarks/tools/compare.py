@@ -1,7 +1,7 @@
 """The estimator on data the project did not make, this checkout beside others: a change
 to the numerical core measured before against after.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/estimation_compare.py [--compare DIR ...] [--independent-seeds 10]
+    .venv/bin/python -m benchmarks.tools.compare [--compare DIR ...] [--independent-seeds 10]
 
 Each checkout's own code (`--compare DIR`: a worktree of another commit, e.g.
 `git worktree add /work/w_old ff8b6f8`) runs, with this interpreter, on:
@@ -26,10 +26,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
 
-from benchmarks.machine_info import machine  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 # run inside each checkout (its own gateway and tests packages): only APIs both have
 WORKER = r'''
@@ -68,7 +67,10 @@ for name in ("zplus", "zminus"):
     for method in ("realtime", "smoothed"):
         tr = estimate_series(s.t_s, s.acc_mps2, s.valid, method=method, settings=settings)
         out[f"airbrakes {name} {method}: final error mm"] = float(tr.pos_m[-1]) * 1e3
-from tests.independent_generator.cases import EFFECT_SIZES, make_case
+try:
+    from testing.independent_generator.cases import EFFECT_SIZES, make_case
+except ModuleNotFoundError:  # a checkout from before the testing/ package
+    from tests.independent_generator.cases import EFFECT_SIZES, make_case
 for effect in [None] + [e for e in EFFECT_SIZES if e != "bias_random_walk"]:
     for method in ("realtime", "smoothed"):
         errs, inside = [], []
@@ -107,7 +109,7 @@ def main() -> None:
     ap.add_argument("--compare", type=Path, action="append", default=[], help="another checkout (repeatable)")
     ap.add_argument("--independent-seeds", type=int, default=10)
     args = ap.parse_args()
-    print("command: PYTHONPATH=. .venv/bin/python benchmarks/estimation_compare.py "
+    print("command: .venv/bin/python -m benchmarks.tools.compare "
           + " ".join(f"--compare {c}" for c in args.compare) + f" --independent-seeds {args.independent_seeds}")
     print(f"date: {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}; machine: {machine()}")
     checkouts = [ROOT] + args.compare

@@ -1,7 +1,7 @@
 """What `adxlgw diagnose` said about one benchmark case, candidate by candidate.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --effect temperature_offset --seeds 130008 130018
-    PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --generator own --effect temperature_offset \
+    .venv/bin/python -m benchmarks.tools.diagnosis_case_report --effect temperature_offset --seeds 130008 130018
+    .venv/bin/python -m benchmarks.tools.diagnosis_case_report --generator own --effect temperature_offset \
         --seeds 17 --parts tolerance --jerk-mps3 400 --dcm-reading edge
 
 For each seed: the case as `diagnosis_benchmark.py` makes it (the independent generator,
@@ -25,19 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
+from benchmarks.harness import machine
+from gateway.core.diagnosis import diagnose
+from gateway.core.diagnosis.judgement import residual_share
+from gateway.core.estimator import estimate_series
+from gateway.core.evaluation import summarise_errors
+from gateway.core.sensor_model import DCM_READINGS
+from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+from testing import diagnosis_cases as own
+from testing.diagnosis_cases import estimator_settings
+from testing.independent_generator import cases as independent
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.core.diagnosis import diagnose  # noqa: E402
-from gateway.core.diagnosis.judgement import residual_share  # noqa: E402
-from gateway.core.estimator import estimate_series  # noqa: E402
-from gateway.core.evaluation import summarise_errors  # noqa: E402
-from gateway.core.sensor_model import DCM_READINGS  # noqa: E402
-from gateway.core.units import STANDARD_GRAVITY_MPS2 as G  # noqa: E402
-from tests import diagnosis_cases as own  # noqa: E402
-from tests.diagnosis_cases import estimator_settings  # noqa: E402
-from tests.independent_generator import cases as independent  # noqa: E402
+REPO = Path(__file__).resolve().parents[2]
 
 
 def own_case(effect: str | None, seed: int, parts: str, jerk_mps3: float, dcm_reading: str,
@@ -129,7 +128,7 @@ def main() -> int:
                    + (" --clean-twin" if args.clean_twin else "")
                    + (f" --zero-g-offset-g {args.zero_g_offset_g:g}" if args.zero_g_offset_g is not None else "")
                    if args.generator == "own" else "")
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_case_report.py --generator {args.generator} "
+    print(f"command: .venv/bin/python -m benchmarks.tools.diagnosis_case_report --generator {args.generator} "
           f"--effect {args.effect} --seeds {' '.join(map(str, args.seeds))}{own_options}")
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

@@ -1,7 +1,7 @@
 """The diagnosis of the real recordings, this checkout beside others: a change to the
 diagnosis measured on data the project did not make, before against after.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_real_compare.py [--compare DIR ...]
+    .venv/bin/python -m benchmarks.tools.diagnosis_real_compare [--compare DIR ...]
 
 The two Leiria robot files (each at the default comparison and at every sample, as
 docs/diagnosis.md §9) and the two hand-lifted airbrakes recordings that return to their
@@ -21,10 +21,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
 
-from benchmarks.machine_info import machine  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 ROBOT = ("eV50p_MPU6050RM3100", "V1000_LSM9DS0")
 AIRBRAKES = ("zplus", "zminus")
@@ -36,6 +35,14 @@ def _run(checkout: Path, argv: list[str]) -> None:
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
+def _real_data_command(checkout: Path) -> list[str]:
+    """How `checkout` runs diagnosis_real_data: a module since benchmarks/ is a package,
+    a script before."""
+    if (checkout / "benchmarks" / "accuracy" / "diagnosis_real_data.py").exists():
+        return ["-m", "benchmarks.accuracy.diagnosis_real_data"]
+    return ["benchmarks/diagnosis_real_data.py"]
+
+
 def diagnoses(checkout: Path, tmp: Path) -> dict[str, dict]:
     """{case: the diagnosis JSON} for the six cases, by this checkout's code."""
     out: dict[str, dict] = {}
@@ -43,7 +50,7 @@ def diagnoses(checkout: Path, tmp: Path) -> dict[str, dict]:
     for name in ROBOT:
         for label, extra in (("default comparison", []), ("every sample", ["--reference-block", "1"])):
             where = tmp / f"{name}-{len(extra)}"
-            _run(checkout, ["benchmarks/diagnosis_real_data.py", str(data / "leiria-robot" / f"{name}.csv"),
+            _run(checkout, [*_real_data_command(checkout), str(data / "leiria-robot" / f"{name}.csv"),
                             "--out", str(where), *extra])
             out[f"robot {name}, {label}"] = json.loads(next(where.glob("*.diagnosis.json")).read_text())
     for name in AIRBRAKES:
@@ -67,7 +74,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--compare", type=Path, action="append", default=[], help="another checkout (repeatable)")
     args = ap.parse_args()
-    print("command: PYTHONPATH=. .venv/bin/python benchmarks/diagnosis_real_compare.py "
+    print("command: .venv/bin/python -m benchmarks.tools.diagnosis_real_compare "
           + " ".join(f"--compare {c}" for c in args.compare))
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     checkouts = [ROOT, *[c.resolve() for c in args.compare]]

@@ -1,6 +1,6 @@
 """The initial rest found on data the project did not make, by this checkout and another.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/initial_rest_check.py [--compare DIR] [--seeds 5]
+    .venv/bin/python -m benchmarks.tools.initial_rest_check [--compare DIR] [--seeds 5]
 
 `reference_point.find_initial_rest` sets everything `adxlgw estimate` and `diagnose`
 take from a recording's own rest (the offset, the noise settings, the paper method's
@@ -26,15 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
+from gateway.cli import main as adxlgw
+from gateway.core import reference_point
+from gateway.offline.recording import read_recording, to_acceleration
+from testing.diagnosis_cases import EFFECTS
+from testing.independent_generator.cases import make_case
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.cli import main as adxlgw  # noqa: E402
-from gateway.core import reference_point  # noqa: E402
-from gateway.offline.recording import read_recording, to_acceleration  # noqa: E402
-from tests.diagnosis_cases import EFFECTS  # noqa: E402
-from tests.independent_generator.cases import make_case  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 ROBOT = ROOT / "datasets" / "leiria-robot"
 AIRBRAKES = ROOT / "datasets" / "airbrakes-imu"
@@ -86,7 +85,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5, help="independent-generator seeds per effect")
     args = ap.parse_args()
     other = load_module(args.compare) if args.compare else None
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/initial_rest_check.py --seeds {args.seeds}"
+    print(f"command: .venv/bin/python -m benchmarks.tools.initial_rest_check --seeds {args.seeds}"
           + (f" --compare {args.compare}" if args.compare else ""))
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     print("| recording | samples | data step (m/s²) | rest, this checkout | " + ("other checkout |" if other else ""))

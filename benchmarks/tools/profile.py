@@ -1,6 +1,6 @@
 """The gateway's own work per board sample: hot in a loop, and as it runs in the flow.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/daemon_hot_path.py [--seconds 8]
+    .venv/bin/python -m benchmarks.tools.profile [--seconds 8]
 
 Explains the CPU number of daemon_benchmark.py. One Gateway in this process (Modbus on
 a free port, CAN on the python-can virtual bus):
@@ -20,25 +20,23 @@ import argparse
 import asyncio
 import datetime
 import multiprocessing as mp
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.daemon.daemon_benchmark import board_frames, writer
+from benchmarks.harness import machine
+from drivers.board_protocol import encode_hello
+from drivers.can_frames import CyclicEncoder
+from drivers.pty_port import PtyPort
+from gateway.config import validate
+from gateway.core.conversion import Calibration
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.daemon import Gateway
+from gateway.daemon.board_intake import BoardIntake, LinkHealth
+from gateway.daemon.sample_pipeline import SamplePipeline
 
-from benchmarks.daemon_benchmark import board_frames, writer  # noqa: E402
-from benchmarks.machine_info import machine  # noqa: E402
-from drivers.board_protocol import encode_hello  # noqa: E402
-from drivers.can_frames import CyclicEncoder  # noqa: E402
-from drivers.pty_port import PtyPort  # noqa: E402
-from gateway.config import validate  # noqa: E402
-from gateway.core.conversion import Calibration  # noqa: E402
-from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
-from gateway.daemon import Gateway  # noqa: E402
-from gateway.daemon.board_intake import BoardIntake, LinkHealth  # noqa: E402
-from gateway.daemon.sample_pipeline import SamplePipeline  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 HELLO = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 
@@ -109,7 +107,7 @@ def main() -> None:
     board.terminate()  # it may still be writing the spare frames, with nobody reading
     board.join()
     pty.close(remove_link=True)
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_hot_path.py --seconds {args.seconds:g}"
+    print(f"command: .venv/bin/python -m benchmarks.tools.profile --seconds {args.seconds:g}"
           " (ADXLGW_NO_JIT=1 in front: the same code as plain Python)")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     print(f"hot:         SamplePipeline.feed {hot_sample_us:.1f} µs per sample one by one, {hot_batched_us:.1f} µs "

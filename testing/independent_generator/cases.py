@@ -26,8 +26,8 @@ import numpy as np
 
 from gateway.commands.diagnose import build_input
 from gateway.offline.recording import Recording, to_acceleration
-from tests.independent_generator import board
-from tests.independent_generator.motion import MotionPlan, MoveLimits, strokes
+from testing.independent_generator import board
+from testing.independent_generator.motion import MotionPlan, MoveLimits, strokes
 
 STREAM = 14
 STROKES = 6

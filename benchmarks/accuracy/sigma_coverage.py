@@ -1,7 +1,7 @@
 """Is the estimator's σ at the stops honest for a part whose sensitivity is off within its
 calibration? On the simulator (the design data), the paper's 10 strokes:
 
-    PYTHONPATH=. .venv/bin/python benchmarks/sigma_coverage.py [--seeds 10] [--dcm-reading edge]
+    .venv/bin/python -m benchmarks.accuracy.sigma_coverage [--seeds 10] [--dcm-reading edge]
 
 Per seed a part whose X sensitivity is off by s, drawn uniformly within the calibration's
 ±1 % (seeded), and a nominal part (s = 0). The filter's settings from the sensor model, once
@@ -16,24 +16,22 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
+from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
+from gateway.core.estimator import estimate_series
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.evaluation import summarise_errors
+from gateway.core.motion_profiles import StrokeSettings
+from gateway.core.scenarios import ScenarioSettings, build_profile
+from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, DCM_READINGS, SensorParams
+from gateway.core.simulator import simulate
 
-from benchmarks.machine_info import machine  # noqa: E402
-from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s  # noqa: E402
-from gateway.core.estimator import estimate_series  # noqa: E402
-from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
-from gateway.core.evaluation import summarise_errors  # noqa: E402
-from gateway.core.motion_profiles import StrokeSettings  # noqa: E402
-from gateway.core.scenarios import ScenarioSettings, build_profile  # noqa: E402
-from gateway.core.sensor_model import CALIBRATED_SENSITIVITY_TOLERANCE_FRAC, DCM_READINGS, SensorParams  # noqa: E402
-from gateway.core.simulator import simulate  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 CALIBRATION_TOLERANCE_FRAC = CALIBRATED_SENSITIVITY_TOLERANCE_FRAC
 METHODS = ("realtime", "smoothed")
@@ -71,7 +69,7 @@ def main() -> None:
     ap.add_argument("--dcm-reading", choices=DCM_READINGS, default="mean",
                     help="where the simulated modulator reads the signal (default: the period's mean)")
     args = ap.parse_args()
-    print(f"command: PYTHONPATH=. .venv/bin/python benchmarks/sigma_coverage.py --seeds {args.seeds} "
+    print(f"command: .venv/bin/python -m benchmarks.accuracy.sigma_coverage --seeds {args.seeds} "
           f"--dcm-reading {args.dcm_reading}")
     print(f"date: {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}; machine: {machine()}")
     rng = np.random.default_rng(20261126)
