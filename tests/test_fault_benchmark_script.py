@@ -1,11 +1,11 @@
-"""The fault benchmark's board scripts (benchmarks/daemon/fault_benchmark.py) carry the fault they
+"""The fault benchmark's board scripts (testing/fault_cases.py) carry the fault they
 claim, decoded by the board protocol's own decoder, and their stops are true rests."""
 from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.daemon.fault_benchmark import SLOT_S, Case, board_script
 from drivers.board_protocol import Hello, Sample, decode_frames
+from testing.fault_cases import SLOT_S, Case, board_script
 
 
 def _samples(script):

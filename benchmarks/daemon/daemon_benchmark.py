@@ -59,11 +59,11 @@ from drivers.pty_port import PtyPort
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.simulator import simulate
+from testing.fault_cases import RATE_HZ
 
 ROOT = Path(__file__).resolve().parents[2]
 
 SAMPLE_COUNTER_ADDR = next(r.address for r in REGISTERS if r.name == "SAMPLE_COUNTER")
-RATE_HZ = 500.0
 
 
 def free_port() -> int:
