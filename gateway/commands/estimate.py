@@ -267,10 +267,9 @@ class HintUse:
                   f"{self.moving} 'moving', {self.unknown} unknown)", file=sys.stderr)
 
 
-def run(args: argparse.Namespace) -> int:
-    source = open_recording(args.recording)
-    if args.method == "realtime" and not args.plot and not args.model:
-        return run_streamed(args, source)
+def _read_series(args: argparse.Namespace, source: RecordingSource) -> tuple[AccelerationSeries, str]:
+    """The recording as acceleration (its form: raw or acceleration), checked: samples
+    left after --skip-s, a time axis an estimate can run on."""
     if args.method == "smoothed":
         check_fits_in_memory(args.recording, SMOOTHED_BYTES_PER_SAMPLE * source.estimated_rows(),
                              f"the smoothed estimate ({SMOOTHED_BYTES_PER_SAMPLE} bytes per sample)")
@@ -288,6 +287,11 @@ def run(args: argparse.Namespace) -> int:
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
     check_time_axis(args.recording, series.t_s)
+    return series, form
+
+
+def _estimated(args: argparse.Namespace, series: AccelerationSeries, form: str):
+    """The track of the method asked for, and the filter's settings (None for raw/paper)."""
     drift = load_drift_model(args.drift_model) if args.drift_model else None
     settings = None
     try:
@@ -309,6 +313,11 @@ def run(args: argparse.Namespace) -> int:
         hints.say()
     except NoRestError as err:
         raise _no_rest(args, err) from err
+    return track, settings
+
+
+def _report(args: argparse.Namespace, series: AccelerationSeries, track, settings) -> None:
+    """The notes and settings, the track written, the errors against the reference, the plot."""
     for note in track.notes:
         print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
     if settings is not None:
@@ -320,6 +329,15 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         plot_track(args.plot, track, series.reference, f"{Path(args.recording).name}: {track.method}")
         print(f"wrote {args.plot}")
+
+
+def run(args: argparse.Namespace) -> int:
+    source = open_recording(args.recording)
+    if args.method == "realtime" and not args.plot and not args.model:
+        return run_streamed(args, source)
+    series, form = _read_series(args, source)
+    track, settings = _estimated(args, series, form)
+    _report(args, series, track, settings)
     return 0
 
 
