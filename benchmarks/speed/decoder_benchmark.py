@@ -10,14 +10,11 @@ rates next to the board's ~7.5 kB/s.
 
 from __future__ import annotations
 
-import argparse
-import datetime
-import os
-import platform
 import time
 
 import numpy as np
 
+from benchmarks import harness
 from drivers.board_protocol import (
     SAMPLE_FRAME_LENGTH,
     StreamDecoder,
@@ -70,18 +67,13 @@ def decode(stream: bytes, chunk_bytes: int | None) -> tuple[float, StreamDecoder
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.parser(__doc__)
     parser.add_argument("--minutes", type=float, default=10.0)
     parser.add_argument("--repeats", type=int, default=3, help="best of N timings")
     args = parser.parse_args()
 
-    print(f"command: .venv/bin/python -m benchmarks.speed.decoder_benchmark "
-          f"--minutes {args.minutes:g} --repeats {args.repeats}")
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
-    print(f"python: {platform.python_implementation()} {platform.python_version()}")
-    print(f"machine: {platform.platform()} {platform.machine()}, "
-          f"nproc {len(os.sched_getaffinity(0))} (cpu_count {os.cpu_count()}), "
-          f"processor '{platform.processor() or 'n/a'}'")
+    run = harness.stamp("benchmarks.speed.decoder_benchmark",
+                        ["--minutes", f"{args.minutes:g}", "--repeats", str(args.repeats)])
 
     rng = np.random.default_rng(SEED)
     start = time.perf_counter()
@@ -93,6 +85,7 @@ def main() -> None:
           f"(vectorised encoder, {n_samples / encode_s / 1e6:.1f} M samples/s)")
     print()
     print(f"{'chunking':>14} {'best s':>8} {'MB/s':>8} {'samples/s':>12} {'x board':>9}")
+    rows = []
     for chunk_bytes in (64, 4096, None):
         timings = []
         for _ in range(args.repeats):
@@ -106,6 +99,9 @@ def main() -> None:
         label = "one chunk" if chunk_bytes is None else f"{chunk_bytes} B chunks"
         print(f"{label:>14} {best_s:8.3f} {len(stream) / best_s / 1e6:8.2f} "
               f"{n_samples / best_s:12,.0f} {len(stream) / best_s / board_bytes_per_s:9,.0f}")
+        rows.append({"chunking": label, "best_s": best_s, "mb_per_s": len(stream) / best_s / 1e6,
+                     "samples_per_s": n_samples / best_s, "times_board_rate": len(stream) / best_s / board_bytes_per_s})
+    harness.write_json(args, {"stream_bytes": len(stream), "samples": n_samples, "rows": rows}, run)
 
 
 if __name__ == "__main__":
