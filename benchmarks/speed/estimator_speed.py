@@ -10,10 +10,7 @@ is paid once per installation, not per run).
 """
 from __future__ import annotations
 
-import argparse
-import datetime
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -21,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import harness
 from gateway.core import estimator_kernel as K
 from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
 from gateway.core.estimator import RealtimeEstimator, estimate_series
@@ -31,16 +29,6 @@ from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 
 REPO = Path(__file__).resolve().parents[2]
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "?"
 
 
 def twelve_hours(hours: float, sensor: SensorParams):
@@ -54,16 +42,15 @@ def twelve_hours(hours: float, sensor: SensorParams):
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.parser(__doc__)
     parser.add_argument("--hours", type=float, default=12.0)
     parser.add_argument("--realtime-samples", type=int, default=200_000)
     args = parser.parse_args()
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
-    print(f"command: python -m benchmarks.speed.estimator_speed --hours {args.hours:g}")
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {cpu_name()}, pinned to 1 of {os.cpu_count()} cores, Python {platform.python_version()}, "
-          f"numba {'on' if JIT_ENABLED else 'OFF (plain Python loops)'}")
+    run = harness.stamp("benchmarks.speed.estimator_speed")
+    print(f"pinned to 1 of {os.cpu_count()} cores; numba {'on' if JIT_ENABLED else 'OFF (plain Python loops)'}")
+    results: dict[str, float] = {}
     sensor = SensorParams(t2_error_frac=0.0)  # exactly 500 samples/s
     settings = from_sensor_model(sensor)
 
@@ -81,6 +68,7 @@ def main() -> int:
         start = time.perf_counter()
         track = estimate_series(t, z, method=method, settings=settings, lost_before=lost)
         elapsed = time.perf_counter() - start
+        results[f"offline_{method}_ns_per_sample"] = elapsed / t.size * 1e9
         print(f"offline {method:9s}: {elapsed:6.1f} s for {t.size / 1e6:.2f} M samples "
               f"({elapsed / t.size * 1e9:.0f} ns/sample); standstill {100 * track.standstill.mean():.0f} % "
               f"of the time; final position error {(track.pos_m[-1] - final_truth) * 1e3:+.1f} mm")
@@ -100,6 +88,7 @@ def main() -> int:
     for k in range(n):
         K.step(state, prm, t[k], z[k], True, 0)
     kernel = (time.perf_counter() - start) / n
+    results.update(realtime_step_us=per_step * 1e6, kernel_step_us=kernel * 1e6)
     print(f"  of which the kernel call itself: {kernel * 1e6:.2f} µs/sample (the rest builds the Estimate)")
     # without numba: the same code as plain Python, in a fresh interpreter
     probe = (
@@ -117,6 +106,8 @@ def main() -> int:
     print(f"without numba (ADXLGW_NO_JIT=1, plain Python): {py * 1e6:.1f} µs/sample → {py * 500 * 100:.1f} % of "
           f"a core at 500 samples/s; a 12-hour offline run would take ~{py * 21.6e6 / 60:.0f} min (realtime) "
           "and about 1.6× that smoothed")
+    results["plain_python_step_us"] = py * 1e6
+    harness.write_json(args, results, run)
     return 0
 
 
