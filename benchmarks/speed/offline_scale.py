@@ -22,7 +22,6 @@ printed, not asserted (timings on a shared machine are noisy).
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import shutil
 import subprocess
@@ -31,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.harness import machine
+from benchmarks import harness
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -100,7 +99,7 @@ def timed(cmd: list[str], cwd: Path, pythonpath: Path) -> tuple[float, float, fl
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.parser(__doc__)
     parser.add_argument("--hours", type=float, default=12.0)
     parser.add_argument("--baseline-hours", type=float, default=1.0,
                         help="length of the file both paths read side by side (default: 1)")
@@ -111,10 +110,8 @@ def main() -> int:
         make_recordings(Path(args.make_into), args.hours, args.baseline_hours)
         return 0
     began = time.perf_counter()
-    print(f"command: python -m benchmarks.speed.offline_scale --hours {args.hours:g} "
-          f"--baseline-hours {args.baseline_hours:g}")
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {machine()}; each command pinned to one core")
+    run = harness.stamp("benchmarks.speed.offline_scale")
+    print("each command pinned to one core")
     work = Path(tempfile.mkdtemp(prefix="offline_scale_", dir=args.workdir))
     try:
         t0 = time.perf_counter()
@@ -186,6 +183,14 @@ def main() -> int:
         print()
         print("file sizes (MB): " + ", ".join(f"{k} {v:.0f}" for k, v in sorted({**sizes, **out_sizes}.items())))
         print(f"smoothed: {res['smoothed'][2] * 1.048576e6 / (args.hours * 1800000):.0f} bytes of peak RSS per sample")
+        fields = ("wall_s", "cpu_s", "peak_rss_mb")
+        harness.write_json(args, {
+            "hours": args.hours,
+            "commands": {key: dict(zip(fields, value, strict=True)) for key, value in res.items()},
+            "side_by_side": {"baseline_hours": args.baseline_hours,
+                             "plain_csv_path": dict(zip(fields, (old_w, old_c, old_m), strict=True)),
+                             "today": dict(zip(fields, (new_w, new_c, new_m), strict=True))},
+        }, run)
     finally:
         used = sum(p.stat().st_size for p in work.rglob("*") if p.is_file()) / 1e9
         shutil.rmtree(work, ignore_errors=True)
