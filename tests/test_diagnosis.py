@@ -1,6 +1,6 @@
 """The diagnosis finds effects it is not told about, and its parts agree with independent sums.
 
-Cases (tests/diagnosis_cases.py): a simulated 4-stroke recording (a 60 s standstill for
+Cases (testing/diagnosis_cases.py): a simulated 4-stroke recording (a 60 s standstill for
 bias_random_walk) with one or two effects of gateway.core.sensor_effects hidden in it,
 parameters drawn at the documented sizes from a seeded generator; diagnose gets only
 the recording. Seeds here are 9000+, never the benchmark's (0…N−1), so the tests are
@@ -92,9 +92,9 @@ def test_clean_recordings_name_nothing_and_are_mostly_white():
 
 # --- (d) the code under test is never told the answer
 
-# either generator: the simulator and its effects, or the independent one in tests/
+# either generator: the simulator and its effects, or the independent one in testing/
 FORBIDDEN = ("gateway.core.sensor_effects", "gateway.core.simulator", "gateway.core.motion_profiles",
-             "testing.independent_generator", "tests")
+             "testing", "tests")
 
 
 def _imported_modules(path: Path) -> list[str]:

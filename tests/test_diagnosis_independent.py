@@ -1,5 +1,5 @@
 """The diagnosis on data it was not built from: the independent generator
-(tests/independent_generator), with hidden effects diagnose is not told about.
+(testing/independent_generator), with hidden effects diagnose is not told about.
 
 Seeds 40000+: not the benchmark's (30000+), nor those looked at while the design was
 made (500, 20000). The generator shares no code with the simulator (checked here).
@@ -23,7 +23,7 @@ from testing.independent_generator.cases import IN_VOCABULARY, make_case, run_ca
 from testing.independent_generator.motion import strokes
 
 ROOT = Path(__file__).resolve().parents[1]
-GENERATOR_FILES = sorted((ROOT / "tests" / "independent_generator").glob("*.py"))
+GENERATOR_FILES = sorted((ROOT / "testing" / "independent_generator").glob("*.py"))
 FORBIDDEN = ("gateway.core.simulator", "gateway.core.sensor_effects", "gateway.core.motion_profiles")
 
 

@@ -5,7 +5,7 @@
 
 Per effect of gateway.core.sensor_effects (EFFECT_SIZES, the documented sizes): N
 seeded cases (seeds 0…N−1; the tests use 9000+), each a simulated 4-stroke recording
-with that one effect hidden, parameters drawn at random (tests/diagnosis_cases.py
+with that one effect hidden, parameters drawn at random (testing/diagnosis_cases.py
 builds and judges every case, the same way the tests do). Reported per effect:
 
 - detected: the effect is named (with --parts tolerance, a hidden scale error whose total
@@ -14,7 +14,7 @@ builds and judges every case, the same way the tests do). Reported per effect:
   judged against that total, as every named scale error's is there);
 - wrong: any other effect is named as well;
 - in tol: named and every checked parameter within the tolerance of
-  tests/diagnosis_cases.py;
+  testing/diagnosis_cases.py;
 - parameter error: relative error |estimate − truth| / |truth| over the cases where it
   was named, median and 90th percentile (the worst parameter for effects with two);
 - gain +: the fit's own gain is positive (residual RMS down and log-likelihood up for a
@@ -178,11 +178,11 @@ def main() -> int:
     parser.add_argument("--json", metavar="OUT", help="also write the table and every case's outcome here")
     parser.add_argument("--no-clean", action="store_true", help="skip the clean recordings")
     parser.add_argument("--generator", choices=("own", "independent", "both"), default="both",
-                        help="the project's simulator, the independent generator (tests/independent_generator), "
+                        help="the project's simulator, the independent generator (testing/independent_generator), "
                              "or both (default)")
     parser.add_argument("--parts", choices=("nominal", "tolerance"), default="nominal",
                         help="the own simulator's part: nominal, or as built — sensitivity within ±1 %%, filter "
-                             "capacitor within ±10 %% per case (tests/diagnosis_cases.part_within_tolerance); "
+                             "capacitor within ±10 %% per case (testing/diagnosis_cases.part_within_tolerance); "
                              "the diagnosis is told the nominal part either way")
     parser.add_argument("--jerk-mps3", type=float, default=0.0,
                         help="the own simulator's strokes driven jerk-limited at this jerk, m/s³ (an S-curve "
@@ -246,7 +246,7 @@ def main() -> int:
     ind_stats = None
     if ind_outs:
         rows, ind_stats = independent_table(ind_outs)
-        print(f"independent generator (tests/independent_generator), {args.independent_cases} cases per row, "
+        print(f"independent generator (testing/independent_generator), {args.independent_cases} cases per row, "
               f"seeds {args.independent_seed0}…; "
               f"{np.mean([o.seconds for o in ind_outs]):.2f} s per case in one process:")
         print()

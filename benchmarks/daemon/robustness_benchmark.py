@@ -43,7 +43,7 @@ Cases (each bounded in count and time):
 
 Then the offline commands (no daemon): `estimate` (realtime and smoothed), `fit-drift`,
 `diagnose` and `import` on each hostile recording of issue 16, `config --check` on each
-hostile config (the files: tests/hostile_files.py, shared with the tests), each command
+hostile config (the files: testing/hostile_files.py, shared with the tests), each command
 in its own process; per run: exit code, stderr lines, the command's own peak RSS, wall
 time. Goal: exit 2 with one error line (a warning before it allowed), or exit 0 where the
 file is usable; no traceback; < 500 MB.
@@ -524,7 +524,7 @@ def hostile_recordings(workdir: Path) -> dict[str, tuple[Path, list[str]]]:
 
 def run_offline(args: list, cwd: Path) -> dict:
     """One command in its own process (started from a bare launcher, so its peak RSS is its
-    own: tests/hostile_files.run_measured): exit code, stderr lines, peak RSS, wall time."""
+    own: testing/hostile_files.run_measured): exit code, stderr lines, peak RSS, wall time."""
     code, stderr, peak, wall = hostile.run_measured([ADXLGW, *args], cwd=cwd)
     lines = stderr.strip().splitlines()
     return {"exit": code, "stderr_lines": len(lines), "error_lines": sum(": error: " in line for line in lines),

@@ -5,7 +5,7 @@
         --seeds 17 --parts tolerance --jerk-mps3 400 --dcm-reading edge
 
 For each seed: the case as `diagnosis_benchmark.py` makes it (the independent generator,
-tests/independent_generator, or the own simulator with the same options), the hidden truth, and the
+testing/independent_generator, or the own simulator with the same options), the hidden truth, and the
 diagnosis's verdict on every candidate (accepted / rejected and why, ΔBIC), its named
 effects, setup properties, negligible and not-physical lists. With `--clean-twin` (own
 simulator only): the smoothed estimate's error at each stop of the reference for the
