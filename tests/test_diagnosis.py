@@ -1,6 +1,6 @@
 """The diagnosis finds effects it is not told about, and its parts agree with independent sums.
 
-Cases (tests/diagnosis_cases.py): a simulated 4-stroke recording (a 60 s standstill for
+Cases (testing/diagnosis_cases.py): a simulated 4-stroke recording (a 60 s standstill for
 bias_random_walk) with one or two effects of gateway.core.sensor_effects hidden in it,
 parameters drawn at the documented sizes from a seeded generator; diagnose gets only
 the recording. Seeds here are 9000+, never the benchmark's (0…N−1), so the tests are
@@ -27,7 +27,7 @@ from gateway.core.diagnosis.side_effects import local_level_loglik
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.simulator import period_mean_lowpass
-from tests.diagnosis_cases import CHECKS, EFFECTS, SENSOR, make_case, run_case
+from testing.diagnosis_cases import CHECKS, EFFECTS, SENSOR, make_case, run_case
 
 ROOT = Path(__file__).resolve().parents[1]
 SINGLE_SEEDS = (9000, 9001)
@@ -93,9 +93,9 @@ def test_clean_recordings_name_nothing_and_are_mostly_white():
 
 # --- (d) the code under test is never told the answer
 
-# either generator: the simulator and its effects, or the independent one in tests/
+# either generator: the simulator and its effects, or the independent one in testing/
 FORBIDDEN = ("gateway.core.sensor_effects", "gateway.core.simulator", "gateway.core.motion_profiles",
-             "tests.independent_generator", "tests")
+             "testing", "tests")
 
 
 def _imported_modules(path: Path) -> list[str]:

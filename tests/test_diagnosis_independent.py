@@ -1,5 +1,5 @@
 """The diagnosis on data it was not built from: the independent generator
-(tests/independent_generator), with hidden effects diagnose is not told about.
+(testing/independent_generator), with hidden effects diagnose is not told about.
 
 The slow test runs the first seed of the generator's one run after its design was frozen
 (docs/diagnosis.md §7: seeds 50000+); the rows it checks were chosen before that run.
@@ -19,12 +19,12 @@ from gateway.core.diagnosis.judgement import (
     physical,
     setup_range,
 )
-from tests.diagnosis_cases import estimator_settings
-from tests.independent_generator.cases import IN_VOCABULARY, make_case, run_case
-from tests.independent_generator.motion import strokes
+from testing.diagnosis_cases import estimator_settings
+from testing.independent_generator.cases import IN_VOCABULARY, make_case, run_case
+from testing.independent_generator.motion import strokes
 
 ROOT = Path(__file__).resolve().parents[1]
-GENERATOR_FILES = sorted((ROOT / "tests" / "independent_generator").glob("*.py"))
+GENERATOR_FILES = sorted((ROOT / "testing" / "independent_generator").glob("*.py"))
 # the own simulator, and the diagnosis's candidate models: the generator makes each cause
 # the way it works, not in the form a candidate fits
 FORBIDDEN = ("gateway.core.simulator", "gateway.core.sensor_effects", "gateway.core.motion_profiles",

@@ -12,7 +12,7 @@ from gateway.core.diagnosis.context import prepare
 from gateway.core.diagnosis.side_effects import BiasRandomWalk
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
-from tests.diagnosis_cases import make_case, run_diagnosis
+from testing.diagnosis_cases import make_case, run_diagnosis
 
 # strokes with rests long enough to hold the walk's blocks (the paper's 1 s dwells do not)
 LONG_DWELLS = StrokeSettings(strokes=4, dwell_s=4.0, rest_start_s=4.0, rest_end_s=4.0)

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from gateway.cli import main as cli_main
 from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
-from tests import hostile_files
-from tests.hostile_files import run_measured
+from testing import hostile_files
+from testing.hostile_files import run_measured
 from tests.pty_helpers import stderr_on_a_pty
 from tests.test_retiming import bursty_arrivals
 

@@ -11,8 +11,8 @@ import pytest
 import gateway.offline.recording as recording
 from gateway.errors import RecordingError
 from gateway.offline.recording import open_recording, read_recording, to_acceleration, write_recording
-from tests import hostile_files as hostile
-from tests.hostile_files import write_raw
+from testing import hostile_files as hostile
+from testing.hostile_files import write_raw
 
 
 def adxlgw(*args, cwd=None):

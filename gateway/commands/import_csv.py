@@ -324,64 +324,72 @@ def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
-    _check_args(args)
-    check_output(args.out)  # before the work
-    values, lines, skipped = read_foreign(args)
+def _times_read(args: argparse.Namespace, values: dict[str, np.ndarray], lines: np.ndarray) -> np.ndarray:
+    """The time column in seconds, checked: enough rows, and (sample times) increasing at
+    an accelerometer's rate."""
     time_col = args.arrival_col or args.time_col
     need = RetimingSettings().min_rows if args.arrival_col else 2
     if len(lines) < need:
         raise RecordingError(f"{args.foreign}: {len(lines)} rows with both {time_col!r} and {args.acc_col!r}; "
                              f"{'re-timing needs' if args.arrival_col else 'a recording needs'} at least {need}")
     t_in = values["time"] * TIME_SCALES[args.time_unit]  # seconds since the first row
-    if not args.arrival_col:  # arrival times are checked by the re-timing
-        back = np.flatnonzero(np.diff(t_in) <= 0)
-        if back.size:
-            raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: time does not "
-                                 "increase")
-        rate_hz = 1.0 / float(np.median(np.diff(t_in)))
-        if rate_hz < MIN_RATE_HZ:
-            raise RecordingError(
-                f"{args.foreign}: column {time_col!r} read in {args.time_unit}: {rate_hz:.3g} samples/s, too slow "
-                f"for an accelerometer's log (a move of the paper or the robot lasts under a second: fewer than "
-                f"{MIN_RATE_HZ:g} sample/s cannot follow it); a time in another unit? give --time-unit")
+    if args.arrival_col:  # arrival times are checked by the re-timing
+        return t_in
+    back = np.flatnonzero(np.diff(t_in) <= 0)
+    if back.size:
+        raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: time does not "
+                             "increase")
+    rate_hz = 1.0 / float(np.median(np.diff(t_in)))
+    if rate_hz < MIN_RATE_HZ:
+        raise RecordingError(
+            f"{args.foreign}: column {time_col!r} read in {args.time_unit}: {rate_hz:.3g} samples/s, too slow "
+            f"for an accelerometer's log (a move of the paper or the robot lasts under a second: fewer than "
+            f"{MIN_RATE_HZ:g} sample/s cannot follow it); a time in another unit? give --time-unit")
+    return t_in
 
-    notes: list[str] = []
-    metadata = {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " ")}
-    if args.arrival_col:
-        timing = _retime(args, t_in, lines)
-        tail = timing.falling_behind
-        if tail and not args.nominal_rate_hz:
-            raise RecordingError(
-                f"{args.foreign}: column {time_col!r}: cannot tell the sensor's rate: lines {lines[tail.start]}–"
-                f"{lines[-1]} arrive {tail.arrival_interval_s * 1e3:.1f} ms apart and later and later to the end, "
-                f"after rows {timing.period_s * 1e3:.1f} ms apart; either the logger fell behind a "
-                f"{timing.rate_hz:.0f} Hz sensor or the rows before were a start-up backlog flushed faster "
-                f"than a ~{1 / tail.arrival_interval_s:.0f} Hz sensor: give --nominal-rate-hz")
-        origin = timing.t_s[0]
-        t_s = timing.t_s - origin
-        t_host_s = t_in - origin
-        notes += _report_retiming(timing, lines)
-        metadata.update({
-            "retimed_from": f"{time_col} ({args.time_unit})",
-            "retimed_rate_hz": f"{timing.rate_hz:.6f}",
-            "retimed_lost_samples": str(int(timing.lost_before.sum())),
-            "retimed_gaps": str(len(timing.gaps)),
-            "retimed_blind_rows": str(timing.blind_rows),
-            "retimed_floor_max_ms": f"{timing.floor_s.max() * 1e3:.3f}",
-        })
-        if args.check_time_col:
-            empty = np.flatnonzero(np.isnan(values["check"]))
-            if empty.size:
-                raise RecordingError(f"{args.foreign}:{lines[empty[0]]}: column {args.check_time_col!r}: empty cell "
-                                     "(the check needs a time in every row)")
-            err = timing_error(t_s, values["check"] * TIME_SCALES[args.time_unit])
-            notes.append(f"  against {args.check_time_col!r}: timing error max {err.max_s * 1e3:.2f} ms, "
-                         f"RMS {err.rms_s * 1e3:.2f} ms, sample-spacing RMS {err.interval_rms_s * 1e3:.3f} ms "
-                         f"(after removing a constant {err.offset_s:.4f} s)")
-    else:
-        t_s, t_host_s = t_in, None
 
+def _on_sensor_clock(args: argparse.Namespace, values: dict[str, np.ndarray], lines: np.ndarray,
+                     t_in: np.ndarray, metadata: dict[str, str], notes: list[str],
+                     ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Arrival times re-timed onto the sensor's clock (what was done goes into `metadata`
+    and `notes`): the sample times and the arrival times on the same origin."""
+    time_col = args.arrival_col
+    timing = _retime(args, t_in, lines)
+    tail = timing.falling_behind
+    if tail and not args.nominal_rate_hz:
+        raise RecordingError(
+            f"{args.foreign}: column {time_col!r}: cannot tell the sensor's rate: lines {lines[tail.start]}–"
+            f"{lines[-1]} arrive {tail.arrival_interval_s * 1e3:.1f} ms apart and later and later to the end, "
+            f"after rows {timing.period_s * 1e3:.1f} ms apart; either the logger fell behind a "
+            f"{timing.rate_hz:.0f} Hz sensor or the rows before were a start-up backlog flushed faster "
+            f"than a ~{1 / tail.arrival_interval_s:.0f} Hz sensor: give --nominal-rate-hz")
+    origin = timing.t_s[0]
+    t_s = timing.t_s - origin
+    t_host_s = t_in - origin
+    notes += _report_retiming(timing, lines)
+    metadata.update({
+        "retimed_from": f"{time_col} ({args.time_unit})",
+        "retimed_rate_hz": f"{timing.rate_hz:.6f}",
+        "retimed_lost_samples": str(int(timing.lost_before.sum())),
+        "retimed_gaps": str(len(timing.gaps)),
+        "retimed_blind_rows": str(timing.blind_rows),
+        "retimed_floor_max_ms": f"{timing.floor_s.max() * 1e3:.3f}",
+    })
+    if args.check_time_col:
+        empty = np.flatnonzero(np.isnan(values["check"]))
+        if empty.size:
+            raise RecordingError(f"{args.foreign}:{lines[empty[0]]}: column {args.check_time_col!r}: empty cell "
+                                 "(the check needs a time in every row)")
+        err = timing_error(t_s, values["check"] * TIME_SCALES[args.time_unit])
+        notes.append(f"  against {args.check_time_col!r}: timing error max {err.max_s * 1e3:.2f} ms, "
+                     f"RMS {err.rms_s * 1e3:.2f} ms, sample-spacing RMS {err.interval_rms_s * 1e3:.3f} ms "
+                     f"(after removing a constant {err.offset_s:.4f} s)")
+    return t_s, t_host_s
+
+
+def _recording_columns(args: argparse.Namespace, values: dict[str, np.ndarray], t_s: np.ndarray,
+                       t_host_s: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The recording's columns in SI units; the reference on the sample clock."""
     scale = UNIT_SCALES[args.acc_unit] * args.acc_scale
     columns = {"t_s": t_s, "acc_x_mps2": np.array(values["acc"], dtype=float) * scale}
     if "acc_y" in values:
@@ -401,8 +409,13 @@ def run(args: argparse.Namespace) -> int:
             columns[column] = on_sample_clock(t_ref - args.ref_delay_s, ref, t_s) if resample else ref
     if "hint" in values:
         columns[HINT_COLUMN] = np.array(values["hint"], dtype=float)
+    return columns
 
-    metadata["imported_columns"] = (
+
+def _imported_columns(args: argparse.Namespace, values: dict[str, np.ndarray]) -> str:
+    """Which foreign column became which, in what unit (the recording's metadata)."""
+    time_col = args.arrival_col or args.time_col
+    return (
         f"time={time_col} ({args.time_unit}), acc_x={args.acc_col} ({args.acc_unit} × {args.acc_scale:g})"
         + (f", acc_y={args.acc_y_col}" if args.acc_y_col else "")
         + "".join(f", {REFERENCE_ROLES[r]}={getattr(args, r + '_col')} ({args.ref_unit} × {args.ref_scale:g})"
@@ -411,8 +424,24 @@ def run(args: argparse.Namespace) -> int:
            if any(r in values for r in REFERENCE_ROLES) else "")
         + (f", {HINT_COLUMN}={args.hint_col}" if args.hint_col else "")
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_args(args)
+    check_output(args.out)  # before the work
+    values, lines, skipped = read_foreign(args)
+    t_in = _times_read(args, values, lines)
+    notes: list[str] = []
+    metadata = {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " ")}
+    if args.arrival_col:
+        t_s, t_host_s = _on_sensor_clock(args, values, lines, t_in, metadata, notes)
+    else:
+        t_s, t_host_s = t_in, None
+    columns = _recording_columns(args, values, t_s, t_host_s)
+    metadata["imported_columns"] = _imported_columns(args, values)
     write_recording(args.out, metadata, columns)
     rate = (t_s.size - 1) / t_s[-1]
+    time_col = args.arrival_col or args.time_col
     print(f"wrote {args.out}: {t_s.size} samples, {t_s[-1]:.3f} s, {rate:.1f} samples/s; "
           f"skipped {skipped} rows without {time_col!r}/{args.acc_col!r}", file=sys.stderr)
     for note in notes:
