@@ -37,8 +37,9 @@ from gateway.config import validate  # noqa: E402
 from gateway.core.conversion import Calibration  # noqa: E402
 from gateway.core.estimator_settings import from_sensor_model  # noqa: E402
 from gateway.daemon import Gateway  # noqa: E402
-from gateway.daemon.board_intake import BoardIntake, LinkHealth  # noqa: E402
+from gateway.daemon.board_intake import BoardIntake  # noqa: E402
 from gateway.daemon.sample_pipeline import SamplePipeline  # noqa: E402
+from gateway.daemon.status_flags import LinkHealth  # noqa: E402
 
 HELLO = encode_hello(uptime_s=0, tick_hz=921_600, temp_centi_c=2500, fw_major=1, fw_minor=0)
 

@@ -358,7 +358,8 @@ def test_before_the_first_estimate_the_position_is_untrusted_unless_known_to_sta
     any sample is estimated: the wires must not wait for the first window to say that
     position is not trustworthy (the fault benchmark's restart showed it 0.5 s late)."""
     from drivers.published_values import StatusBits
-    from gateway.daemon.board_intake import BoardIntake, LinkHealth
+    from gateway.daemon.board_intake import BoardIntake
+    from gateway.daemon.status_flags import LinkHealth
 
     health = LinkHealth(port_open=True, last_byte_s=0.0, stale_after_s=0.2, lost_after_s=1.0)
     for at_rest, untrusted in ((False, True), (True, False)):

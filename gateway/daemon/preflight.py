@@ -31,7 +31,6 @@ from dataclasses import dataclass
 from drivers.link_checks import check_can_link, check_serial_port
 from drivers.modbus_ports import tcp_listen_check
 from gateway.config import Config
-from gateway.drift_model_file import load_drift_model
 from gateway.errors import ConfigError, DeviceError, InputError
 
 EMULATED = "emulated"
@@ -77,6 +76,8 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
         found.append(Finding("service.view", "error", "the live view needs the offline tools: "
                              "pip install 'adxl-gateway[offline]'"))
     if cfg.estimator.drift_model and changed("estimator", "drift_model"):
+        from gateway.drift_model_file import load_drift_model  # numpy: only when a model is set
+
         try:
             load_drift_model(cfg.estimator.drift_model)
         except InputError as err:
