@@ -196,7 +196,8 @@ class Gateway:
         from gateway.daemon.sample_pipeline import SamplePipeline
 
         pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
-                                  start_position_m=self._start_position_m, start_at_rest=self.starts_at_rest)
+                                  start_position_m=self._start_position_m, start_at_rest=self.starts_at_rest,
+                                  travel_m=tuple(cfg.estimator.travel_m))
         return pipeline, BoardIntake(pipeline)
 
     def _starting_values(self) -> PublishedValues:
@@ -560,6 +561,9 @@ class Gateway:
         self._publish(self._reloaded_at)
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
+        # the travel bounds the published σ, and the saved position read at the next start
+        self.pipeline.set_travel(tuple(new.estimator.travel_m))
+        self.state_store.travel_m = tuple(new.estimator.travel_m)
         port_changed = (old.serial.port != new.serial.port
                         or serial_settings_from(old, "port") != serial_settings_from(new, "port"))
         # while the port is still being opened, the opener takes the new settings itself
