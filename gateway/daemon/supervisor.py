@@ -176,10 +176,12 @@ class Gateway:
         self._loop = asyncio.get_running_loop()
         await asyncio.to_thread(self.state_store.save, self._state_while_running)
         await self.wires.start()
+        self.board.prepare()  # the emulated board's child starts meanwhile
         try:
             self.pipeline, self.intake = await asyncio.to_thread(self._build_board_side, self.cfg)
         except BaseException:
             await self.wires.stop()
+            await self.board.close()
             raise
         self._board_side_built.set()
         self._publish(self.clock())  # the wires' images were of the starting values
@@ -498,7 +500,7 @@ class Gateway:
                 await self._save_state()
 
     def _view_extra(self) -> str:
-        parts = [f"board {self.board.path}"]
+        parts = [f"board {self.board.path or 'not open yet'}"]
         if self.modbus and self.modbus.tcp_port:
             parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         if self.can:
