@@ -432,3 +432,42 @@ def test_modbus_answers_while_the_board_side_is_built_and_says_nothing_is_measur
         run(scenario())
     finally:
         emu.stop()
+
+
+def test_a_stop_while_the_estimator_loads_does_not_wait_for_it(tmp_path, monkeypatch):
+    """SIGTERM (request_stop) while the board side is still being built — seconds warm,
+    minutes when numba compiles into an empty cache — ends `run` at once: the unit's
+    TimeoutStopSec is 2 s. The wires are closed and the state file is as it was."""
+    import json
+    import threading
+
+    from gateway.daemon import sample_pipeline
+    from gateway.daemon.supervisor import Gateway
+
+    release = threading.Event()
+    real = sample_pipeline.SamplePipeline
+
+    class HeldPipeline(real):
+        def __init__(self, *args, **kwargs):
+            assert release.wait(60), "never released"
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(sample_pipeline, "SamplePipeline", HeldPipeline)
+    cfg = gateway_config(tmp_path, str(tmp_path / "no-board-yet"))
+
+    async def scenario():
+        gw = Gateway(cfg)
+        running = asyncio.create_task(gw.run())
+        try:
+            await wait_for(lambda: gw.modbus is not None and gw.modbus.tcp_port, 20, what="Modbus listening")
+            port = gw.modbus.tcp_port
+            gw.request_stop()
+            assert await asyncio.wait_for(running, 10) == 0  # not waiting for the build
+            with pytest.raises(OSError):
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+        finally:
+            release.set()
+            await asyncio.gather(running, return_exceptions=True)
+
+    run(scenario())
+    assert json.loads((tmp_path / "state.json").read_text())["stopped_at_rest_unix_s"] is None

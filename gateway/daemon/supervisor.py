@@ -242,12 +242,23 @@ class Gateway:
         loop.add_signal_handler(signal.SIGTERM, self.request_stop)
         loop.add_signal_handler(signal.SIGINT, self._interrupted)
         loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self._reload_logged())))
-        async with self:
-            stopper = asyncio.create_task(self._stop_requested.wait())
-            await asyncio.wait({stopper, self._board_task}, return_when=asyncio.FIRST_COMPLETED)
+        stopper = asyncio.create_task(self._stop_requested.wait())
+        # a stop while the estimator loads (seconds; minutes when numba compiles into an
+        # empty cache) does not wait for it: the unit's TimeoutStopSec is 2 s
+        starting = asyncio.create_task(self.start())
+        try:
+            await asyncio.wait({stopper, starting}, return_when=asyncio.FIRST_COMPLETED)
+            if starting.done():
+                starting.result()  # a start that failed raises here
+                await asyncio.wait({stopper, self._board_task}, return_when=asyncio.FIRST_COMPLETED)
+                if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
+                    raise self._board_task.exception()
+        finally:
             stopper.cancel()
-            if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
-                raise self._board_task.exception()
+            if not starting.done():
+                starting.cancel()
+                await asyncio.gather(starting, return_exceptions=True)
+            await self.stop()
         # Ctrl-C is "interrupted" (exit 130, the README's table); SIGTERM an orderly stop (0)
         return 130 if self._sigint else 0
 
