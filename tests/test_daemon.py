@@ -458,16 +458,19 @@ def test_a_stop_while_the_estimator_loads_does_not_wait_for_it(tmp_path, monkeyp
     async def scenario():
         gw = Gateway(cfg)
         running = asyncio.create_task(gw.run())
-        try:
-            await wait_for(lambda: gw.modbus is not None and gw.modbus.tcp_port, 20, what="Modbus listening")
-            port = gw.modbus.tcp_port
-            gw.request_stop()
-            assert await asyncio.wait_for(running, 10) == 0  # not waiting for the build
-            with pytest.raises(OSError):
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-        finally:
-            release.set()
-            await asyncio.gather(running, return_exceptions=True)
+        await wait_for(lambda: gw.modbus is not None and gw.modbus.tcp_port, 20, what="Modbus listening")
+        port = gw.modbus.tcp_port
+        gw.request_stop()
+        assert await asyncio.wait_for(running, 10) == 0  # not waiting for the build
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
 
-    run(scenario())
+    try:
+        run(scenario())  # asyncio.run's end included: it does not wait for the build's thread either
+        builders = [t for t in threading.enumerate() if t.name.startswith("board-side")]
+        assert builders and all(t.is_alive() for t in builders) and not release.is_set()
+    finally:
+        release.set()
+    for t in builders:
+        t.join(60)
     assert json.loads((tmp_path / "state.json").read_text())["stopped_at_rest_unix_s"] is None

@@ -25,6 +25,7 @@ PUBLISH_TICK_S).
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import logging
 import math
 import signal
@@ -177,12 +178,17 @@ class Gateway:
         await asyncio.to_thread(self.state_store.save, self._state_while_running)
         await self.wires.start()
         self.board.prepare()  # the emulated board's child starts meanwhile
+        # a thread of its own, not the loop's default executor: asyncio.run waits for that one
+        # at its end, and a stop must not wait for a build it no longer needs (run)
+        builder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="board-side")
         try:
-            self.pipeline, self.intake = await asyncio.to_thread(self._build_board_side, self.cfg)
+            self.pipeline, self.intake = await self._loop.run_in_executor(builder, self._build_board_side, self.cfg)
         except BaseException:
             await self.wires.stop()
             await self.board.close()
             raise
+        finally:
+            builder.shutdown(wait=False)
         self._board_side_built.set()
         self._publish(self.clock())  # the wires' images were of the starting values
         self._arm_tick(self.clock(), self.publish_tick_s)
