@@ -27,6 +27,7 @@ import argparse
 import contextlib
 import datetime
 import os
+import shutil
 import socket
 import statistics
 import subprocess
@@ -118,30 +119,33 @@ def main() -> None:
     args = ap.parse_args()
     venvs = {name: Path(path) for name, path in (v.split("=", 1) for v in args.venv)}
     tmp = Path(tempfile.mkdtemp(prefix="adxlgw-footprint-"))
-    empty = tmp / "empty-venv"
-    subprocess.run([sys.executable, "-m", "venv", str(empty)], check=True)
-    load_before = os.getloadavg()
-    for venv in venvs.values():
-        one_start(venv, tmp)  # warm-up, not counted
-    times: dict[str, list[tuple[float, float, float]]] = {name: [] for name in venvs}
-    for _ in range(args.runs):
+    try:
+        empty = tmp / "empty-venv"
+        subprocess.run([sys.executable, "-m", "venv", str(empty)], check=True)
+        load_before = os.getloadavg()
+        for venv in venvs.values():
+            one_start(venv, tmp)  # warm-up, not counted
+        times: dict[str, list[tuple[float, float, float]]] = {name: [] for name in venvs}
+        for _ in range(args.runs):
+            for name, venv in venvs.items():
+                times[name].append(one_start(venv, tmp))
+        load_after = os.getloadavg()
+        print("command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_footprint.py "
+              + " ".join(f"--venv {v}" for v in args.venv) + f" --runs {args.runs}")
+        print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
+              f"machine: {machine()}; load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
+        print("| venv | install, MB | spawn → first Modbus answer, s (median, range) | daemon CPU by then, s (median) "
+              "| spawn → READY, s (median, range) |")
+        print("| --- | --- | --- | --- | --- |")
         for name, venv in venvs.items():
-            times[name].append(one_start(venv, tmp))
-    load_after = os.getloadavg()
-    print("command: PYTHONPATH=. .venv/bin/python benchmarks/daemon_footprint.py "
-          + " ".join(f"--venv {v}" for v in args.venv) + f" --runs {args.runs}")
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
-          f"machine: {machine()}; load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
-    print("| venv | install, MB | spawn → first Modbus answer, s (median, range) | daemon CPU by then, s (median) "
-          "| spawn → READY, s (median, range) |")
-    print("| --- | --- | --- | --- | --- |")
-    for name, venv in venvs.items():
-        wall = [w for w, _, _ in times[name]]
-        cpu = [c for _, c, _ in times[name]]
-        ready = [r for _, _, r in times[name]]
-        print(f"| {name} | {install_mb(venv, empty):.0f} | {statistics.median(wall):.2f} "
-              f"({min(wall):.2f}–{max(wall):.2f}) | {statistics.median(cpu):.2f} "
-              f"| {statistics.median(ready):.2f} ({min(ready):.2f}–{max(ready):.2f}) |")
+            wall = [w for w, _, _ in times[name]]
+            cpu = [c for _, c, _ in times[name]]
+            ready = [r for _, _, r in times[name]]
+            print(f"| {name} | {install_mb(venv, empty):.0f} | {statistics.median(wall):.2f} "
+                  f"({min(wall):.2f}–{max(wall):.2f}) | {statistics.median(cpu):.2f} "
+                  f"| {statistics.median(ready):.2f} ({min(ready):.2f}–{max(ready):.2f}) |")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)  # the empty venv, configs, state files
 
 
 if __name__ == "__main__":
