@@ -20,7 +20,7 @@ from gateway.core.retiming import RetimingError, retime
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
 from gateway.errors import InputError, RecordingError
-from gateway.offline.figures import save_figure
+from gateway.offline.figures import check_plot_path, save_figure
 from gateway.offline.progress import progress_bar, reading_bar
 from gateway.offline.recording import (
     AccelerationSeries,
@@ -332,6 +332,8 @@ def _report(args: argparse.Namespace, series: AccelerationSeries, track, setting
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        check_plot_path(args.plot)  # before the work
     source = open_recording(args.recording)
     if args.method == "realtime" and not args.plot and not args.model:
         return run_streamed(args, source)

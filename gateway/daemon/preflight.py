@@ -33,7 +33,6 @@ from drivers.modbus_ports import tcp_listen_check
 from drivers.sparkplug_node import tls_ca_problem
 from gateway.config import Config
 from gateway.daemon.settings import read_credentials
-from gateway.drift_model_file import load_drift_model
 from gateway.errors import ConfigError, DeviceError, InputError
 
 EMULATED = "emulated"
@@ -79,6 +78,8 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
         found.append(Finding("service.view", "error", "the live view needs the offline tools: "
                              "pip install 'adxl-gateway[offline]'"))
     if cfg.estimator.drift_model and changed("estimator", "drift_model"):
+        from gateway.drift_model_file import load_drift_model  # numpy: only when a model is set
+
         try:
             load_drift_model(cfg.estimator.drift_model)
         except InputError as err:
