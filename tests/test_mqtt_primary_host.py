@@ -15,7 +15,7 @@ from drivers.published_values import PublishedValues, StatusBits
 from drivers.sparkplug_host import FleetListener
 from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
 from tests.daemon_helpers import wait_for
-from tests.mqtt_helpers import Broker
+from testing.mqtt_helpers import Broker
 
 GROUP = "plant-test"
 HOST_ID = "scada"

@@ -1,6 +1,6 @@
 """Peak memory of `adxlgw import` against the size of the file, side by side across checkouts.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/import_memory.py [--mb 50,200] [--root today=/path/to/checkout ...]
+    .venv/bin/python -m benchmarks.speed.import_memory [--mb 50,200] [--root today=/path/to/checkout ...]
 
 Writes seeded CSV logger files of each --mb size (a time column in ms, an acceleration in g
 and a position reference: 2 ms rows, the shape of a 500 Hz log) into a fresh directory
@@ -23,10 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from benchmarks.harness import machine
 
-from benchmarks.machine_info import machine  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 ROWS_PER_WRITE = 200_000
 
@@ -65,7 +64,7 @@ def main() -> None:
     roots = {"this": ROOT, **{n: Path(p) for n, p in (r.split("=", 1) for r in args.root)}}
     work = Path(tempfile.mkdtemp(prefix="adxlgw-import-memory-"))
     try:
-        print("command: PYTHONPATH=. .venv/bin/python benchmarks/import_memory.py --mb " + args.mb
+        print("command: .venv/bin/python -m benchmarks.speed.import_memory --mb " + args.mb
               + "".join(f" --root {r}" for r in args.root))
         print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}; "
               f"load average {os.getloadavg()[0]:.2f}")
