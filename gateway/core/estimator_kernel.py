@@ -653,7 +653,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         # and as far off the bias (stopping_within_a_window). Only this flag is spared
         # there: the step hypothesis above may still open on such a window, which costs
         # only uncertainty (on the robot-like path at 100 Hz and 0.1 m/s² that uncertainty
-        # covers a real 5 mg step the mean test cannot see; benchmarks/robot_like_sweep.py).
+        # covers a real 5 mg step the mean test cannot see; benchmarks/accuracy/robot_like_sweep.py).
         stopping = stopping_within_a_window(mean - x[2], x[1], w * m[M_PERIOD])
         if regime_prev == MOTION and not still and not vibrating and var_ok and not mean_ok and not stopping \
                 and abs(x[1]) <= floor and m[M_PEAK_SPEED] > floor:
@@ -830,7 +830,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     # (Taking v_now = 0 to within the swing instead — the first version — left the ring's
     # phase in the velocity: design robot file 5.8 % against 2.6 %; the simulator's
     # robot-like path with the hint, 20 seeds, better or equal in 9 of 12 cases, 0.1–0.2
-    # points worse in 3, benchmarks/robot_like_sweep.py.)
+    # points worse in 3, benchmarks/accuracy/robot_like_sweep.py.)
     # - from MIN_WINDOW_SAMPLES hinted samples (a swing, and a mean judged against its
     #   spread, need them; the first may still hold the end of a deceleration, which the
     #   swing then carries) to a window of them: from there the detector judges the hinted

@@ -24,7 +24,7 @@ SATURATION_HOLD_S = 1.0
 AXIS_INVALID_HOLD_S = 1.0
 # Samples after a silence longer than this (a port lost, a board that stopped talking)
 # start the estimator over with the velocity unknown: bridging a velocity across seconds
-# is a guess (benchmarks/fault_benchmark.py: a 2 s outage bridged came back 2 m off with
+# is a guess (benchmarks/daemon/fault_benchmark.py: a 2 s outage bridged came back 2 m off with
 # a 75 mm σ). Gaps of a few samples stay bridged (they cost < 1 mm there).
 OUTAGE_S = 0.25
 

@@ -169,7 +169,7 @@ class Gateway:
         The wires first: a PLC polling a gateway that starts (after a crash too) gets an
         answer that says "nothing measured yet" (`_starting_values`) within a fraction of
         a second, instead of no connection for as long as numpy, numba and the compiled
-        estimator take to load (a second or more: benchmarks/daemon_footprint.py). That
+        estimator take to load (a second or more: benchmarks/daemon/daemon_footprint.py). That
         load runs in a worker thread, so the event loop answers meanwhile."""
         if self._started:
             return
@@ -343,7 +343,7 @@ class Gateway:
         wire shows changes: every reader drains first, and each sample keeps the time
         the gateway got it. Why: on a VM the work after each wakeup runs cold, and
         at 500 samples/s a wakeup per sample was most of the daemon's CPU
-        (benchmarks/wakeup_cost.py, docs/daemon.md).
+        (benchmarks/daemon/wakeup_cost.py, docs/daemon.md).
         """
         now = self.clock()
         intake = self.intake
