@@ -14,8 +14,8 @@ from drivers import sparkplug_payload as spb
 from drivers.published_values import PublishedValues, StatusBits
 from drivers.sparkplug_host import FleetListener
 from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
-from tests.daemon_helpers import wait_for
 from testing.mqtt_helpers import Broker
+from tests.daemon_helpers import wait_for
 
 GROUP = "plant-test"
 HOST_ID = "scada"
