@@ -121,7 +121,8 @@ def test_reload_keeps_the_modbus_connection(report):
     # the reads after the reload went over the same TCP connection (the driver's client
     # never reconnects: a dropped connection is a driver_error)
     seen = {k: reload.get(k) for k in ("same_connection", "config_reloaded_bit", "status_after",
-                                       "bit_seen_after_s", "logged_after_s", "reads", "slowest_read_s")}
+                                       "bit_seen_after_s", "logged_after_s", "reads", "slowest_read_s",
+                                       "dropped_watchers")}
     assert reload["same_connection"] and reload["config_reloaded_bit"], seen
     assert reload["restarts"] == 0 and reload["main_pid"] == int(report["start"]["MainPID"]), reload
 
