@@ -139,8 +139,8 @@ def test_fit_drift_command_streams_and_gives_the_in_memory_fit(tmp_path, capsys,
     Parquet batches, small residual blocks) and keeps it on disk between its passes; its fit
     is the one of the whole record in memory — the model to the bit, the rest to rounding."""
     from gateway.core import drift_fit
-    from gateway.offline import recording
     from gateway.offline.recording import read_recording, to_acceleration
+    from gateway.offline.recording import sources as reader
 
     sensor = SensorParams(x=AxisSensor(zero_g_offset_g=0.01, drift=DriftModel(0.003, 0.0, 60.0)))
     run = simulate(standstill(200.0), sensor, seed=138)
@@ -156,8 +156,8 @@ def test_fit_drift_command_streams_and_gives_the_in_memory_fit(tmp_path, capsys,
         seen["fit"] = real_passes(passes, scratch, period_s, block_s)
         return seen["fit"]
 
-    monkeypatch.setattr(recording, "BLOCK_BYTES", 1 << 16)
-    monkeypatch.setattr(recording, "PARQUET_BATCH_ROWS", 4096)
+    monkeypatch.setattr(reader, "BLOCK_BYTES", 1 << 16)
+    monkeypatch.setattr(reader, "PARQUET_BATCH_ROWS", 4096)
     monkeypatch.setattr(drift_fit, "BLOCK_SAMPLES", 5000)
     monkeypatch.setattr("gateway.commands.fit_drift.fit_drift_passes", spy)
     model = tmp_path / "drift.json"
