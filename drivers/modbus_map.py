@@ -1,8 +1,8 @@
-"""The Modbus register map: one explicit table, its encoding, and its printed forms.
+"""The Modbus register map: one explicit table and its encoding.
 
 `REGISTERS` is the single source. The server encodes from it, `adxlgw regmap --json`
-prints `regmap_json()`, and docs/modbus-registers.md embeds `regmap_markdown()` (a test
-keeps them equal).
+prints it (drivers/modbus_map_text.py: `regmap_json()`), and docs/modbus-registers.md
+embeds `regmap_markdown()` (a test keeps them equal).
 
 Addressing, said once: **addresses in this table and on the wire are 0-based** (the
 Modbus PDU carries 0..65535). PLC notation is 1-based and names the table by its first
@@ -28,7 +28,6 @@ Encoding rules (the why is in docs/modbus-registers.md):
 from __future__ import annotations
 
 import enum
-import json
 import math
 import struct
 from collections.abc import Sequence
@@ -281,49 +280,6 @@ INT32_NOT_AVAILABLE = -(2**31)
 INT16_NOT_AVAILABLE = -(2**15)
 FLOAT32_NAN_BITS = 0x7FC00000
 _FLOAT32_MAX = struct.unpack(">f", b"\x7f\x7f\xff\xff")[0]
-
-
-# --------------------------------------------------------------------------- #
-# Printed forms
-# --------------------------------------------------------------------------- #
-def regmap_rows() -> list[dict[str, object]]:
-    """The table as JSON-able dicts (what `adxlgw regmap --json` prints)."""
-    return [
-        {
-            "name": r.name,
-            "table": str(r.table),
-            "address": r.address,
-            "plc_reference": r.plc_reference,
-            "type": str(r.type),
-            "words": r.words,
-            "unit": r.unit,
-            "scale": r.scale,
-            "description": r.description,
-        }
-        for r in REGISTERS
-    ]
-
-
-def regmap_json() -> str:
-    return json.dumps(regmap_rows(), indent=2, ensure_ascii=False) + "\n"
-
-
-def regmap_markdown() -> str:
-    """The table in Markdown with PLC notation (embedded verbatim in the docs)."""
-    lines = [
-        f"Register map version {MAP_VERSION}. Address = 0-based address on the wire; "
-        "PLC = 1-based PLC reference (30001 + address for input registers, "
-        "40001 + address for holding registers). Value in the named unit = raw × scale.",
-        "",
-        "| PLC | Table | Address | Name | Type | Words | Unit | Scale | Description |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    for r in REGISTERS:
-        lines.append(
-            f"| {r.plc_reference} | {r.table} | {r.address} | {r.name} | {r.type} "
-            f"| {r.words} | {r.unit} | {r.scale:g} | {r.description} |"
-        )
-    return "\n".join(lines) + "\n"
 
 
 # --------------------------------------------------------------------------- #

@@ -91,3 +91,18 @@ def test_a_killed_demo_takes_its_board_with_it(tmp_path):
     while alive(board) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not alive(board), f"emulated board {board} outlived its parent"
+    # its state directory stays (no cleanup ran); the next demo removes it, its owner gone
+    import tempfile
+
+    from gateway.commands.demo import DEMO_DIR_PREFIX
+    from gateway.owned_tempdir import STALE_AFTER_S, OwnedTempDir
+
+    (left,) = demo.dirs["tmp"].glob(f"{DEMO_DIR_PREFIX}*")
+    old = time.time() - 2 * STALE_AFTER_S  # older than a directory a starting demo may not have locked yet
+    os.utime(left, (old, old))
+    saved, tempfile.tempdir = tempfile.tempdir, str(demo.dirs["tmp"])
+    try:
+        with OwnedTempDir(DEMO_DIR_PREFIX):  # what the next demo starts with
+            assert not left.exists()
+    finally:
+        tempfile.tempdir = saved

@@ -131,3 +131,44 @@ def test_fit_drift_command_exits_2_on_a_short_record(tmp_path, capsys):
     write_recording(path, {"tick_hz": f"{run.tick_hz:g}"}, run.recording_columns())
     assert main(["fit-drift", str(path), "--plot", str(tmp_path / "p.png")]) == 2
     assert "cannot fit" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_fit_drift_command_streams_and_gives_the_in_memory_fit(tmp_path, capsys, monkeypatch, suffix):
+    """The command reads the recording chunk by chunk (many here: small CSV blocks, small
+    Parquet batches, small residual blocks) and keeps it on disk between its passes; its fit
+    is the one of the whole record in memory — the model to the bit, the rest to rounding."""
+    from gateway.core import drift_fit
+    from gateway.offline.recording import read_recording, to_acceleration
+    from gateway.offline.recording import sources as reader
+
+    sensor = SensorParams(x=AxisSensor(zero_g_offset_g=0.01, drift=DriftModel(0.003, 0.0, 60.0)))
+    run = simulate(standstill(200.0), sensor, seed=138)
+    path = tmp_path / f"still{suffix}"
+    write_recording(path, {"tick_hz": f"{run.tick_hz:g}", "axis": "x"}, run.recording_columns())
+    series = to_acceleration(read_recording(path))
+    whole = fit_drift(series.t_s, np.where(series.valid, series.acc_mps2, np.nan) / STANDARD_GRAVITY_MPS2)
+    seen = {}
+    real_passes = drift_fit.fit_drift_passes
+
+    def spy(passes, scratch, period_s=None, block_s=1.0):
+        seen["chunks"] = sum(1 for _ in passes())  # the first pass: from the file
+        seen["fit"] = real_passes(passes, scratch, period_s, block_s)
+        return seen["fit"]
+
+    monkeypatch.setattr(reader, "BLOCK_BYTES", 1 << 16)
+    monkeypatch.setattr(reader, "PARQUET_BATCH_ROWS", 4096)
+    monkeypatch.setattr(drift_fit, "BLOCK_SAMPLES", 5000)
+    monkeypatch.setattr("gateway.commands.fit_drift.fit_drift_passes", spy)
+    model = tmp_path / "drift.json"
+    assert main(["fit-drift", str(path), "--plot", str(tmp_path / "p.png"), "--model-out", str(model)]) == 0
+    capsys.readouterr()
+    streamed = seen["fit"]
+    assert seen["chunks"] >= 10
+    assert streamed.model == whole.model
+    np.testing.assert_array_equal(streamed.block_mean_g, whole.block_mean_g)
+    assert streamed.whiteness == whole.whiteness
+    np.testing.assert_allclose(streamed.allan.adev, whole.allan.adev, rtol=1e-12)
+    assert streamed.residual_rms_g == pytest.approx(whole.residual_rms_g, rel=1e-12)
+    assert streamed.full_rate_lag1 == pytest.approx(whole.full_rate_lag1, rel=1e-12)
+    assert FittedDrift.from_dict(json.loads(model.read_text())).model == whole.model

@@ -25,10 +25,8 @@ from drivers.modbus_map import (
     Table,
     WordOrder,
     encode_input_registers,
-    regmap_json,
-    regmap_markdown,
-    regmap_rows,
 )
+from drivers.modbus_map_text import regmap_json, regmap_markdown, regmap_rows
 from drivers.published_values import Command, PublishedValues, StatusBits
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "modbus-registers.md"

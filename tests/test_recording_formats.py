@@ -7,7 +7,6 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-import gateway.offline.recording as recording
 from gateway.core.estimator import estimate_series
 from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.estimator_stream import RealtimeChunks
@@ -21,6 +20,7 @@ from gateway.offline.recording import (
     to_acceleration,
     write_recording,
 )
+from gateway.offline.recording import sources as reader  # the reader: its block sizes are patched here
 from tests.pty_helpers import stderr_on_a_pty
 
 
@@ -65,7 +65,7 @@ def test_missing_values_round_trip_as_empty_cells(tmp_path):
 def test_chunked_csv_reading_gives_the_whole_file(tmp_path, monkeypatch):
     simulated(tmp_path / "a.csv")
     whole = read_recording(tmp_path / "a.csv")
-    monkeypatch.setattr(recording, "BLOCK_BYTES", 4096)  # ~60 rows a block: every boundary case
+    monkeypatch.setattr(reader, "BLOCK_BYTES", 4096)  # ~60 rows a block: every boundary case
     chunks = list(open_recording(tmp_path / "a.csv").chunks())
     assert len(chunks) > 20
     for name, col in whole.columns.items():
@@ -76,8 +76,8 @@ def test_chunked_csv_reading_gives_the_whole_file(tmp_path, monkeypatch):
 def test_streamed_realtime_is_the_whole_file_estimate_bit_for_bit(tmp_path, monkeypatch, suffix):
     path = tmp_path / f"a{suffix}"
     simulated(path, strokes=6)
-    monkeypatch.setattr(recording, "BLOCK_BYTES", 50_000)
-    monkeypatch.setattr(recording, "PARQUET_BATCH_ROWS", 777)
+    monkeypatch.setattr(reader, "BLOCK_BYTES", 50_000)
+    monkeypatch.setattr(reader, "PARQUET_BATCH_ROWS", 777)
     series = to_acceleration(read_recording(path))
     settings = from_sensor_model(SensorParams(), axis="x")
     whole = estimate_series(series.t_s, series.acc_mps2, series.valid, method="realtime", settings=settings,

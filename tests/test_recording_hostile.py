@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-import gateway.offline.recording as recording
 from gateway.errors import RecordingError
 from gateway.offline.recording import open_recording, read_recording, to_acceleration, write_recording
+from gateway.offline.recording import sources as reader  # the reader: its block sizes are patched here
 from testing import hostile_files as hostile
 from testing.hostile_files import write_raw
 
@@ -55,7 +55,7 @@ def test_column_changing_type_deep_in_the_file_names_line_and_column(tmp_path, s
     with pytest.raises(RecordingError) as info:
         read_recording(path)
     assert str(info.value) == f"{path}:{k + 1}: column {header[2]!r}: 'OVERFLOW' is not a number"
-    monkeypatch.setattr(recording, "BLOCK_BYTES", 3000)  # the same in a later block of many
+    monkeypatch.setattr(reader, "BLOCK_BYTES", 3000)  # the same in a later block of many
     with pytest.raises(RecordingError) as info2:
         read_recording(path)
     assert str(info2.value) == str(info.value)
@@ -88,7 +88,7 @@ def test_non_utf8_is_named_with_its_byte_offset(tmp_path, sim_columns):
 def test_a_field_over_131072_characters_is_refused_by_the_line_limit(tmp_path):
     path = hostile.long_field(tmp_path / "r.csv")
     r = adxlgw("estimate", path, "--out", tmp_path / "e.csv")
-    one_line_exit_2(r, "r.csv:3:", f"longer than {recording.MAX_LINE_BYTES} bytes")
+    one_line_exit_2(r, "r.csv:3:", f"longer than {reader.MAX_LINE_BYTES} bytes")
     # the same as the file's last line, cut without its newline (a tail once not measured)
     r = adxlgw("diagnose", hostile.long_field(tmp_path / "r.csv", last_line=True))
     one_line_exit_2(r, "r.csv:3:", f"line of {hostile.LONG_FIELD_CHARS + 4} bytes: longer than")

@@ -333,12 +333,23 @@ def print_trace(case: Case, script: BoardScript, written, reads, start_ns: int, 
               f"{(r[2] - script.ref_pos_m[k]) * 1e3:10.2f} {r[3] * 1e3:9.2f}  {names}")
 
 
+def dump_case(folder: Path, case: Case, written, reads, start_ns: int, kill_ns: int | None, log: Path) -> None:
+    """One case's raw run: what --trace prints, kept to be studied after a long run."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = "".join(ch if ch.isalnum() else "_" for ch in case.name)
+    np.savez(folder / f"{stem}.npz", written=written, reads=np.array(reads, dtype=float),
+             start_ns=start_ns, kill_ns=-1 if kill_ns is None else kill_ns)
+    (folder / f"{stem}.log").write_text(log.read_text())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", default="", help="comma-separated substrings of case names (default: all)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--trace", default="", metavar="NAME",
                     help="play the one case of this exact name and print every read instead of the table")
+    ap.add_argument("--dump", default="", metavar="DIR",
+                    help="also keep each case's writes, reads and daemon log in DIR (for --trace-like study)")
     args = ap.parse_args()
     if args.trace:
         case = next((c for c in all_cases() if c.name == args.trace), None)
@@ -372,6 +383,8 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="adxlgw-fault-") as tmp:
             written, reads, start_ns, kill_ns = play(case, script, Path(tmp))
             s = score(case, script, written, reads, start_ns, kill_ns)
+            if args.dump:
+                dump_case(Path(args.dump), case, written, reads, start_ns, kill_ns, Path(tmp) / "daemon.log")
             if s.reads == 0:
                 print(f"| {case.name} | no read answered: see the daemon log | | | | | **no** |")
                 print((Path(tmp) / "daemon.log").read_text()[-2000:], file=sys.stderr)

@@ -2,16 +2,17 @@
 from __future__ import annotations
 
 import argparse
-import tempfile
 from pathlib import Path
 
 from gateway.commands.run import add_run_options, load_overridden, load_with_overrides, overrides_from, serve
+from gateway.owned_tempdir import OwnedTempDir
 
 # the demo chooses the emulated board and an in-process CAN bus on purpose; nothing of a
 # demo run survives it (its state lives in a temporary directory), so each run starts
 # where a fresh gateway would
 DEMO_SETTINGS = {"serial.port": "emulated", "estimator.start_at_rest": True, "can.interface": "virtual",
                  "can.channel": "adxlgw-demo", "service.view": True}
+DEMO_DIR_PREFIX = "adxlgw-demo-"
 
 
 def add_parser(sub) -> None:
@@ -29,7 +30,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    with tempfile.TemporaryDirectory(prefix="adxlgw-demo-") as state_dir:
+    with OwnedTempDir(DEMO_DIR_PREFIX) as state_dir:
         overrides = {**DEMO_SETTINGS, "state.path": str(Path(state_dir) / "state.json"), **overrides_from(args)}
         cfg = load_with_overrides(args.config, overrides)
         print(f"adxl-gateway demo (simulated board): Modbus TCP on {cfg.modbus.host}:{cfg.modbus.port}, "

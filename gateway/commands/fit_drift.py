@@ -5,17 +5,19 @@ import argparse
 import json
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from gateway.commands.common import positive_float
-from gateway.core.drift_fit import DriftFit, fit_drift
+from gateway.core.drift_fit import DriftFit, fit_drift_passes
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import InputError, RecordingError
 from gateway.offline.figures import check_plot_path, save_figure
 from gateway.offline.progress import reading_bar
-from gateway.offline.recording import open_recording, read_all, to_acceleration
+from gateway.offline.recording import acceleration_chunks, open_recording
+from gateway.offline.scratch import FileStore
 
 
 def add_parser(sub) -> None:
@@ -117,6 +119,35 @@ def plot_fit(path: str, fit: DriftFit, t0_s: float, title: str) -> None:
     save_figure(fig, path)
 
 
+class _SpilledRecord:
+    """The recording as fit_drift_passes wants it: the first pass reads and converts the
+    file, keeping (t, acc in g) in scratch files; the later passes read those back."""
+
+    def __init__(self, source, columns: list[str], progress, times: FileStore, acc_g: FileStore):
+        self._source, self._columns, self._progress = source, columns, progress
+        self._times, self._acc_g = times, acc_g
+        self._spilled = False
+        self.warnings: list[str] = []
+
+    def __call__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        return self._from_scratch() if self._spilled else self._from_file()
+
+    def _from_file(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        series = None
+        for series in acceleration_chunks(self._source, self._columns, progress=self._progress):
+            acc_g = np.where(series.valid, series.acc_mps2, np.nan) / STANDARD_GRAVITY_MPS2
+            self._times.append(series.t_s)
+            self._acc_g.append(acc_g)
+            yield series.t_s, acc_g
+        if series is None:
+            raise RecordingError(f"{self._source.path}: no data rows")
+        self.warnings = series.report.warnings()  # the running report, complete after the last chunk
+        self._spilled = True
+
+    def _from_scratch(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        yield from zip(self._times.blocks(), self._acc_g.blocks(), strict=True)
+
+
 def run(args: argparse.Namespace) -> int:
     plot_path = args.plot or f"{Path(args.recording).stem}_drift.png"
     check_plot_path(plot_path)  # before the work
@@ -124,18 +155,18 @@ def run(args: argparse.Namespace) -> int:
     # the fit needs the time and the measured axis only: the reference, the host's arrival
     # time and the temperature are not read (~40 bytes per sample less)
     wanted = [n for n in source.names if not n.startswith("ref_") and n not in ("t_host_s", "temp_c")]
-    with reading_bar(source) as bar:
-        series = to_acceleration(read_all(source, columns=wanted, progress=bar))
-    for w in series.report.warnings():
+    # streamed (docs/decisions/0142): memory follows the chunk, the record waits on disk
+    with reading_bar(source) as bar, FileStore() as times, FileStore() as acc_g, FileStore() as phase:
+        record = _SpilledRecord(source, wanted, bar, times, acc_g)
+        try:
+            fit = fit_drift_passes(record, phase, block_s=args.block_s)
+        except (ValueError, RuntimeError) as err:  # RuntimeError: curve_fit did not converge
+            raise RecordingError(f"{args.recording}: cannot fit the drift model: {err}") from err
+    for w in record.warnings:
         print(f"adxlgw fit-drift: warning: {w}", file=sys.stderr)
-    acc_g = np.where(series.valid, series.acc_mps2, np.nan) / STANDARD_GRAVITY_MPS2
-    try:
-        fit = fit_drift(series.t_s, acc_g, block_s=args.block_s)
-    except (ValueError, RuntimeError) as err:  # RuntimeError: curve_fit did not converge
-        raise RecordingError(f"{args.recording}: cannot fit the drift model: {err}") from err
     for line in report(fit):
         print(line)
-    plot_fit(plot_path, fit, float(series.t_s[0]), f"zero drift of {Path(args.recording).name}")
+    plot_fit(plot_path, fit, fit.start_t_s, f"zero drift of {Path(args.recording).name}")
     print(f"wrote {plot_path}")
     if args.model_out:
         try:

@@ -246,56 +246,20 @@ def _csv_error(path: str, reader, err: csv.Error) -> RecordingError:
 
 
 def _row_blocks(args, reader, end: dict, skipped: _Skipped, block_rows: int):
+    """The rows with a time and an acceleration, as blocks of `block_rows` (see _block)."""
     path = args.foreign
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise RecordingError(f"{path}:1: empty file, no header row") from None
-    except csv.Error as err:
-        raise _csv_error(path, reader, err) from None
+    header, index = _header_index(args, reader)
     wanted = _wanted(args)
-    index = {}
-    missing = [name for name in wanted.values() if name not in header]
-    if missing:
-        shown = ", ".join(repr(h) for h in header[:20]) + (f", … ({len(header)} in all)" if len(header) > 20 else "")
-        hint = ("; one column only, with ';' in it: a ';'-separated file? give --delimiter ';'"
-                if len(header) == 1 and ";" in header[0] and args.delimiter != ";" else "")
-        raise RecordingError(f"{path}:1: no column {', '.join(map(repr, missing))} in the header; "
-                             f"its columns: {shown}{hint}")
-    for role, name in wanted.items():
-        index[role] = header.index(name)
     columns = {role: _Column(relative=role in ("time", "check")) for role in wanted}
     lines = array("q")
     last_cells = len(header)
-    rows = iter(reader)
-    while True:
-        try:
-            row = next(rows)
-        except StopIteration:
-            break
-        except csv.Error as err:
-            raise _csv_error(path, reader, err) from None
-        if not row:
-            continue
-        line = reader.line_num
+    for row, line in _rows(reader, path):
         last_cells = len(row)
         cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
         if not cells["time"] or not cells["acc"]:
             skipped.rows += 1
             continue
-        for role, cell in cells.items():
-            column = columns[role]
-            if role == "hint":
-                column.values.append(_hint(cell, args, path, line))
-            elif not cell:
-                column.values.append(math.nan)
-            elif column.relative:
-                number = _number(cell, path, line, wanted[role])
-                if column.first is None:
-                    column.first = number
-                column.values.append(_float(number, path, line, wanted[role], minus=column.first))
-            else:
-                column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
+        _append_cells(args, columns, cells, wanted, line)
         lines.append(line)
         if len(lines) >= block_rows:
             yield _block(columns, lines)
@@ -306,6 +270,61 @@ def _row_blocks(args, reader, end: dict, skipped: _Skipped, block_rows: int):
                              "(the last line is cut short: a truncated file?)")
     if lines:
         yield _block(columns, lines)
+
+
+def _header_index(args, reader) -> tuple[list[str], dict[str, int]]:
+    """The header row, and where each wanted column is in it; the missing ones named all at
+    once, with the columns there are (and a hint at the delimiter)."""
+    path = args.foreign
+    try:
+        header = [h.strip() for h in next(reader)]
+    except StopIteration:
+        raise RecordingError(f"{path}:1: empty file, no header row") from None
+    except csv.Error as err:
+        raise _csv_error(path, reader, err) from None
+    wanted = _wanted(args)
+    missing = [name for name in wanted.values() if name not in header]
+    if missing:
+        shown = ", ".join(repr(h) for h in header[:20]) + (f", … ({len(header)} in all)" if len(header) > 20 else "")
+        hint = ("; one column only, with ';' in it: a ';'-separated file? give --delimiter ';'"
+                if len(header) == 1 and ";" in header[0] and args.delimiter != ";" else "")
+        raise RecordingError(f"{path}:1: no column {', '.join(map(repr, missing))} in the header; "
+                             f"its columns: {shown}{hint}")
+    return header, {role: header.index(name) for role, name in wanted.items()}
+
+
+def _rows(reader, path: str):
+    """(cells, line number) of each non-empty row after the header; a CSV error names its line."""
+    rows = iter(reader)
+    while True:
+        try:
+            row = next(rows)
+        except StopIteration:
+            return
+        except csv.Error as err:
+            raise _csv_error(path, reader, err) from None
+        if row:
+            yield row, reader.line_num
+
+
+def _append_cells(args, columns: dict[str, _Column], cells: dict[str, str], wanted: dict[str, str],
+                  line: int) -> None:
+    """One row's wanted cells onto their columns: the hint as 1/0/NaN, an empty cell as NaN,
+    a time relative to the column's first cell, the rest as numbers."""
+    path = args.foreign
+    for role, cell in cells.items():
+        column = columns[role]
+        if role == "hint":
+            column.values.append(_hint(cell, args, path, line))
+        elif not cell:
+            column.values.append(math.nan)
+        elif column.relative:
+            number = _number(cell, path, line, wanted[role])
+            if column.first is None:
+                column.first = number
+            column.values.append(_float(number, path, line, wanted[role], minus=column.first))
+        else:
+            column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
 
 
 def _block(columns: dict[str, _Column], lines: array) -> tuple[dict[str, np.ndarray], np.ndarray]:

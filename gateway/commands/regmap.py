@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from drivers.modbus_map import regmap_json, regmap_markdown
+from drivers.modbus_map_text import regmap_json, regmap_markdown
 
 
 def add_parser(sub) -> None:

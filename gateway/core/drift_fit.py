@@ -24,7 +24,9 @@ Conventions (stated once, used by estimator_settings):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -114,6 +116,7 @@ class DriftFit:
     acf: np.ndarray  # block residual autocorrelation, lags 0..whiteness.lags
     allan: AllanDeviation
     noise: NoiseTerms
+    start_t_s: float = 0.0  # the record's first sample time: the model's t = 0
 
     def fitted(self) -> FittedDrift:
         rrw = self.noise.rate_random_walk_per_rts
@@ -154,6 +157,38 @@ def octave_taus(n: int, max_fraction: float = 0.25) -> np.ndarray:
     return 2 ** np.arange(int(math.floor(math.log2(top))) + 1)
 
 
+class SeriesStore(Protocol):
+    """Where a long series waits between passes: appended in chunks, read back by range
+    (an in-memory one here; gateway/offline/drift_scratch.py keeps it in a file)."""
+
+    def append(self, values: np.ndarray) -> None: ...
+
+    def read(self, start: int, count: int) -> np.ndarray: ...
+
+
+class ArrayStore:
+    """A SeriesStore in memory."""
+
+    def __init__(self) -> None:
+        self._parts: list[np.ndarray] = []
+        self._joined: np.ndarray | None = None
+
+    def append(self, values: np.ndarray) -> None:
+        self._parts.append(np.asarray(values, dtype=float))
+        self._joined = None
+
+    def read(self, start: int, count: int) -> np.ndarray:
+        if self._joined is None:
+            self._joined = np.concatenate(self._parts) if self._parts else np.empty(0)
+            self._parts = [self._joined]
+        return self._joined[start:start + count]
+
+
+#: the Allan sums and the residual's passes work on blocks of this many samples: memory
+#: follows the block, not the record (the streamed fit-drift: ≤ 400 MB whatever the file)
+BLOCK_SAMPLES = 1 << 20
+
+
 def allan_deviation(x, period_s: float, m=None) -> AllanDeviation:
     """Overlapping Allan deviation of a rate-like signal x sampled every period_s.
 
@@ -163,13 +198,24 @@ def allan_deviation(x, period_s: float, m=None) -> AllanDeviation:
     x = np.asarray(x, dtype=float)
     if x.size < 4:
         raise ValueError("Allan deviation needs at least 4 samples")
-    m = octave_taus(x.size) if m is None else np.asarray(m, dtype=np.int64)
-    theta = np.concatenate([[0.0], np.cumsum(x - x.mean())]) * period_s
+    theta = ArrayStore()
+    theta.append(np.concatenate([[0.0], np.cumsum(x - x.mean())]) * period_s)
+    return allan_deviation_of_phase(theta, x.size, period_s, m)
+
+
+def allan_deviation_of_phase(theta: SeriesStore, n: int, period_s: float, m=None) -> AllanDeviation:
+    """allan_deviation from θ (n + 1 values, θ(0) = 0) held in `theta`, summed block by block."""
+    m = octave_taus(n) if m is None else np.asarray(m, dtype=np.int64)
     out = np.empty(m.size)
-    for i, mi in enumerate(m):
-        d = theta[2 * mi:] - 2.0 * theta[mi:-mi] + theta[: -2 * mi]
+    for i, mi in enumerate(int(v) for v in m):
+        count = n + 1 - 2 * mi  # the d values: k = 0 … n − 2m
+        total = 0.0
+        for start in range(0, count, BLOCK_SAMPLES):
+            k = min(BLOCK_SAMPLES, count - start)
+            d = theta.read(start + 2 * mi, k) - 2.0 * theta.read(start + mi, k) + theta.read(start, k)
+            total += float(np.dot(d, d))
         tau = mi * period_s
-        out[i] = math.sqrt(float(np.dot(d, d)) / (2.0 * tau * tau * d.size))
+        out[i] = math.sqrt(total / (2.0 * tau * tau * count))
     return AllanDeviation(tau_s=m * period_s, adev=out)
 
 
@@ -225,15 +271,69 @@ def _drift_curve(t, c1, c2, time_constant):
 
 def block_means(t_s, x, block_s: float):
     """Means of consecutive blocks of block_s seconds (NaN samples skipped; empty blocks dropped)."""
-    t = np.asarray(t_s, dtype=float)
-    x = np.asarray(x, dtype=float)
-    idx = np.floor((t - t[0]) / block_s).astype(np.int64)
-    good = np.isfinite(x)
-    count = np.bincount(idx[good], minlength=idx[-1] + 1)
-    total = np.bincount(idx[good], weights=x[good], minlength=idx[-1] + 1)
-    centre = t[0] + (np.arange(count.size) + 0.5) * block_s
-    full = count > 0
-    return centre[full], total[full] / count[full]
+    sums = RecordSums(block_s)
+    sums.add(np.asarray(t_s, dtype=float), np.asarray(x, dtype=float))
+    return sums.block_means()
+
+
+@dataclass
+class RecordSums:
+    """What the fit's first pass keeps of a record given chunk by chunk: its ends, the
+    per-block sums (one pair per block: 43 200 for 12 h of 1 s blocks) and the sample
+    periods seen with how often (a clocked record has few distinct ones), so that the
+    median period is exact without the record in memory."""
+
+    block_s: float
+    n: int = 0
+    usable: int = 0
+    t_first_s: float = math.nan
+    t_last_s: float = math.nan
+    block_count: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    block_total: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    periods: dict[float, int] = field(default_factory=dict)
+
+    def add(self, t: np.ndarray, x: np.ndarray) -> None:
+        if t.size != x.size:
+            raise ValueError("t_s and acc_g differ in length")
+        if not t.size:
+            return
+        steps = np.diff(t) if self.n == 0 else np.diff(np.concatenate([[self.t_last_s], t]))
+        if self.n == 0:
+            self.t_first_s = float(t[0])
+        values, counts = np.unique(steps, return_counts=True)
+        for v, c in zip(values.tolist(), counts.tolist(), strict=True):
+            self.periods[v] = self.periods.get(v, 0) + c
+        self.n += t.size
+        self.t_last_s = float(t[-1])
+        idx = np.floor((t - self.t_first_s) / self.block_s).astype(np.int64)
+        good = np.isfinite(x)
+        self.usable += int(good.sum())
+        size = max(self.block_count.size, int(idx[-1]) + 1)
+        self.block_count = _grown(self.block_count, size) + np.bincount(idx[good], minlength=size)
+        self.block_total = _grown(self.block_total, size) + np.bincount(idx[good], weights=x[good], minlength=size)
+
+    def median_period_s(self) -> float:
+        """np.median of the sample periods, from their counts."""
+        values = np.array(sorted(self.periods))
+        ends = np.cumsum([self.periods[v] for v in values])
+        total = int(ends[-1])
+        lo, hi = (total - 1) // 2, total // 2
+        pick = np.searchsorted(ends, [lo, hi], side="right")
+        return float(np.mean(values[pick]))
+
+    def block_means(self) -> tuple[np.ndarray, np.ndarray]:
+        centre = self.t_first_s + (np.arange(self.block_count.size) + 0.5) * self.block_s
+        full = self.block_count > 0
+        return centre[full], self.block_total[full] / self.block_count[full]
+
+
+def _grown(a: np.ndarray, size: int) -> np.ndarray:
+    return a if a.size == size else np.concatenate([a, np.zeros(size - a.size, a.dtype)])
+
+
+#: A record given as a function that starts a pass over it: each call yields its
+#: (sample times s, acceleration g with NaN where invalid) chunks from the start again.
+Passes = Callable[[], Iterable[tuple[np.ndarray, np.ndarray]]]
 
 
 def fit_drift(t_s, acc_g, period_s: float | None = None, block_s: float = 1.0) -> DriftFit:
@@ -246,18 +346,31 @@ def fit_drift(t_s, acc_g, period_s: float | None = None, block_s: float = 1.0) -
     a = np.asarray(acc_g, dtype=float)
     if t.size != a.size:
         raise ValueError("t_s and acc_g differ in length")
-    good = np.isfinite(a)
-    if good.sum() < 100:
-        raise ValueError(f"a drift fit needs a standstill of many samples; {int(good.sum())} are usable")
-    period = float(np.median(np.diff(t))) if period_s is None else period_s
-    bt, bm = block_means(t, a, block_s)
+    return fit_drift_passes(lambda: [(t, a)], ArrayStore(), period_s, block_s)
+
+
+def fit_drift_passes(passes: Passes, scratch: SeriesStore, period_s: float | None = None,
+                     block_s: float = 1.0) -> DriftFit:
+    """fit_drift over a record read in three passes of chunks (memory follows the chunk and
+    the blocks; the full-rate phase for the Allan deviation waits in `scratch`):
+    1. the block means, the ends, the sample period → the curve fit;
+    2. the full-rate residual's means;
+    3. its RMS and lag-1 autocorrelation, and the phase θ into `scratch`."""
+    sums = RecordSums(block_s)
+    for t, a in passes():
+        sums.add(np.asarray(t, dtype=float), np.asarray(a, dtype=float))
+    if sums.usable < 100:
+        raise ValueError(f"a drift fit needs a standstill of many samples; {sums.usable} are usable")
+    period = sums.median_period_s() if period_s is None else period_s
+    bt, bm = sums.block_means()
     if bt.size < 30:
         raise ValueError(
             f"the standstill gives only {bt.size} blocks of {block_s:g} s; the fit needs at least 30 "
-            f"(record {t[-1] - t[0]:.0f} s: use a longer standstill or a shorter --block-s)"
+            f"(record {sums.t_last_s - sums.t_first_s:.0f} s: use a longer standstill or a shorter --block-s)"
         )
-    span = float(bt[-1] - t[0])
-    t_rel = bt - t[0]
+    t0 = sums.t_first_s
+    span = float(bt[-1] - t0)
+    t_rel = bt - t0
     first, last = float(np.mean(bm[: max(3, bm.size // 20)])), float(np.mean(bm[-max(3, bm.size // 20):]))
     p0 = (last - first, first, span / 5.0)
     bounds = ([-np.inf, -np.inf, max(period, 1e-6)], [np.inf, np.inf, 100.0 * span])
@@ -271,11 +384,10 @@ def fit_drift(t_s, acc_g, period_s: float | None = None, block_s: float = 1.0) -
     model = DriftModel(c1_g=c1, c2_g=c2, time_constant_s=time_constant)
     block_residual = bm - _drift_curve(t_rel, c1, c2, time_constant)
     whiteness = ljung_box(block_residual)
-    # full-rate residual: invalid samples take the model value (zero residual) so time stays uniform
-    residual = np.where(good, a - drift_g(t - t[0], model), 0.0)
-    allan = allan_deviation(residual, period)
+    residual = _ResidualPasses(passes, model, t0)
+    allan = allan_deviation_of_phase(residual.phase(scratch, period), sums.n, period)
     # below ~10 periods the anti-alias filter and the quantiser shape the curve, not N
-    terms = noise_terms(allan, min_tau_s=10.0 * period, record_s=float(t[-1] - t[0]))
+    terms = noise_terms(allan, min_tau_s=10.0 * period, record_s=float(sums.t_last_s - t0))
     return DriftFit(
         model=model,
         c1_std_g=float(std[0]),
@@ -286,10 +398,59 @@ def fit_drift(t_s, acc_g, period_s: float | None = None, block_s: float = 1.0) -
         block_t_s=bt,
         block_mean_g=bm,
         block_residual_g=block_residual,
-        residual_rms_g=float(np.sqrt(np.mean(residual[good] ** 2))),
-        full_rate_lag1=float(autocorrelation(residual[good], 1)[1]),
+        residual_rms_g=residual.rms,
+        full_rate_lag1=residual.lag1,
         whiteness=whiteness,
         acf=autocorrelation(block_residual, whiteness.lags),
         allan=allan,
         noise=terms,
+        start_t_s=t0,
     )
+
+
+class _ResidualPasses:
+    """The full-rate residual a − ε(t − t0), pass by pass. Invalid samples take the model
+    value (a zero residual) so that time stays uniform for the Allan deviation; the RMS and
+    the lag-1 autocorrelation are those of the valid samples."""
+
+    def __init__(self, passes: Passes, model: DriftModel, t0_s: float):
+        self._passes = passes
+        self._model = model
+        self._t0_s = t0_s
+        self.rms = math.nan
+        self.lag1 = math.nan
+
+    def _chunks(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for t, a in self._passes():
+            a = np.asarray(a, dtype=float)
+            good = np.isfinite(a)
+            yield np.where(good, a - drift_g(np.asarray(t, dtype=float) - self._t0_s, self._model), 0.0), good
+
+    def phase(self, scratch: SeriesStore, period_s: float) -> SeriesStore:
+        """θ = (0, cumsum(r − mean r)) · period into `scratch`; sets rms and lag1 on the way."""
+        n = n_good = 0
+        total = total_good = 0.0
+        for r, good in self._chunks():
+            n += r.size
+            n_good += int(good.sum())
+            total += float(r.sum())
+            total_good += float(r[good].sum())
+        mean, mean_good = total / n, total_good / n_good
+        squares = centred_squares = cross = 0.0
+        previous = None  # the last centred valid residual of the chunk before
+        carry = 0.0
+        scratch.append(np.zeros(1))
+        for r, good in self._chunks():
+            x = r[good] - mean_good
+            squares += float(np.dot(r[good], r[good]))
+            centred_squares += float(np.dot(x, x))
+            if x.size:
+                joined = x if previous is None else np.concatenate([[previous], x])
+                cross += float(np.dot(joined[:-1], joined[1:]))
+                previous = float(x[-1])
+            sums = np.cumsum(np.concatenate([[carry], r - mean]))[1:]
+            carry = float(sums[-1])
+            scratch.append(sums * period_s)
+        self.rms = math.sqrt(squares / n_good)
+        self.lag1 = cross / centred_squares if centred_squares > 0.0 else 0.0
+        return scratch

@@ -188,6 +188,14 @@ def undo_sensor_lag(pos, vel, y_edge, lag):
 
 
 @jit
+def lag_undone_position_var(P, lag):
+    """The variance of the position undo_sensor_lag reports, p + τ·v: Var(p) + 2τ·Cov(p, v)
+    + τ²·Var(v). Var(p) alone leaves out the velocity's share, the whole of the reported
+    position's uncertainty at a move's first samples (where Var(p) is still ~0)."""
+    return P[0, 0] + 2.0 * lag * P[0, 1] + lag * lag * P[1, 1]
+
+
+@jit
 def disagreement_var(gain_pos, innovation):
     """A stop taken on the machine's hint against the integrated velocity (beyond chance):
     the position with the stop and without it differ by the update's position correction
@@ -900,7 +908,8 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
         out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, lag)
         out[O_BIAS] = x[2]
-        out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm) + reading_instant_var(m[M_READING_DRIFT]) \
+        out[O_POS_VAR] = with_scale_error(lag_undone_position_var(P, lag), out[O_POS], prm) \
+            + reading_instant_var(m[M_READING_DRIFT]) \
             + m[M_DISAGREE_VAR]
         out[O_VEL_VAR] = with_scale_error(P[1, 1], out[O_VEL], prm)
         out[O_BIAS_VAR] = P[2, 2]
