@@ -467,8 +467,10 @@ def _zupt_smoothed(t, acc, valid, lost, hint, settings: EstimatorSettings, notes
     y_edge = np.zeros(n)
     y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (acc_out[1:] + acc_out[:-1]), 0.0)
     pos, vel = K.undo_sensor_lag(res.pos_m, res.vel_mps, y_edge, prm[K.P_LAG])
-    pos_var, vel_var = res.pos_var, res.vel_var
-    K.add_scale_error(pos_var, pos, prm)
+    # the lag's correction rests on the one-pole model of the sensor's filter: its own size
+    # is carried as its uncertainty (a model off entirely would leave all of it)
+    pos_var = res.pos_var + (pos - res.pos_m) ** 2  # the position's gain term is per move (zupt_smoother)
+    vel_var = res.vel_var + (vel - res.vel_mps) ** 2
     K.add_scale_error(vel_var, vel, prm)
     K.add_reading_instant_error(pos_var, acc_out, t, prm)
     zeros = np.zeros(n)

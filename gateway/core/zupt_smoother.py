@@ -181,22 +181,23 @@ class FilterModel:
     drift_t0: float
     scale_var: float  # σ_s²
     decisive_std_mps: float  # σ_v beyond which a direction abstains
+    lag_s: float  # the sensor filter's lag τ (0: not modelled)
 
     @classmethod
     def of(cls, s: EstimatorSettings) -> FilterModel:
         return cls(s.velocity_noise_density, s.bias_random_walk_mps2_per_rts ** 2, s.sample_noise_std_mps2 ** 2,
                    s.zupt_velocity_std_mps ** 2, s.bias_initial_std_mps2 ** 2, s.restart_speed_std_mps ** 2,
                    s.drift_c1_mps2, s.drift_time_constant_s, s.drift_start_s, s.sensitivity_std_frac ** 2,
-                   s.standstill_speed_floor_mps / DECISIVE_SIGMAS)
+                   s.standstill_speed_floor_mps / DECISIVE_SIGMAS, s.sensor_lag_s)
 
     def as_array(self) -> np.ndarray:
         return np.array([self.q_vel, self.q_bias, self.sample_var, self.zupt_var, self.bias_prior_var,
                          self.speed_prior_var, self.drift_c1, self.drift_t, self.drift_t0, self.scale_var,
-                         self.decisive_std_mps])
+                         self.decisive_std_mps, self.lag_s])
 
 
 # indices of FilterModel.as_array (the compiled loops take one float array)
-_QV, _QB, _SV, _ZV, _BP, _VP, _C1, _DT, _D0, _SC, _DEC = range(11)
+_QV, _QB, _SV, _ZV, _BP, _VP, _C1, _DT, _D0, _SC, _DEC, _LAG = range(12)
 
 
 def bridged_input(t_s, acc_mps2, valid, lost_before, sample_var):
@@ -263,21 +264,26 @@ def _propagate(x, P, dt, u, ddrift, qv, qb, extra_vv):
 
 
 @jit
-def _zupt(x, P, r):
-    """v = 0 with variance r."""
-    s = P[1, 1] + r
-    y = -x[1]
-    k0 = P[0, 1] / s
-    k1 = P[1, 1] / s
-    k2 = P[2, 1] / s
+def _zupt(x, P, r, lag, z):
+    """The true velocity is zero: v + τ·(z − b) = 0 with variance r. The state's v lags the
+    true velocity by τ·(z − b) (the sensor's one-pole filter still settling, τ = its lag;
+    the outputs undo it, estimator_kernel.undo_sensor_lag): H = [0, 1, −τ]."""
+    ph0 = P[0, 1] - lag * P[0, 2]
+    ph1 = P[1, 1] - lag * P[1, 2]
+    ph2 = P[2, 1] - lag * P[2, 2]
+    s = ph1 - lag * ph2 + r
+    y = -(x[1] + lag * (z - x[2]))
+    k0 = ph0 / s
+    k1 = ph1 / s
+    k2 = ph2 / s
     x[0] += k0 * y
     x[1] += k1 * y
     x[2] += k2 * y
-    row = P[1, :].copy()
     for i in range(3):
         kk = k0 if i == 0 else (k1 if i == 1 else k2)
         for j in range(3):
-            P[i, j] -= kk * row[j]
+            hp = ph0 if j == 0 else (ph1 if j == 1 else ph2)
+            P[i, j] -= kk * hp
     for i in range(3):
         for j in range(i + 1, 3):
             v = 0.5 * (P[i, j] + P[j, i])
@@ -339,7 +345,7 @@ def _run(t, u, extra, rest, entry_verdict_out, model, store, xs_pred, ps_pred, x
                         conditional = True
                     entry_verdict_out[k] = verdict
             if not skipping:
-                _zupt(x, P, model[_ZV])
+                _zupt(x, P, model[_ZV], model[_LAG], u[k])
         if store:
             xs_f[k, :] = x
             ps_f[k, :, :] = P
@@ -433,7 +439,7 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
             untrusted[lo:hi] = True
     if not used:
         untrusted[:] = True
-    x, p = _smoothed(t, u, extra, rest, model)
+    x, p, v_pred, v_pred_var = _smoothed(t, u, extra, rest, model)
     if not rest[-1]:
         # the recording does not end in a rest the data confirm: two answers — it ends at
         # rest (v = 0 at its last sample, as every method assumes it starts at rest) or
@@ -443,11 +449,12 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
         last = max((d.stop for d in used if d.decisive), default=0)
         ended = rest.copy()
         ended[-1] = True
-        x_end, p_end = _smoothed(t, u, extra, ended, model)
+        x_end, p_end, v_pred, v_pred_var = _smoothed(t, u, extra, ended, model)
         for i in range(3):
             p_end[:, i, i] = np.maximum(p_end[:, i, i], p[:, i, i]) + (x_end[:, i] - x[:, i]) ** 2
         x, p = x_end, p_end
         untrusted[last:] = True
+    p[:, 0, 0] += model_error_var(t, x[:, 0], rest if rest[-1] else ended, v_pred, v_pred_var, model.scale_var)
     return ZuptSmoothed(x[:, 0].copy(), x[:, 1].copy(), x[:, 2].copy(), p[:, 0, 0].copy(), p[:, 1, 1].copy(),
                         p[:, 2, 2].copy(), rest, untrusted, decisions)
 
@@ -460,4 +467,32 @@ def _smoothed(t, u, extra, rest, model: FilterModel):
     _run(t, u, extra, rest, np.zeros(n, dtype=np.int8), model.as_array(), True, xs_pred, ps_pred, xs_f, ps_f,
          False)
     _rts(t, xs_pred, ps_pred, xs_f, ps_f, xs_f, ps_f)  # in place: RTS reads x_f(k), P_f(k) before writing
-    return xs_f, ps_f
+    return xs_f, ps_f, xs_pred[:, 1].copy(), ps_pred[:, 1, 1].copy()
+
+
+def model_error_var(t, pos, rest, v_pred, v_pred_var, scale_var) -> np.ndarray:
+    """The position variance the filter's model cannot see, per move between two rests,
+    summed from move to move (each move's error is its own):
+    - the gain on the move: (σ_s·Δp)², a sensitivity off by s reads each move s·Δp off —
+      per move, not on the net position, because a pulse's gain need not be the same for
+      every move (a fast high-g move reads short: issue 29, point 6), and a ZUPT cannot see
+      it (a symmetric pulse's gain error leaves no velocity at the stop);
+    - the velocity found at the move's closing rest beyond what the model predicts,
+      e² = max(0, y² − S) (y the forward velocity there, S its predicted variance): a
+      velocity error the model did not explain appeared at an unknown time in the move;
+      the smoother spreads it as a ramp, the truth may be a step anywhere in it: up to
+      e·T/2 in position, taken as its σ.
+    Inside a move the term grows with the share of the move's time gone by."""
+    n = t.size
+    out = np.zeros(n)
+    runs = true_runs(rest)
+    total = 0.0
+    for (_a0, b0), (a1, _b1) in zip(runs[:-1], runs[1:], strict=False):
+        dur = t[a1] - t[b0 - 1]
+        excess = max(0.0, v_pred[a1] ** 2 - v_pred_var[a1])
+        term = scale_var * (pos[a1] - pos[b0 - 1]) ** 2 + excess * dur * dur / 4.0
+        if dur > 0.0:
+            out[b0:a1] = total + term * (t[b0:a1] - t[b0 - 1]) / dur
+        total += term
+        out[a1:] = total
+    return out
