@@ -1,6 +1,6 @@
 """The estimator over the whole corpus: every real recording in the repo and the simulator's runs.
 
-    nice .venv/bin/python -m benchmarks.accuracy.estimation_corpus [--seeds 3] [--json OUT.json]
+    nice .venv/bin/python -m benchmarks.accuracy.estimation_corpus [--seeds 3] [--json OUT.json] [--compare zupt]
 
 One instrument for every design choice of the estimator (docs/estimation.md, "The corpus"):
 judged on the median and the worst over the corpus, never on one file.
@@ -19,6 +19,10 @@ Per file and case: the worst move's error (% of the move), the worst position er
 rest's end, how many rest ends lie inside ±3σ, the share of the time flagged not
 trustworthy (flag 256), and the confidently wrong rest ends (more than 3σ off without the
 flag). Then the median and the worst of each row over the corpus.
+
+--compare METHOD adds a method judged beside the shipped ones (estimator.COMPARED_METHODS:
+zupt, the offline ZUPT smoother of gateway/core/zupt_smoother.py), with and without the
+hint, on the same cases and perturbations.
 
 Perturbations (the evidence that nothing is tuned): the hint moved by ±50 and ±100 ms
 (robot files, sensor clock); the simulator's noise doubled; its rate 87, 100, 500 Hz.
@@ -39,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.harness import machine
+from gateway.core.estimator import COMPARED_METHODS
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -214,11 +219,16 @@ def build_cases(seeds: int) -> list[Case]:
     return cases
 
 
-def run_case(case: Case) -> dict:
+def runs_with(compare: tuple[str, ...]) -> tuple[tuple[str, bool], ...]:
+    return RUNS + tuple((m, h) for m in compare for h in (False, True))
+
+
+def run_case(job: tuple) -> dict:
+    case, compare = job
     rows = {}
     if case.error:
         return {"name": case.name, "kind": case.kind, "error": case.error, "rows": rows}
-    for method, use_hint in RUNS:
+    for method, use_hint in runs_with(compare):
         if use_hint and case.kind == "airbrakes":
             continue  # no machine: no hint
         rows[f"{method}{' hint' if use_hint else ''}"] = score(case, method, case.rest if use_hint else None)
@@ -226,7 +236,7 @@ def run_case(case: Case) -> dict:
 
 
 def run_perturbation(job: tuple) -> dict:
-    what, arg = job
+    what, arg, compare = job
     if what == "hint":
         name, shift = arg
         case = robot_case(name, "sensor")
@@ -234,13 +244,13 @@ def run_perturbation(job: tuple) -> dict:
             return {"what": f"hint {shift * 1e3:+.0f} ms", "name": case.name, "error": case.error}
         hint = shifted(case.rest, case.t_s, shift)
         return {"what": f"hint {shift * 1e3:+.0f} ms", "name": case.name,
-                "rows": {"realtime hint": score(case, "realtime", hint),
-                         "smoothed hint": score(case, "smoothed", hint)}}
+                "rows": {f"{m} hint": score(case, m, hint) for m in ("realtime", "smoothed", *compare)}}
     seed, rate, noise = arg
     case = sim_robot_case(seed, rate, noise)
+    runs = {"realtime": RUNS[0], "realtime hint": RUNS[1], "smoothed": RUNS[2]}
+    runs.update({m: (m, False) for m in compare})
     return {"what": f"sim {rate:g} Hz noise ×{noise / SIM_NOISE_MPS2:g}", "name": case.name,
-            "rows": {k: score(case, m, case.rest if h else None) for k, (m, h) in
-                     {"realtime": RUNS[0], "realtime hint": RUNS[1], "smoothed": RUNS[2]}.items()}}
+            "rows": {k: score(case, m, case.rest if h else None) for k, (m, h) in runs.items()}}
 
 
 def fmt(v, spec: str, unit: str = "") -> str:
@@ -292,18 +302,22 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=3, help="simulator seeds per simulated row (0 …)")
     parser.add_argument("--no-perturbations", action="store_true")
     parser.add_argument("--json", help="write the results here too")
+    parser.add_argument("--compare", action="append", default=[], choices=COMPARED_METHODS,
+                        help="a method to judge beside the shipped ones (repeatable)")
     args = parser.parse_args()
+    compare = tuple(args.compare)
     print(f"command: python -m benchmarks.accuracy.estimation_corpus --seeds {args.seeds}"
-          + (" --no-perturbations" if args.no_perturbations else ""))
+          + (" --no-perturbations" if args.no_perturbations else "")
+          + "".join(f" --compare {m}" for m in compare))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")
     cases = build_cases(args.seeds)
     with multiprocessing.get_context("spawn").Pool(2) as pool:
-        results = pool.map(run_case, cases, chunksize=1)
+        results = pool.map(run_case, [(case, compare) for case in cases], chunksize=1)
         perturbed = [] if args.no_perturbations else pool.map(run_perturbation, [
-            ("hint", (n, s)) for n in ROBOT_FILES for s in HINT_SHIFTS_S] + [
-            ("sim", (seed, rate, SIM_NOISE_MPS2)) for rate in SIM_RATES_HZ for seed in range(args.seeds)] + [
-            ("sim", (seed, 100.0, 2 * SIM_NOISE_MPS2)) for seed in range(args.seeds)], chunksize=1)
+            ("hint", (n, s), compare) for n in ROBOT_FILES for s in HINT_SHIFTS_S] + [
+            ("sim", (seed, rate, SIM_NOISE_MPS2), compare) for rate in SIM_RATES_HZ for seed in range(args.seeds)]
+            + [("sim", (seed, 100.0, 2 * SIM_NOISE_MPS2), compare) for seed in range(args.seeds)], chunksize=1)
     print("\nPer file (worst move: % of the move; rest: the error at a rest's end; wrong: > 3σ off, not flagged):\n")
     print("| file | run | worst move | worst rest error | rests inside ±3σ | time flagged | confidently wrong |")
     print("| --- | --- | --- | --- | --- | --- | --- |")

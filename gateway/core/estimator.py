@@ -28,6 +28,8 @@ from gateway.core.runs import true_runs
 from gateway.core.smoother import run_backward
 
 METHODS = ("raw", "paper", "realtime", "smoothed")
+# judged beside `smoothed` on the corpus (benchmarks/accuracy/estimation_corpus.py --methods)
+COMPARED_METHODS = ("zupt",)
 
 
 # the flags that make an estimate's numbers the last ones, not live (Estimate.holding)
@@ -447,6 +449,35 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
                   cols["vel_var"], cols["innov"], cols["nis"], cols["zupt"], flags, notes)
 
 
+def _zupt_smoothed(t, acc, valid, lost, hint, settings: EstimatorSettings, notes) -> EstimateTrack:
+    """The offline ZUPT smoother (zupt_smoother) as a track: its rests, its flags, the
+    reported σ with the terms the model cannot see (as the realtime filter's)."""
+    from gateway.core.zupt_smoother import smooth
+
+    res = smooth(t, acc, valid, lost, settings, hint=hint if np.isfinite(hint).any() else None)
+    n = t.size
+    prm = settings.kernel_params()
+    entry = np.zeros(n, dtype=bool)
+    entry[1:] = res.rest[1:] & ~res.rest[:-1]
+    entry[0] = res.rest[0]
+    flags = (_input_flags(valid, lost) | K.F_INITIALISED | np.where(res.rest, K.F_STANDSTILL, 0)
+             | np.where(entry, K.F_ENTRY, 0) | np.where(res.untrusted, K.F_UNTRUSTED, 0)).astype(np.int32)
+    acc_out = np.where(res.rest, 0.0, hold_invalid(acc, valid) - res.bias_mps2)
+    moving = ~res.rest
+    y_edge = np.zeros(n)
+    y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (acc_out[1:] + acc_out[:-1]), 0.0)
+    pos, vel = K.undo_sensor_lag(res.pos_m, res.vel_mps, y_edge, prm[K.P_LAG])
+    # the lag's correction rests on the one-pole model of the sensor's filter: its own size
+    # is carried as its uncertainty (a model off entirely would leave all of it)
+    pos_var = res.pos_var + (pos - res.pos_m) ** 2  # the position's gain term is per move (zupt_smoother)
+    vel_var = res.vel_var + (vel - res.vel_mps) ** 2
+    K.add_scale_error(vel_var, vel, prm)
+    K.add_reading_instant_error(pos_var, acc_out, t, prm)
+    zeros = np.zeros(n)
+    return _track("zupt", t, pos, vel, acc_out, res.bias_mps2, pos_var, vel_var, zeros, zeros, zeros, flags,
+                  notes)
+
+
 @dataclass
 class RunCounts:
     """What a run of the filter over a recording met, summed over one or many chunks, and
@@ -523,7 +554,7 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         realtime/smoothed filter is fed z − b_true and told the bias is exactly zero.
     Raises NoRestError when nothing can be estimated (no standstill to start from).
     """
-    if method not in METHODS:
+    if method not in METHODS + COMPARED_METHODS:
         raise ValueError(f"unknown method {method!r} (known: {', '.join(METHODS)})")
     t = np.ascontiguousarray(t_s, dtype=float)
     acc = np.ascontiguousarray(acc_mps2, dtype=float)
@@ -559,7 +590,10 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         hint = np.ascontiguousarray(standstill_hint, dtype=float)
         if hint.size != t.size:
             raise ValueError("standstill_hint and t_s differ in length")
-    track = _filter(t, acc, ok, lost, hint, settings, method == "smoothed", notes)
+    if method == "zupt":
+        track = _zupt_smoothed(t, acc, ok, lost, hint, settings, notes)
+    else:
+        track = _filter(t, acc, ok, lost, hint, settings, method == "smoothed", notes)
     init = track.initialised
     if not init.any():
         raise NoRestError(
