@@ -439,71 +439,114 @@ def set_hint(state: KernelState, hint) -> None:
     state.misc[M_HINT] = hint_code(math.nan if hint is None else float(hint))
 
 
+class StandstillDecision(NamedTuple):
+    """What the standstill judgement of one sample tested and what it decided (judge_standstill).
+
+    The seam between the detector and the filter: the update phase reads only this record.
+    The statistics are the window's (the last standstill_window_s ending at this sample);
+    each test's bound is in the settings (estimator_settings: its principle beside it)."""
+
+    decided: bool  # a full window, ≥ 80 % of it valid, ending in a valid sample: judged
+    regime: int  # the regime after this sample: UNINITIALISED, MOTION or STANDSTILL
+    n_valid: int  # valid samples in the window
+    window_mean: float  # their mean acceleration (m/s²)
+    window_var: float  # their sample variance ((m/s²)²), as measured
+    variance_threshold: float  # the variance test's bound σ²·χ²_ν(1 − p)/ν
+    variance_ok: bool  # the variance test passed (or the window is a vibration within the allowance)
+    mean_ok: bool  # the window's mean sits at the bias
+    velocity_ok: bool  # the filter's velocity is below the floor, decidably
+    velocity_decidable: bool  # 5σ_v ≤ the floor: a stop can be told from a cruise at the floor speed
+    trusted_entry: bool  # a stop accepted on evidence (clears the untrusted flag)
+    hint_disagrees: bool  # a stop taken on the machine's hint against the integrated velocity
+    zaru_ok: bool  # the window is the bias plus noise: a zero-acceleration update is valid
+    hint: float  # the machine's word as taken: +1 at rest, −1 moving, 0 unknown (or inside its latency)
+    flags: int  # the health flags this judgement raised
+    transition: int  # T_RESET when a restart's first quiet window started the filter, else T_NONE
+
+
+class UpdateRecord(NamedTuple):
+    """The measurement updates of one sample (apply_updates, soft_hinted_update): what the
+    smoother replays. A velocity update is a standstill's ZUPT or a soft hinted one, never both."""
+
+    zaru_innovation: float  # z − b⁻ at standstill (m/s²), 0 when no update
+    zaru_var: float  # its variance S, 0 when no zero-acceleration update
+    zupt_innovation: float  # the velocity update's innovation (m/s)
+    zupt_var: float  # its variance S, 0 when no velocity update
+    gain_p: float  # the velocity update's Kalman gain (position, velocity, bias)
+    gain_v: float
+    gain_b: float
+    flags: int
+    transition: int
+
+
 @jit
-def step(state, prm, t_s, z, z_valid, lost_before):
-    """One sample in, the estimate at t_s out (written to `state.out`, layout O_*)."""
-    x, P, m, ring_z, ring_ok, snap, gain, out = state
+def propagate(state, prm, t_s, z, ok, lost_before, regime_prev):
+    """Phase 1: the state from the previous sample's time to t_s, driven by the previous
+    sample's acceleration. Returns (flags, transition, the regime it was propagated in)."""
+    x, P, m = state.x, state.P, state.misc
     flags = 0
-    count = int(m[M_COUNT])
-    rollback_from = -1
     transition = T_NONE
-    regime_prev = int(m[M_REGIME])
-    ok_now = z_valid and math.isfinite(z)
-    # 1. propagate from the previous sample's time to this one
-    if m[M_HAVE_PREV] > 0.0:
-        dt = t_s - m[M_T_PREV]
-        if not (dt > 0.0):  # also NaN
-            flags |= F_TIME_ERROR
-            dt = 0.0
-        if lost_before > 0:
-            flags |= F_GAP
-        if dt > 0.0:
-            t_prev = m[M_T_PREV]
-            ddrift = drift_at(t_s, prm) - drift_at(t_prev, prm)
-            if regime_prev == STANDSTILL and lost_before > 0:
-                # Samples lost at rest: the axis may have started moving in the gap. Not
-                # held: propagated as motion (bridged between the samples either side, so
-                # a start inside the gap shows as uncertainty), and the stop must be found
-                # again by the detector.
-                regime_prev = MOTION
-            if regime_prev == MOTION:
-                u = m[M_U_PREV]
-                missing_var = prm[P_MISSING_VAR]
-                if m[M_PREV_INVALID] > 0.0:
-                    missing_dt = dt
-                elif lost_before > 0:
-                    missing_dt = dt * lost_before / (lost_before + 1.0)
-                else:
-                    missing_dt = 0.0
-                if missing_dt > 0.0 and ok_now and m[M_HAVE_U] > 0.0:
-                    # The sensor's own low-pass keeps the acceleration of a lost or invalid
-                    # stretch between the valid samples on either side: take their mean over
-                    # it, with half their difference (and one sample's noise) as its
-                    # uncertainty — a stretch across a change of acceleration is as
-                    # uncertain as the change. Inside a longer outage (this sample invalid
-                    # too) nothing bounds it: the full range (P_MISSING_VAR).
-                    half = 0.5 * (z - u)
-                    u += half * missing_dt / dt
-                    missing_var = half * half + prm[P_R]
-                propagate_motion(x, P, dt, u, ddrift, prm[P_QV], prm[P_QB], missing_var, missing_dt)
-                if prm[P_READING_INSTANT] > 0.0 and m[M_PERIOD] > 0.0:
-                    a = u - x[2]
-                    m[M_READING_DRIFT] += prm[P_READING_INSTANT] * m[M_PERIOD] * a * a * dt
-                transition = T_MOTION
-            elif regime_prev == STANDSTILL:
-                propagate_standstill(x, P, dt, ddrift, prm[P_QB])
-                transition = T_STANDSTILL
-            m[M_T_PREV] = t_s
-            if lost_before == 0:
-                m[M_PERIOD] = dt
-    else:
+    if m[M_HAVE_PREV] == 0.0:
         m[M_T_PREV] = t_s
         m[M_HAVE_PREV] = 1.0
+        return flags, transition, regime_prev
+    dt = t_s - m[M_T_PREV]
+    if not (dt > 0.0):  # also NaN
+        flags |= F_TIME_ERROR
+        dt = 0.0
+    if lost_before > 0:
+        flags |= F_GAP
+    if dt > 0.0:
+        t_prev = m[M_T_PREV]
+        ddrift = drift_at(t_s, prm) - drift_at(t_prev, prm)
+        if regime_prev == STANDSTILL and lost_before > 0:
+            # Samples lost at rest: the axis may have started moving in the gap. Not
+            # held: propagated as motion (bridged between the samples either side, so
+            # a start inside the gap shows as uncertainty), and the stop must be found
+            # again by the detector.
+            regime_prev = MOTION
+        if regime_prev == MOTION:
+            u = m[M_U_PREV]
+            missing_var = prm[P_MISSING_VAR]
+            if m[M_PREV_INVALID] > 0.0:
+                missing_dt = dt
+            elif lost_before > 0:
+                missing_dt = dt * lost_before / (lost_before + 1.0)
+            else:
+                missing_dt = 0.0
+            if missing_dt > 0.0 and ok and m[M_HAVE_U] > 0.0:
+                # The sensor's own low-pass keeps the acceleration of a lost or invalid
+                # stretch between the valid samples on either side: take their mean over
+                # it, with half their difference (and one sample's noise) as its
+                # uncertainty — a stretch across a change of acceleration is as
+                # uncertain as the change. Inside a longer outage (this sample invalid
+                # too) nothing bounds it: the full range (P_MISSING_VAR).
+                half = 0.5 * (z - u)
+                u += half * missing_dt / dt
+                missing_var = half * half + prm[P_R]
+            propagate_motion(x, P, dt, u, ddrift, prm[P_QV], prm[P_QB], missing_var, missing_dt)
+            if prm[P_READING_INSTANT] > 0.0 and m[M_PERIOD] > 0.0:
+                a = u - x[2]
+                m[M_READING_DRIFT] += prm[P_READING_INSTANT] * m[M_PERIOD] * a * a * dt
+            transition = T_MOTION
+        elif regime_prev == STANDSTILL:
+            propagate_standstill(x, P, dt, ddrift, prm[P_QB])
+            transition = T_STANDSTILL
+        m[M_T_PREV] = t_s
+        if lost_before == 0:
+            m[M_PERIOD] = dt
+    return flags, transition, regime_prev
 
-    # 2. the standstill detector on the window ending with this sample
-    ok = z_valid and math.isfinite(z)
-    if not ok:
-        flags |= F_INPUT_INVALID
+
+@jit
+def window_of(state, prm, z, ok, regime_prev):
+    """This sample into the detector's ring; the window's (valid samples, mean, variance as
+    measured, variance as the variance test takes it, vibrating, samples in the ring).
+
+    A vibrating mount is not motion: a window that fails the variance test but whose
+    acceleration (the bias removed) swings the velocity by no more than the vibration
+    allowance is taken as passing it (its variance := the threshold)."""
+    x, P, m, ring_z, ring_ok = state.x, state.P, state.misc, state.ring_z, state.ring_ok
     w = int(prm[P_WINDOW])
     pos = int(m[M_RING_POS])
     ring_z[pos] = z if ok else 0.0
@@ -512,22 +555,26 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     fill = min(int(m[M_RING_FILL]) + 1, w)
     m[M_RING_FILL] = fill
     # the window: slots 0 … fill − 1 (the ring fills from slot 0; once full, all of it)
-    n_valid, mean, var = window_statistics(ring_z, ring_ok, 0, fill)
-    var_raw = var
-    zaru_ok = True  # the window's samples are the bias plus noise (not a ringing mount's swing)
+    n_valid, mean, var_raw = window_statistics(ring_z, ring_ok, 0, fill)
+    var = var_raw
     vibrating = False
     # (not worth its loop while the filter decisively moves above the floor: no stop follows)
     if regime_prev != UNINITIALISED and fill >= w and n_valid >= 2 and var > prm[P_VAR_MAX] and (
             regime_prev == STANDSTILL or abs(x[1]) <= prm[P_SPEED_FLOOR] or m[M_HINT] > 0.0
             or not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])):
-        # a vibrating mount is not motion: the velocity its acceleration (the bias removed)
-        # would give swings by little over the window; a start of motion makes it grow
         swing = velocity_swing(ring_z, ring_ok, (pos + 1) % w, w, x[2], m[M_PERIOD])
         if swing <= prm[P_VIBRATION]:
             var = prm[P_VAR_MAX]
             vibrating = True
-    decided = ok and fill >= w and n_valid * 10 >= w * 8
-    regime = regime_prev
+    return n_valid, mean, var_raw, var, vibrating, fill
+
+
+@jit
+def hint_as_taken(m, prm, t_s):
+    """The machine's word for this sample (+1 at rest, −1 moving, 0 unknown), its run of
+    "at rest" samples counted. The machine says "moving" as it commands the move; the axis
+    (and the sensor, on its own clock) follows a PLC cycle, a fieldbus and a servo later:
+    for hint_latency_s after "at rest" the word is no veto on a stop the accelerometer shows."""
     hint = m[M_HINT]
     if hint > 0.0:
         m[M_HINT_RUN] += 1.0
@@ -535,147 +582,210 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     else:
         m[M_HINT_RUN] = 0.0
         if hint < 0.0 and t_s - m[M_LAST_REST_HINT_T] < prm[P_HINT_LATENCY]:
-            # the machine says "moving" as it commands the move; the axis (and the sensor,
-            # on its own clock) follows a PLC cycle, a fieldbus and a servo later: for that
-            # long after "at rest" the word is no veto on a stop the accelerometer shows
             hint = 0.0
+    return hint
+
+
+@jit
+def window_tests(state, prm, initialised, n_valid, mean, var):
+    """standstill_tests on this window against the filter's velocity and bias."""
+    x, P = state.x, state.P
+    return standstill_tests(initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2], prm[P_VAR_MAX],
+                            prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])
+
+
+@jit
+def offset_step_hypotheses(state, prm, t_s, regime_prev, hint, n_valid, mean, var, vibrating,
+                           var_ok, mean_ok, vel_ok, decidable, still):
+    """The two ways a quiet stretch after a move says the offset may have stepped; each opens
+    the step hypothesis in the covariance (open_offset_step), once per motion, and the tests
+    run again. Returns (var_ok, mean_ok, vel_ok, decidable, still, trusted_entry, flags).
+
+    - A window quiet on the noise alone (no vibration, no end of a deceleration in it) but
+      off the bias by no more than an offset step (P_STEP_MAX) after a move: believed when
+      the machine says it stands (over a whole window inside the hinted rest), or after a
+      move above the speed floor (the filter's velocity may already be off by the step) —
+      there "stopped at a new offset" and "accelerating slowly at the old one" are the same
+      signal: the hypothesis costs only uncertainty if it is wrong. A stop accepted
+      afterwards (hint, or the velocity test if it can still decide) puts the correction
+      where it belongs through its ZUPT and ZARU.
+    - A stop needs a deceleration the sensor sees. A quiet stretch (variance and mean tests
+      passing) that began with the filter above the speed floor is a cruise at constant
+      speed; if the filter's velocity falls to a "stop" inside it, no deceleration brought
+      it there — the bias it integrates is off (an offset step too small for one window's
+      mean, e.g. 5 mg under 10 mg of per-sample noise). Not a stop: the step hypothesis
+      opens with the drift's size, Δv over the stretch's time, so the velocity becomes
+      undecidable instead of zeroed (flag 256). Only the machine's rest hint may still call
+      it a stop (its own checks follow)."""
+    x, P, m = state.x, state.P, state.misc
+    flags = 0
+    trusted_entry = still
+    w = int(prm[P_WINDOW])
     floor = prm[P_SPEED_FLOOR]
+    off_by_a_step = var_ok and not vibrating and not mean_ok and abs(mean - x[2]) <= prm[P_STEP_MAX] + \
+        prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1) + P[2, 2])
+    if regime_prev == MOTION and off_by_a_step and m[M_STEP_OPEN] == 0.0 and (
+            (hint > 0.0 and m[M_HINT_RUN] >= w) or m[M_PEAK_SPEED] > floor):
+        open_offset_step(P, mean - x[2], t_s - m[M_LAST_STILL_T])
+        m[M_STEP_OPEN] = 1.0
+        m[M_UNTRUSTED] = 1.0
+        flags |= F_OFFSET_STEP
+        var_ok, mean_ok, vel_ok, decidable = window_tests(state, prm, True, n_valid, mean, var)
+        still = var_ok and mean_ok and vel_ok
+        trusted_entry = still
+    if regime_prev != MOTION or not (var_ok and mean_ok):
+        m[M_QUIET_FROM_V] = math.nan
+    elif math.isnan(m[M_QUIET_FROM_V]):
+        if abs(x[1]) > floor:
+            m[M_QUIET_FROM_V] = x[1]
+            m[M_QUIET_FROM_T] = t_s
+    elif still:
+        if m[M_STEP_OPEN] == 0.0:
+            span = max(t_s - m[M_QUIET_FROM_T], w * m[M_PERIOD])
+            open_offset_step(P, (m[M_QUIET_FROM_V] - x[1]) / span, t_s - m[M_LAST_STILL_T])
+            m[M_STEP_OPEN] = 1.0
+            flags |= F_OFFSET_STEP
+            var_ok, mean_ok, vel_ok, decidable = window_tests(state, prm, True, n_valid, mean, var)
+        m[M_UNTRUSTED] = 1.0
+        still = False
+        trusted_entry = False
+    return var_ok, mean_ok, vel_ok, decidable, still, trusted_entry, flags
+
+
+@jit
+def hint_gate(state, prm, z, ok, regime_prev, hint, n_valid, mean, var_raw, still, trusted_entry):
+    """The machine's "at rest" is a gate, not an order (hint_gate_open): obeyed once a whole
+    window lies inside the hinted rest and the accelerometer agrees there; "moving" forbids
+    a stop. Returns (still, trusted_entry, disagrees, zaru_ok, flags)."""
+    x, P, m = state.x, state.P, state.misc
+    flags = 0
+    disagrees = False
+    zaru_ok = True
+    if hint > 0.0:
+        if hint_gate_open(m[M_HINT_RUN], int(prm[P_WINDOW]), n_valid, mean, var_raw, x[2], P[2, 2], prm[P_R],
+                          prm[P_MEAN_SIGMAS]):
+            if not still:
+                flags |= F_HINT_REST
+            still = True
+            trusted_entry = True
+            # a hinted rest over a ringing mount: v = 0, but its samples are not the bias
+            # plus noise (the variance test fails): no zero-acceleration update there
+            zaru_ok = var_raw <= prm[P_VAR_MAX]
+            if regime_prev == MOTION and not velocity_consistent_with_rest(
+                    x[1] + (prm[P_LAG] * (z - x[2]) if ok else 0.0), P[1, 1], prm[P_SCALE_VAR],
+                    prm[P_R_ZUPT], prm[P_ZUPT_CHI2]):
+                # the machine and the integrated accelerometer disagree beyond chance: the
+                # stop is taken (the machine knows where its axis stands), the position is
+                # flagged until a stop both agree on
+                flags |= F_HINT_CONFLICT
+                trusted_entry = False
+                disagrees = True
+                m[M_UNTRUSTED] = 1.0
+        elif m[M_HINT_RUN] >= prm[P_WINDOW]:
+            flags |= F_HINT_CONFLICT  # a whole window inside the hinted rest shows motion
+    elif hint < 0.0:
+        still = False  # "moving": not even the reference point
+        trusted_entry = False
+    return still, trusted_entry, disagrees, zaru_ok, flags
+
+
+@jit
+def undecidable_quiet(state, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok, decidable, still):
+    """What a quiet stretch in motion that no test accepts as a stop makes of the position.
+    Returns (still, flags).
+
+    - the velocity test cannot decide (the filter lost its velocity: a gap, an outage, a
+      long time since the latest stop): a stop only once the stretch has lasted longer than
+      any cruise of the machine (P_QUIET_STOP_S); the position untrusted;
+    - quiet, off the bias (beyond any step), slow, after a move: not a stop we can accept
+      (flag 1024, untrusted) — unless it is the last part of a deceleration into a stop, as
+      quiet in variance and as far off the bias (stopping_within_a_window)."""
+    x, m = state.x, state.misc
+    flags = 0
+    floor = prm[P_SPEED_FLOOR]
+    if regime_prev == MOTION and not still and var_ok and mean_ok and not decidable and hint >= 0.0:
+        if math.isnan(m[M_QUIET_T0]):
+            m[M_QUIET_T0] = t_s
+        elif t_s - m[M_QUIET_T0] >= prm[P_QUIET_STOP_S]:
+            still = True
+    else:
+        m[M_QUIET_T0] = math.nan
+    if regime_prev == MOTION and not still and var_ok and not decidable:
+        m[M_UNTRUSTED] = 1.0
+    stopping = stopping_within_a_window(mean - x[2], x[1], prm[P_WINDOW] * m[M_PERIOD])
+    if regime_prev == MOTION and not still and not vibrating and var_ok and not mean_ok and not stopping \
+            and abs(x[1]) <= floor and m[M_PEAK_SPEED] > floor:
+        m[M_UNTRUSTED] = 1.0
+        flags |= F_OFFSET_STEP
+    return still, flags
+
+
+@jit
+def start_moving_after_restart(state, prm, t_s, mean, n_valid):
+    """Restarted (board reset, daemon restart) with the axis possibly moving: a quiet window
+    is a rest or a cruise. Its mean is the bias either way; the velocity is unknown within
+    the machine's speed. Start in motion, position not trustworthy, until a stop is
+    recognised on evidence (the velocity test cannot pass yet)."""
+    x, P, m = state.x, state.P, state.misc
+    x[0] = 0.0
+    x[1] = 0.0
+    x[2] = mean
+    for i in range(3):
+        for j in range(3):
+            P[i, j] = 0.0
+    P[1, 1] = prm[P_RESTART_VEL_VAR]
+    P[2, 2] = prm[P_R] / n_valid
+    m[M_VEL_UNKNOWN] = 0.0
+    m[M_UNTRUSTED] = 1.0
+    m[M_LAST_STILL_T] = t_s
+    m[M_PEAK_SPEED] = 0.0
+
+
+@jit
+def judge_standstill(state, prm, t_s, z, ok, regime_prev):
+    """Phase 2: the standstill detector on the window ending with this sample (see
+    gateway/core/standstill.py for its tests and their principles). Returns a
+    StandstillDecision; changes the state only where a hypothesis widens the covariance
+    (an offset step), a restart starts the filter, or the bookkeeping of the hint, the
+    quiet stretches and the untrusted flag moves on."""
+    x, P, m = state.x, state.P, state.misc
+    flags = 0 if ok else F_INPUT_INVALID
+    transition = T_NONE
+    w = int(prm[P_WINDOW])
+    n_valid, mean, var_raw, var, vibrating, fill = window_of(state, prm, z, ok, regime_prev)
+    decided = ok and fill >= w and n_valid * 10 >= w * 8
+    regime = regime_prev
+    hint = hint_as_taken(m, prm, t_s)
     if regime_prev == MOTION:
         m[M_PEAK_SPEED] = max(m[M_PEAK_SPEED], abs(x[1]))
+    var_ok = False
+    mean_ok = False
+    vel_ok = False
+    decidable = velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])
     trusted_entry = False
-    disagree = False  # a stop taken on the hint against the integrated velocity (step 2)
+    disagrees = False
+    zaru_ok = True
     if decided:
         initialised = regime_prev != UNINITIALISED
-        var_ok, mean_ok, vel_ok, decidable = standstill_tests(
-            initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
-            prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
+        var_ok, mean_ok, vel_ok, decidable = window_tests(state, prm, initialised, n_valid, mean, var)
         if vibrating and regime_prev == MOTION and abs(x[1]) > prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)):
             # a window that is quiet only as a vibration enters a standstill only if the
             # filter's velocity is zero within its own uncertainty (not merely below the
             # floor): the turn of a slow motion swings the velocity little, too
             vel_ok = False
         still = var_ok and mean_ok and vel_ok
-        trusted_entry = still
-        # A window quiet on the noise alone (no vibration, no end of a deceleration in it)
-        # but off the bias by no more than an offset step (P_STEP_MAX) after a move: the
-        # offset may have stepped somewhere in the motion since the latest stop. Believed
-        # when the machine says it stands (over a whole window inside the hinted rest), or
-        # after a move above the speed floor (the filter's velocity may already be off by
-        # the step) — there "stopped at a new offset" and "accelerating slowly at the old
-        # one" are the same signal: the hypothesis costs only uncertainty if it is wrong.
-        # The hypothesis goes into the covariance (open_offset_step): the uncertainty grows
-        # to the error's scale, and a stop accepted afterwards (hint, or the velocity test
-        # if it can still decide) puts the correction where it belongs through its ZUPT and
-        # ZARU. Once per motion.
-        off_by_a_step = var_ok and not vibrating and not mean_ok and abs(mean - x[2]) <= prm[P_STEP_MAX] + \
-            prm[P_MEAN_SIGMAS] * math.sqrt(prm[P_R] / max(n_valid, 1) + P[2, 2])
-        if regime_prev == MOTION and off_by_a_step and m[M_STEP_OPEN] == 0.0 and (
-                (hint > 0.0 and m[M_HINT_RUN] >= w) or m[M_PEAK_SPEED] > floor):
-            open_offset_step(P, mean - x[2], t_s - m[M_LAST_STILL_T])
-            m[M_STEP_OPEN] = 1.0
-            m[M_UNTRUSTED] = 1.0
-            flags |= F_OFFSET_STEP
-            var_ok, mean_ok, vel_ok, decidable = standstill_tests(
-                initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
-                prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
-            still = var_ok and mean_ok and vel_ok
-            trusted_entry = still
-        # A stop needs a deceleration the sensor sees. A quiet stretch (variance and mean
-        # tests passing) that began with the filter above the speed floor is a cruise at
-        # constant speed; if the filter's velocity falls to a "stop" inside it, no
-        # deceleration brought it there — the bias it integrates is off (an offset step
-        # too small for one window's mean, e.g. 5 mg under 10 mg of per-sample noise). Not
-        # a stop: the step hypothesis opens with the drift's size, Δv over the stretch's
-        # time, so the velocity becomes undecidable instead of zeroed (flag 256). Only the
-        # machine's rest hint may still call it a stop (its own checks follow).
-        if regime_prev == MOTION:
-            if not (var_ok and mean_ok):
-                m[M_QUIET_FROM_V] = math.nan
-            elif math.isnan(m[M_QUIET_FROM_V]):
-                if abs(x[1]) > floor:
-                    m[M_QUIET_FROM_V] = x[1]
-                    m[M_QUIET_FROM_T] = t_s
-            elif still:
-                if m[M_STEP_OPEN] == 0.0:
-                    span = max(t_s - m[M_QUIET_FROM_T], w * m[M_PERIOD])
-                    open_offset_step(P, (m[M_QUIET_FROM_V] - x[1]) / span, t_s - m[M_LAST_STILL_T])
-                    m[M_STEP_OPEN] = 1.0
-                    flags |= F_OFFSET_STEP
-                    var_ok, mean_ok, vel_ok, decidable = standstill_tests(
-                        initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2],
-                        prm[P_VAR_MAX], prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], floor)
-                m[M_UNTRUSTED] = 1.0
-                still = False
-                trusted_entry = False
-        else:
-            m[M_QUIET_FROM_V] = math.nan
-        # The machine's "at rest" is a gate, not an order (hint_gate_open): obeyed once a
-        # whole window lies inside the hinted rest and the accelerometer agrees there.
-        if hint > 0.0:
-            if hint_gate_open(m[M_HINT_RUN], w, n_valid, mean, var_raw, x[2], P[2, 2], prm[P_R],
-                              prm[P_MEAN_SIGMAS]):
-                if not still:
-                    flags |= F_HINT_REST
-                still = True
-                trusted_entry = True
-                # a hinted rest over a ringing mount: v = 0, but its samples are not the bias
-                # plus noise (the variance test fails): no zero-acceleration update there
-                zaru_ok = var_raw <= prm[P_VAR_MAX]
-                if regime_prev == MOTION and not velocity_consistent_with_rest(
-                        x[1] + (prm[P_LAG] * (z - x[2]) if ok else 0.0), P[1, 1], prm[P_SCALE_VAR],
-                        prm[P_R_ZUPT], prm[P_ZUPT_CHI2]):
-                    # the machine and the integrated accelerometer disagree beyond chance:
-                    # the stop is taken (the machine knows where its axis stands), the
-                    # position is flagged until a stop both agree on
-                    flags |= F_HINT_CONFLICT
-                    trusted_entry = False
-                    disagree = True
-                    m[M_UNTRUSTED] = 1.0
-            elif m[M_HINT_RUN] >= w:
-                flags |= F_HINT_CONFLICT  # a whole window inside the hinted rest shows motion
-        elif hint < 0.0:
-            still = False  # "moving": not even the reference point
-            trusted_entry = False
-        # A quiet stretch the velocity test cannot decide (the filter lost its velocity:
-        # a gap, an outage, a long time since the latest stop): a stop only once it has
-        # lasted longer than any cruise of the machine (P_QUIET_STOP_S); position untrusted.
-        if regime_prev == MOTION and not still and var_ok and mean_ok and not decidable and hint >= 0.0:
-            if math.isnan(m[M_QUIET_T0]):
-                m[M_QUIET_T0] = t_s
-            elif t_s - m[M_QUIET_T0] >= prm[P_QUIET_STOP_S]:
-                still = True
-        else:
-            m[M_QUIET_T0] = math.nan
-        if regime_prev == MOTION and not still and var_ok and not decidable:
-            m[M_UNTRUSTED] = 1.0
-        # Quiet after a move, off the bias (beyond any step), slow: not a stop we can accept
-        # — unless it is the last part of a deceleration into a stop, as quiet in variance
-        # and as far off the bias (stopping_within_a_window). Only this flag is spared
-        # there: the step hypothesis above may still open on such a window, which costs
-        # only uncertainty (on the robot-like path at 100 Hz and 0.1 m/s² that uncertainty
-        # covers a real 5 mg step the mean test cannot see; benchmarks/robot_like_sweep.py).
-        stopping = stopping_within_a_window(mean - x[2], x[1], w * m[M_PERIOD])
-        if regime_prev == MOTION and not still and not vibrating and var_ok and not mean_ok and not stopping \
-                and abs(x[1]) <= floor and m[M_PEAK_SPEED] > floor:
-            m[M_UNTRUSTED] = 1.0
-            flags |= F_OFFSET_STEP
+        var_ok, mean_ok, vel_ok, decidable, still, trusted_entry, f = offset_step_hypotheses(
+            state, prm, t_s, regime_prev, hint, n_valid, mean, var, vibrating, var_ok, mean_ok, vel_ok, decidable,
+            still)
+        flags |= f
+        still, trusted_entry, disagrees, zaru_ok, f = hint_gate(state, prm, z, ok, regime_prev, hint, n_valid,
+                                                                mean, var_raw, still, trusted_entry)
+        flags |= f
+        still, f = undecidable_quiet(state, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok,
+                                     decidable, still)
+        flags |= f
         if still and not initialised and m[M_VEL_UNKNOWN] > 0.0 and hint <= 0.0:
-            # Restarted (board reset, daemon restart) with the axis possibly moving: a quiet
-            # window is a rest or a cruise. Its mean is the bias either way; the velocity is
-            # unknown within the machine's speed. Start in motion, position not trustworthy,
-            # until a stop is recognised on evidence (the velocity test cannot pass yet).
-            x[0] = 0.0
-            x[1] = 0.0
-            x[2] = mean
-            for i in range(3):
-                for j in range(3):
-                    P[i, j] = 0.0
-            P[1, 1] = prm[P_RESTART_VEL_VAR]
-            P[2, 2] = prm[P_R] / n_valid
-            m[M_VEL_UNKNOWN] = 0.0
-            m[M_UNTRUSTED] = 1.0
-            m[M_LAST_STILL_T] = t_s
-            m[M_PEAK_SPEED] = 0.0
+            start_moving_after_restart(state, prm, t_s, mean, n_valid)
             transition = T_RESET
             regime = MOTION
         elif still:
@@ -684,88 +794,99 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             regime = MOTION
     else:
         flags |= F_UNDECIDED
-    if regime == MOTION and not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], floor):
+    if regime == MOTION and not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR]):
         m[M_UNTRUSTED] = 1.0  # the velocity is no longer known well enough to recognise a stop
+    return StandstillDecision(decided, regime, n_valid, mean, var_raw, prm[P_VAR_MAX], var_ok, mean_ok, vel_ok,
+                              decidable, trusted_entry, disagrees, zaru_ok, hint, flags, transition)
 
-    # 3b. Leaving a standstill: the motion began somewhere in the window that just failed.
-    # A sharp start fails the tests on its first sample; a gentle one is seen late, after
-    # the zero-acceleration updates took part of it for bias and the position hold lost
-    # it. The onset is the change point of the window's mean: the sample i maximising
-    # |Σ_(i..k) (z − b)|/√n (the likelihood ratio of a mean shift at i), b the bias before
-    # the window. If it is earlier than this sample, return to the state just before it
-    # and run the samples since again as motion; their snapshots become motion states.
-    if decided and regime == MOTION and regime_prev == STANDSTILL:
-        first = max(count - w, int(m[M_STILL_START])) + 1
-        b_ref = snap[(first - 1) % w, 2]
-        onset = count
-        best = abs(z - b_ref)
-        acc_sum = 0.0
-        n_sum = 0
-        for i in range(count, first - 1, -1):
-            if i == count:
-                acc_sum += z - b_ref
-                n_sum += 1
-            elif snap[i % w, 11] > 0.0:
-                acc_sum += snap[i % w, 10] - b_ref
-                n_sum += 1
-            score = abs(acc_sum) / math.sqrt(n_sum)
-            if score > best:
-                best = score
-                onset = i
-        # a start that ramps up (the sensor's own filter) shows first as a small deviation
-        # the change-point score passes over: take in the samples just before the onset
-        # that already deviate the same way by more than 3 noise σ
-        shift = z - b_ref
-        step_sigma = 3.0 * math.sqrt(prm[P_VAR_MAX])
-        while onset - 1 >= first:
-            j = (onset - 1) % w
-            if snap[j, 11] > 0.0 and (snap[j, 10] - b_ref) * shift > 0.0 and abs(snap[j, 10] - b_ref) > step_sigma:
-                onset -= 1
+
+@jit
+def roll_back_to_onset(state, prm, t_s, z, lost_before, count):
+    """Phase 2b. Leaving a standstill: the motion began somewhere in the window that just
+    failed. A sharp start fails the tests on its first sample; a gentle one is seen late,
+    after the zero-acceleration updates took part of it for bias and the position hold lost
+    it. The onset is the change point of the window's mean: the sample i maximising
+    |Σ_(i..k) (z − b)|/√n (the likelihood ratio of a mean shift at i), b the bias before
+    the window. If it is earlier than this sample, return to the state just before it and
+    run the samples since again as motion; their snapshots become motion states. Returns
+    the sample whose state the filter returned to, or −1."""
+    x, P, m, snap = state.x, state.P, state.misc, state.snap
+    w = int(prm[P_WINDOW])
+    first = max(count - w, int(m[M_STILL_START])) + 1
+    b_ref = snap[(first - 1) % w, 2]
+    onset = count
+    best = abs(z - b_ref)
+    acc_sum = 0.0
+    n_sum = 0
+    for i in range(count, first - 1, -1):
+        if i == count:
+            acc_sum += z - b_ref
+            n_sum += 1
+        elif snap[i % w, 11] > 0.0:
+            acc_sum += snap[i % w, 10] - b_ref
+            n_sum += 1
+        score = abs(acc_sum) / math.sqrt(n_sum)
+        if score > best:
+            best = score
+            onset = i
+    # a start that ramps up (the sensor's own filter) shows first as a small deviation
+    # the change-point score passes over: take in the samples just before the onset
+    # that already deviate the same way by more than 3 noise σ
+    shift = z - b_ref
+    step_sigma = 3.0 * math.sqrt(prm[P_VAR_MAX])
+    while onset - 1 >= first:
+        j = (onset - 1) % w
+        if snap[j, 11] > 0.0 and (snap[j, 10] - b_ref) * shift > 0.0 and abs(snap[j, 10] - b_ref) > step_sigma:
+            onset -= 1
+        else:
+            break
+    if onset >= count:
+        return -1
+    s = onset - 1
+    j = s % w
+    x[0] = snap[j, 0]
+    x[1] = snap[j, 1]
+    x[2] = snap[j, 2]
+    unpack_cov(snap[j], 3, P)
+    t_before = snap[j, 9]
+    u = snap[j, 10]
+    u_stale = snap[j, 11] == 0.0
+    for i in range(s + 1, count + 1):
+        ji = i % w
+        if i < count:
+            t_i = snap[ji, 9]
+            lost_i = int(snap[ji, 12])
+        else:
+            t_i = t_s
+            lost_i = lost_before
+        dt_i = t_i - t_before
+        if dt_i > 0.0:
+            if u_stale:
+                missing_dt = dt_i
+            elif lost_i > 0:
+                missing_dt = dt_i * lost_i / (lost_i + 1.0)
             else:
-                break
-        s = onset - 1
-        if onset < count:
-            j = s % w
-            x[0] = snap[j, 0]
-            x[1] = snap[j, 1]
-            x[2] = snap[j, 2]
-            unpack_cov(snap[j], 3, P)
-            t_before = snap[j, 9]
-            u = snap[j, 10]
-            u_stale = snap[j, 11] == 0.0
-            for i in range(s + 1, count + 1):
-                ji = i % w
-                if i < count:
-                    t_i = snap[ji, 9]
-                    lost_i = int(snap[ji, 12])
-                else:
-                    t_i = t_s
-                    lost_i = lost_before
-                dt_i = t_i - t_before
-                if dt_i > 0.0:
-                    if u_stale:
-                        missing_dt = dt_i
-                    elif lost_i > 0:
-                        missing_dt = dt_i * lost_i / (lost_i + 1.0)
-                    else:
-                        missing_dt = 0.0
-                    propagate_motion(x, P, dt_i, u, drift_at(t_i, prm) - drift_at(t_before, prm), prm[P_QV],
-                                     prm[P_QB], prm[P_MISSING_VAR], missing_dt)
-                    t_before = t_i
-                if i < count:
-                    pack_state(x, P, snap[ji], 0)
-                    if snap[ji, 11] > 0.0:
-                        u = snap[ji, 10]
-                        u_stale = False
-                    else:
-                        u_stale = True
-            transition = T_MOTION
-            rollback_from = s
-            flags |= F_ROLLBACK
+                missing_dt = 0.0
+            propagate_motion(x, P, dt_i, u, drift_at(t_i, prm) - drift_at(t_before, prm), prm[P_QV],
+                             prm[P_QB], prm[P_MISSING_VAR], missing_dt)
+            t_before = t_i
+        if i < count:
+            pack_state(x, P, snap[ji], 0)
+            if snap[ji, 11] > 0.0:
+                u = snap[ji, 10]
+                u_stale = False
+            else:
+                u_stale = True
+    return s
 
-    # 3. updates
-    innov = 0.0
-    nis = 0.0
+
+@jit
+def apply_updates(state, prm, t_s, z, ok, d, regime_prev, count):
+    """Phase 3: the updates a standstill brings — the reference point (the filter starts
+    here), the ZUPT on entering it, the ZARU on every sample of it. Returns an UpdateRecord."""
+    x, P, m, gain = state.x, state.P, state.misc, state.gain
+    flags = 0
+    transition = T_NONE
     zaru_y = 0.0
     zaru_s = 0.0
     zupt_y = 0.0
@@ -773,10 +894,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     gain[0] = 0.0
     gain[1] = 0.0
     gain[2] = 0.0
-    k0 = 0.0
-    k1 = 0.0
-    k2 = 0.0
-    if decided and regime == STANDSTILL:
+    if d.decided and d.regime == STANDSTILL:
         if regime_prev == UNINITIALISED:
             # the reference point: the origin here, at rest, bias unknown
             x[0] = 0.0
@@ -789,86 +907,92 @@ def step(state, prm, t_s, z, z_valid, lost_before):
             transition = T_RESET
         elif regime_prev == MOTION:
             zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], 0.0, prm[P_R_ZUPT], gain)
-            k0 = gain[0]
-            k1 = gain[1]
-            k2 = gain[2]
             m[M_ZUPT_INNOV] = zupt_y
             m[M_ZUPT_NIS] = zupt_y * zupt_y / zupt_s
             m[M_BIAS_REQUESTED] = 0.0  # this standstill measures the bias anew
-            if disagree:
+            if d.hint_disagrees:
                 # the two answers — the hint's stop and the integrated motion — differ by the
                 # position this update moved: the reported σ covers both (disagreement_var)
-                m[M_DISAGREE_VAR] += disagreement_var(k0, zupt_y)
+                m[M_DISAGREE_VAR] += disagreement_var(gain[0], zupt_y)
             flags |= F_ENTRY
-            if hint > 0.0:
+            if d.hint > 0.0:
                 # entered while the machine says "at rest": the hint's stop, whether its gate
-                # opened it or its soft update (step 3c) made the velocity test decide it
+                # opened it or its soft update (soft_hinted_update) made the velocity test decide it
                 flags |= F_HINT_REST
-        if zaru_ok:
+        k0 = gain[0]
+        k1 = gain[1]
+        k2 = gain[2]
+        if d.zaru_ok:
             zaru_y = z - x[2]
             zaru_s = scalar_update(x, P, 2, zaru_y, prm[P_R], gain)
-            innov = zaru_y
-            nis = zaru_y * zaru_y / zaru_s
         if regime_prev != STANDSTILL:
             m[M_STILL_START] = count
-            if regime_prev == UNINITIALISED or trusted_entry:
+            if regime_prev == UNINITIALISED or d.trusted_entry:
                 m[M_UNTRUSTED] = 0.0
         m[M_LAST_STILL_T] = t_s
         m[M_PEAK_SPEED] = 0.0
         m[M_STEP_OPEN] = 0.0
+        return UpdateRecord(zaru_y, zaru_s, zupt_y, zupt_s, k0, k1, k2, flags, transition)
+    return UpdateRecord(zaru_y, zaru_s, zupt_y, zupt_s, 0.0, 0.0, 0.0, flags, transition)
 
-    # 3c. Hinted at rest, yet no standstill: the rest is shorter than the window, or the
-    # mount rings after the stop (a swing above the vibration allowance fails the variance
-    # test). The machine's word still says the axis stands: the sensor's velocity over the
-    # hinted samples swings about zero (a ringing mount), its *mean* is zero. The velocity
-    # at each sample's start is known from the acceleration before it (bias removed) up to
-    # one constant, so "mean v = 0" says v_now = v_now − mean v (mean_velocity_offset) — to
-    # within half the velocity's range over them (a partial period of the ringing need not
-    # average out; at least zupt_velocity_std_mps): a soft update through the same
-    # covariance as a ZUPT, so the position is corrected by its correlation with the
-    # velocity; the regime stays motion (the full-window hinted standstill is step 2's).
-    # (Taking v_now = 0 to within the swing instead — the first version — left the ring's
-    # phase in the velocity: design robot file 5.8 % against 2.6 %; the simulator's
-    # robot-like path with the hint, 20 seeds, better or equal in 9 of 12 cases, 0.1–0.2
-    # points worse in 3, benchmarks/robot_like_sweep.py.)
-    # - from MIN_WINDOW_SAMPLES hinted samples (a swing, and a mean judged against its
-    #   spread, need them; the first may still hold the end of a deceleration, which the
-    #   swing then carries) to a window of them: from there the detector judges the hinted
-    #   rest itself (the hinted standstill, or flag 512), and the looks stay bounded, in
-    #   information and in the smoother's records (at most a window's per hinted rest);
-    # - not when contradicted: the filter decisively knows it moves above the floor (a
-    #   cruise, as for the hinted standstill), or the hinted samples show an acceleration
-    #   of the machine (hinted_rest_fits: mean off the bias beyond an offset step and
-    #   their spread, or a swing beyond the floor);
-    # - the k-th look at the same rest shares its error with the others (one mount's
-    #   ringing, the samples correlated): it counts with k·σ², so the looks weigh
-    #   together as ~ln k + 0.6 measurements of that σ, not as k independent ones.
+
+@jit
+def soft_hinted_update(state, prm, z, ok, d):
+    """Phase 3c. Hinted at rest, yet no standstill: the rest is shorter than the window, or
+    the mount rings after the stop (a swing above the vibration allowance fails the variance
+    test). The machine's word still says the axis stands: the sensor's velocity over the
+    hinted samples swings about zero (a ringing mount), its *mean* is zero. The velocity at
+    each sample's start is known from the acceleration before it (bias removed) up to one
+    constant, so "mean v = 0" says v_now = v_now − mean v (mean_velocity_offset) — to within
+    half the velocity's range over them (a partial period of the ringing need not average
+    out; at least zupt_velocity_std_mps): a soft update through the same covariance as a
+    ZUPT, so the position is corrected by its correlation with the velocity; the regime
+    stays motion (the full-window hinted standstill is the gate's).
+    - from MIN_WINDOW_SAMPLES hinted samples (a swing, and a mean judged against its
+      spread, need them; the first may still hold the end of a deceleration, which the
+      swing then carries) to a window of them: from there the detector judges the hinted
+      rest itself (the hinted standstill, or flag 512), and the looks stay bounded, in
+      information and in the smoother's records (at most a window's per hinted rest);
+    - not when contradicted: the filter decisively knows it moves above the floor (a
+      cruise, as for the hinted standstill), or the hinted samples show an acceleration
+      of the machine (hinted_rest_fits: mean off the bias beyond an offset step and
+      their spread, or a swing beyond the floor);
+    - the k-th look at the same rest shares its error with the others (one mount's
+      ringing, the samples correlated): it counts with k·σ², so the looks weigh
+      together as ~ln k + 0.6 measurements of that σ, not as k independent ones.
+    Returns (applied, innovation, its variance S); the gain is in state.gain."""
+    x, P, m, ring_z, ring_ok = state.x, state.P, state.misc, state.ring_z, state.ring_ok
+    w = int(prm[P_WINDOW])
+    floor = prm[P_SPEED_FLOOR]
     hint_run = int(m[M_HINT_RUN])
-    if regime == MOTION and hint > 0.0 and MIN_WINDOW_SAMPLES <= hint_run <= w and not (
+    if not (d.regime == MOTION and d.hint > 0.0 and MIN_WINDOW_SAMPLES <= hint_run <= w) or (
             velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], floor) and abs(x[1]) > floor):
-        n_hinted = min(hint_run, fill)
-        oldest = (pos + 1 - n_hinted + w) % w
-        if hinted_rest_fits(ring_z, ring_ok, oldest, n_hinted, x[2], P[2, 2], prm[P_R], prm[P_STEP_MAX],
+        return False, 0.0, 0.0
+    n_hinted = min(hint_run, int(m[M_RING_FILL]))
+    oldest = (int(m[M_RING_POS]) - n_hinted + w) % w
+    if not hinted_rest_fits(ring_z, ring_ok, oldest, n_hinted, x[2], P[2, 2], prm[P_R], prm[P_STEP_MAX],
                             prm[P_MEAN_SIGMAS], floor, m[M_PERIOD]):
-            looks = hint_run - MIN_WINDOW_SAMPLES + 1
-            offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD])
-            zupt_y, zupt_s = rest_velocity_update(x, P, z, ok, prm[P_LAG], offset,
-                                                  looks * max(half_range * half_range, prm[P_R_ZUPT]), gain)
-            k0 = gain[0]
-            k1 = gain[1]
-            k2 = gain[2]
-            flags |= F_HINT_SOFT
+        return False, 0.0, 0.0
+    looks = hint_run - MIN_WINDOW_SAMPLES + 1
+    offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD])
+    y, s = rest_velocity_update(x, P, z, ok, prm[P_LAG], offset,
+                                looks * max(half_range * half_range, prm[P_R_ZUPT]), state.gain)
+    return True, y, s
 
-    # the state after this sample, for a later rollback
-    j = count % w
+
+@jit
+def remember_sample(state, z, ok, lost_before, count, regime):
+    """Phase 4: the state after this sample into the window's snapshots (for a later
+    rollback), this sample's acceleration held as the next period's input. Returns the
+    input held before (the lag correction reads both)."""
+    x, P, m, snap = state.x, state.P, state.misc, state.snap
+    j = count % snap.shape[0]
     pack_state(x, P, snap[j], 0)
     snap[j, 9] = m[M_T_PREV]
     snap[j, 10] = z if ok else 0.0
     snap[j, 11] = 1.0 if ok else 0.0
     snap[j, 12] = lost_before
     m[M_COUNT] = count + 1
-
-    # 4. the input for the next period (keep the previous one for the lag correction)
     u_before = m[M_U_PREV]
     if ok:
         m[M_U_PREV] = z
@@ -877,8 +1001,15 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     else:
         m[M_PREV_INVALID] = 1.0
     m[M_REGIME] = regime
+    return u_before
 
-    # 5. the estimate
+
+@jit
+def write_estimate(state, prm, regime, regime_prev, u_before, flags, upd, rollback_from):
+    """Phase 5: the estimate at this sample into state.out (layout O_*): the state with the
+    sensor's lag undone, the reported variances with what the model cannot see, the
+    health flags."""
+    x, P, m, out = state.x, state.P, state.misc, state.out
     if regime == UNINITIALISED:
         out[O_POS] = 0.0
         out[O_VEL] = 0.0
@@ -890,7 +1021,6 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     else:
         flags |= F_INITIALISED
         # the sensor filter's lag undone (undo_sensor_lag), y at t_k from the two samples around it
-        lag = prm[P_LAG]
         if regime == STANDSTILL:
             flags |= F_STANDSTILL
             out[O_ACC] = 0.0
@@ -898,7 +1028,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         else:
             out[O_ACC] = m[M_U_PREV] - x[2]
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
-        out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, lag)
+        out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, prm[P_LAG])
         out[O_BIAS] = x[2]
         out[O_POS_VAR] = with_scale_error(P[0, 0], out[O_POS], prm) + reading_instant_var(m[M_READING_DRIFT]) \
             + m[M_DISAGREE_VAR]
@@ -909,22 +1039,57 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2]) and math.isfinite(P[0, 0])
             and math.isfinite(P[1, 1]) and math.isfinite(P[2, 2])) or abs(x[1]) > DIVERGED_SPEED_MPS:
         flags |= F_FAULT
-    out[O_INNOV] = innov
-    out[O_NIS] = nis
+    out[O_INNOV] = upd.zaru_innovation
+    out[O_NIS] = upd.zaru_innovation * upd.zaru_innovation / upd.zaru_var if upd.zaru_var > 0.0 else 0.0
     out[O_ZUPT_INNOV] = m[M_ZUPT_INNOV]
     out[O_ZUPT_NIS] = m[M_ZUPT_NIS]
     if m[M_UNTRUSTED] > 0.0:
         flags |= F_UNTRUSTED
     out[O_FLAGS] = flags
-    out[O_TRANSITION] = transition
-    out[O_ZARU_Y] = zaru_y
-    out[O_ZARU_S] = zaru_s
-    out[O_ZUPT_Y] = zupt_y
-    out[O_ZUPT_S] = zupt_s
-    out[O_ZUPT_K0] = k0
-    out[O_ZUPT_K1] = k1
-    out[O_ZUPT_K2] = k2
+    out[O_TRANSITION] = upd.transition
+    out[O_ZARU_Y] = upd.zaru_innovation
+    out[O_ZARU_S] = upd.zaru_var
+    out[O_ZUPT_Y] = upd.zupt_innovation
+    out[O_ZUPT_S] = upd.zupt_var
+    out[O_ZUPT_K0] = upd.gain_p
+    out[O_ZUPT_K1] = upd.gain_v
+    out[O_ZUPT_K2] = upd.gain_b
     out[O_ROLLBACK_FROM] = rollback_from
+
+
+@jit
+def step(state, prm, t_s, z, z_valid, lost_before):
+    """One sample in, the estimate at t_s out (written to `state.out`, layout O_*), in named
+    phases: propagate → judge the standstill (a StandstillDecision) → roll back a gentle
+    start → update → remember the sample → write the estimate."""
+    m = state.misc
+    count = int(m[M_COUNT])
+    ok = z_valid and math.isfinite(z)
+    flags, transition, regime_prev = propagate(state, prm, t_s, z, ok, lost_before, int(m[M_REGIME]))
+    decision = judge_standstill(state, prm, t_s, z, ok, regime_prev)
+    flags |= decision.flags
+    if decision.transition != T_NONE:
+        transition = decision.transition
+    rollback_from = -1
+    if decision.decided and decision.regime == MOTION and regime_prev == STANDSTILL:
+        rollback_from = roll_back_to_onset(state, prm, t_s, z, lost_before, count)
+        if rollback_from >= 0:
+            transition = T_MOTION
+            flags |= F_ROLLBACK
+    upd = apply_updates(state, prm, t_s, z, ok, decision, regime_prev, count)
+    flags |= upd.flags
+    if upd.transition != T_NONE:
+        transition = upd.transition
+    soft, soft_y, soft_s = soft_hinted_update(state, prm, z, ok, decision)
+    if soft:
+        flags |= F_HINT_SOFT
+        upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft_y, soft_s, state.gain[0], state.gain[1],
+                           state.gain[2], upd.flags, transition)
+    else:
+        upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, upd.zupt_innovation, upd.zupt_var, upd.gain_p,
+                           upd.gain_v, upd.gain_b, upd.flags, transition)
+    u_before = remember_sample(state, z, ok, lost_before, count, decision.regime)
+    write_estimate(state, prm, decision.regime, regime_prev, u_before, flags, upd, rollback_from)
 
 
 def new_state(prm: np.ndarray) -> KernelState:
