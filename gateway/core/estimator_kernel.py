@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gateway.core.jit import jit
+from gateway.core.jit import jit, jit_inline
 from gateway.core.standstill import (
     MIN_WINDOW_SAMPLES,
     hint_gate_open,
@@ -479,11 +479,10 @@ class UpdateRecord(NamedTuple):
     transition: int
 
 
-@jit
-def propagate(state, prm, t_s, z, ok, lost_before, regime_prev):
+@jit_inline
+def propagate(x, P, m, prm, t_s, z, ok, lost_before, regime_prev):
     """Phase 1: the state from the previous sample's time to t_s, driven by the previous
     sample's acceleration. Returns (flags, transition, the regime it was propagated in)."""
-    x, P, m = state.x, state.P, state.misc
     flags = 0
     transition = T_NONE
     if m[M_HAVE_PREV] == 0.0:
@@ -538,15 +537,14 @@ def propagate(state, prm, t_s, z, ok, lost_before, regime_prev):
     return flags, transition, regime_prev
 
 
-@jit
-def window_of(state, prm, z, ok, regime_prev):
+@jit_inline
+def window_of(x, P, m, ring_z, ring_ok, prm, z, ok, regime_prev):
     """This sample into the detector's ring; the window's (valid samples, mean, variance as
     measured, variance as the variance test takes it, vibrating, samples in the ring).
 
     A vibrating mount is not motion: a window that fails the variance test but whose
     acceleration (the bias removed) swings the velocity by no more than the vibration
     allowance is taken as passing it (its variance := the threshold)."""
-    x, P, m, ring_z, ring_ok = state.x, state.P, state.misc, state.ring_z, state.ring_ok
     w = int(prm[P_WINDOW])
     pos = int(m[M_RING_POS])
     ring_z[pos] = z if ok else 0.0
@@ -569,7 +567,7 @@ def window_of(state, prm, z, ok, regime_prev):
     return n_valid, mean, var_raw, var, vibrating, fill
 
 
-@jit
+@jit_inline
 def hint_as_taken(m, prm, t_s):
     """The machine's word for this sample (+1 at rest, −1 moving, 0 unknown), its run of
     "at rest" samples counted. The machine says "moving" as it commands the move; the axis
@@ -586,16 +584,15 @@ def hint_as_taken(m, prm, t_s):
     return hint
 
 
-@jit
-def window_tests(state, prm, initialised, n_valid, mean, var):
+@jit_inline
+def window_tests(x, P, prm, initialised, n_valid, mean, var):
     """standstill_tests on this window against the filter's velocity and bias."""
-    x, P = state.x, state.P
     return standstill_tests(initialised, n_valid, mean, var, x[1], P[1, 1], x[2], P[2, 2], prm[P_VAR_MAX],
                             prm[P_R], prm[P_MEAN_SIGMAS], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])
 
 
-@jit
-def offset_step_hypotheses(state, prm, t_s, regime_prev, hint, n_valid, mean, var, vibrating,
+@jit_inline
+def offset_step_hypotheses(x, P, m, prm, t_s, regime_prev, hint, n_valid, mean, var, vibrating,
                            var_ok, mean_ok, vel_ok, decidable, still):
     """The two ways a quiet stretch after a move says the offset may have stepped; each opens
     the step hypothesis in the covariance (open_offset_step), once per motion, and the tests
@@ -617,7 +614,6 @@ def offset_step_hypotheses(state, prm, t_s, regime_prev, hint, n_valid, mean, va
       opens with the drift's size, Δv over the stretch's time, so the velocity becomes
       undecidable instead of zeroed (flag 256). Only the machine's rest hint may still call
       it a stop (its own checks follow)."""
-    x, P, m = state.x, state.P, state.misc
     flags = 0
     trusted_entry = still
     w = int(prm[P_WINDOW])
@@ -630,7 +626,7 @@ def offset_step_hypotheses(state, prm, t_s, regime_prev, hint, n_valid, mean, va
         m[M_STEP_OPEN] = 1.0
         m[M_UNTRUSTED] = 1.0
         flags |= F_OFFSET_STEP
-        var_ok, mean_ok, vel_ok, decidable = window_tests(state, prm, True, n_valid, mean, var)
+        var_ok, mean_ok, vel_ok, decidable = window_tests(x, P, prm, True, n_valid, mean, var)
         still = var_ok and mean_ok and vel_ok
         trusted_entry = still
     if regime_prev != MOTION or not (var_ok and mean_ok):
@@ -645,19 +641,18 @@ def offset_step_hypotheses(state, prm, t_s, regime_prev, hint, n_valid, mean, va
             open_offset_step(P, (m[M_QUIET_FROM_V] - x[1]) / span, t_s - m[M_LAST_STILL_T])
             m[M_STEP_OPEN] = 1.0
             flags |= F_OFFSET_STEP
-            var_ok, mean_ok, vel_ok, decidable = window_tests(state, prm, True, n_valid, mean, var)
+            var_ok, mean_ok, vel_ok, decidable = window_tests(x, P, prm, True, n_valid, mean, var)
         m[M_UNTRUSTED] = 1.0
         still = False
         trusted_entry = False
     return var_ok, mean_ok, vel_ok, decidable, still, trusted_entry, flags
 
 
-@jit
-def hint_gate(state, prm, z, ok, regime_prev, hint, n_valid, mean, var_raw, still, trusted_entry):
+@jit_inline
+def hint_gate(x, P, m, prm, z, ok, regime_prev, hint, n_valid, mean, var_raw, still, trusted_entry):
     """The machine's "at rest" is a gate, not an order (hint_gate_open): obeyed once a whole
     window lies inside the hinted rest and the accelerometer agrees there; "moving" forbids
     a stop. Returns (still, trusted_entry, disagrees, zaru_ok, flags)."""
-    x, P, m = state.x, state.P, state.misc
     flags = 0
     disagrees = False
     zaru_ok = True
@@ -689,8 +684,8 @@ def hint_gate(state, prm, z, ok, regime_prev, hint, n_valid, mean, var_raw, stil
     return still, trusted_entry, disagrees, zaru_ok, flags
 
 
-@jit
-def undecidable_quiet(state, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok, decidable, still):
+@jit_inline
+def undecidable_quiet(x, m, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok, decidable, still):
     """What a quiet stretch in motion that no test accepts as a stop makes of the position.
     Returns (still, flags).
 
@@ -700,7 +695,6 @@ def undecidable_quiet(state, prm, t_s, regime_prev, hint, mean, vibrating, var_o
     - quiet, off the bias (beyond any step), slow, after a move: not a stop we can accept
       (flag 1024, untrusted) — unless it is the last part of a deceleration into a stop, as
       quiet in variance and as far off the bias (stopping_within_a_window)."""
-    x, m = state.x, state.misc
     flags = 0
     floor = prm[P_SPEED_FLOOR]
     if regime_prev == MOTION and not still and var_ok and mean_ok and not decidable and hint >= 0.0:
@@ -720,13 +714,12 @@ def undecidable_quiet(state, prm, t_s, regime_prev, hint, mean, vibrating, var_o
     return still, flags
 
 
-@jit
-def start_moving_after_restart(state, prm, t_s, mean, n_valid):
+@jit_inline
+def start_moving_after_restart(x, P, m, prm, t_s, mean, n_valid):
     """Restarted (board reset, daemon restart) with the axis possibly moving: a quiet window
     is a rest or a cruise. Its mean is the bias either way; the velocity is unknown within
     the machine's speed. Start in motion, position not trustworthy, until a stop is
     recognised on evidence (the velocity test cannot pass yet)."""
-    x, P, m = state.x, state.P, state.misc
     x[0] = 0.0
     x[1] = 0.0
     x[2] = mean
@@ -741,18 +734,17 @@ def start_moving_after_restart(state, prm, t_s, mean, n_valid):
     m[M_PEAK_SPEED] = 0.0
 
 
-@jit
-def judge_standstill(state, prm, t_s, z, ok, regime_prev):
+@jit_inline
+def judge_standstill(x, P, m, ring_z, ring_ok, prm, t_s, z, ok, regime_prev):
     """Phase 2: the standstill detector on the window ending with this sample (see
     gateway/core/standstill.py for its tests and their principles). Returns a
     StandstillDecision; changes the state only where a hypothesis widens the covariance
     (an offset step), a restart starts the filter, or the bookkeeping of the hint, the
     quiet stretches and the untrusted flag moves on."""
-    x, P, m = state.x, state.P, state.misc
     flags = 0 if ok else F_INPUT_INVALID
     transition = T_NONE
     w = int(prm[P_WINDOW])
-    n_valid, mean, var_raw, var, vibrating, fill = window_of(state, prm, z, ok, regime_prev)
+    n_valid, mean, var_raw, var, vibrating, fill = window_of(x, P, m, ring_z, ring_ok, prm, z, ok, regime_prev)
     decided = ok and fill >= w and n_valid * 10 >= w * 8
     regime = regime_prev
     hint = hint_as_taken(m, prm, t_s)
@@ -767,7 +759,7 @@ def judge_standstill(state, prm, t_s, z, ok, regime_prev):
     zaru_ok = True
     if decided:
         initialised = regime_prev != UNINITIALISED
-        var_ok, mean_ok, vel_ok, decidable = window_tests(state, prm, initialised, n_valid, mean, var)
+        var_ok, mean_ok, vel_ok, decidable = window_tests(x, P, prm, initialised, n_valid, mean, var)
         if vibrating and regime_prev == MOTION and abs(x[1]) > prm[P_VEL_SIGMAS] * math.sqrt(max(P[1, 1], 0.0)):
             # a window that is quiet only as a vibration enters a standstill only if the
             # filter's velocity is zero within its own uncertainty (not merely below the
@@ -775,17 +767,17 @@ def judge_standstill(state, prm, t_s, z, ok, regime_prev):
             vel_ok = False
         still = var_ok and mean_ok and vel_ok
         var_ok, mean_ok, vel_ok, decidable, still, trusted_entry, f = offset_step_hypotheses(
-            state, prm, t_s, regime_prev, hint, n_valid, mean, var, vibrating, var_ok, mean_ok, vel_ok, decidable,
+            x, P, m, prm, t_s, regime_prev, hint, n_valid, mean, var, vibrating, var_ok, mean_ok, vel_ok, decidable,
             still)
         flags |= f
-        still, trusted_entry, disagrees, zaru_ok, f = hint_gate(state, prm, z, ok, regime_prev, hint, n_valid,
+        still, trusted_entry, disagrees, zaru_ok, f = hint_gate(x, P, m, prm, z, ok, regime_prev, hint, n_valid,
                                                                 mean, var_raw, still, trusted_entry)
         flags |= f
-        still, f = undecidable_quiet(state, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok,
+        still, f = undecidable_quiet(x, m, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok,
                                      decidable, still)
         flags |= f
         if still and not initialised and m[M_VEL_UNKNOWN] > 0.0 and hint <= 0.0:
-            start_moving_after_restart(state, prm, t_s, mean, n_valid)
+            start_moving_after_restart(x, P, m, prm, t_s, mean, n_valid)
             transition = T_RESET
             regime = MOTION
         elif still:
@@ -800,8 +792,8 @@ def judge_standstill(state, prm, t_s, z, ok, regime_prev):
                               decidable, trusted_entry, disagrees, zaru_ok, hint, flags, transition)
 
 
-@jit
-def roll_back_to_onset(state, prm, t_s, z, lost_before, count):
+@jit_inline
+def roll_back_to_onset(x, P, m, snap, prm, t_s, z, lost_before, count):
     """Phase 2b. Leaving a standstill: the motion began somewhere in the window that just
     failed. A sharp start fails the tests on its first sample; a gentle one is seen late,
     after the zero-acceleration updates took part of it for bias and the position hold lost
@@ -810,7 +802,6 @@ def roll_back_to_onset(state, prm, t_s, z, lost_before, count):
     the window. If it is earlier than this sample, return to the state just before it and
     run the samples since again as motion; their snapshots become motion states. Returns
     the sample whose state the filter returned to, or −1."""
-    x, P, m, snap = state.x, state.P, state.misc, state.snap
     w = int(prm[P_WINDOW])
     first = max(count - w, int(m[M_STILL_START])) + 1
     b_ref = snap[(first - 1) % w, 2]
@@ -880,11 +871,10 @@ def roll_back_to_onset(state, prm, t_s, z, lost_before, count):
     return s
 
 
-@jit
-def apply_updates(state, prm, t_s, z, ok, d, regime_prev, count):
+@jit_inline
+def apply_updates(x, P, m, gain, prm, t_s, z, ok, d, regime_prev, count):
     """Phase 3: the updates a standstill brings — the reference point (the filter starts
     here), the ZUPT on entering it, the ZARU on every sample of it. Returns an UpdateRecord."""
-    x, P, m, gain = state.x, state.P, state.misc, state.gain
     flags = 0
     transition = T_NONE
     zaru_y = 0.0
@@ -936,8 +926,8 @@ def apply_updates(state, prm, t_s, z, ok, d, regime_prev, count):
     return UpdateRecord(zaru_y, zaru_s, zupt_y, zupt_s, 0.0, 0.0, 0.0, flags, transition)
 
 
-@jit
-def soft_hinted_update(state, prm, z, ok, d):
+@jit_inline
+def soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, d):
     """Phase 3c. Hinted at rest, yet no standstill: the rest is shorter than the window, or
     the mount rings after the stop (a swing above the vibration allowance fails the variance
     test). The machine's word still says the axis stands: the sensor's velocity over the
@@ -960,8 +950,7 @@ def soft_hinted_update(state, prm, z, ok, d):
     - the k-th look at the same rest shares its error with the others (one mount's
       ringing, the samples correlated): it counts with k·σ², so the looks weigh
       together as ~ln k + 0.6 measurements of that σ, not as k independent ones.
-    Returns (applied, innovation, its variance S); the gain is in state.gain."""
-    x, P, m, ring_z, ring_ok = state.x, state.P, state.misc, state.ring_z, state.ring_ok
+    Returns (applied, innovation, its variance S); the gain is in `gain`."""
     w = int(prm[P_WINDOW])
     floor = prm[P_SPEED_FLOOR]
     hint_run = int(m[M_HINT_RUN])
@@ -976,16 +965,15 @@ def soft_hinted_update(state, prm, z, ok, d):
     looks = hint_run - MIN_WINDOW_SAMPLES + 1
     offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD])
     y, s = rest_velocity_update(x, P, z, ok, prm[P_LAG], offset,
-                                looks * max(half_range * half_range, prm[P_R_ZUPT]), state.gain)
+                                looks * max(half_range * half_range, prm[P_R_ZUPT]), gain)
     return True, y, s
 
 
-@jit
-def remember_sample(state, z, ok, lost_before, count, regime):
+@jit_inline
+def remember_sample(x, P, m, snap, z, ok, lost_before, count, regime):
     """Phase 4: the state after this sample into the window's snapshots (for a later
     rollback), this sample's acceleration held as the next period's input. Returns the
     input held before (the lag correction reads both)."""
-    x, P, m, snap = state.x, state.P, state.misc, state.snap
     j = count % snap.shape[0]
     pack_state(x, P, snap[j], 0)
     snap[j, 9] = m[M_T_PREV]
@@ -1004,12 +992,11 @@ def remember_sample(state, z, ok, lost_before, count, regime):
     return u_before
 
 
-@jit
-def write_estimate(state, prm, regime, regime_prev, u_before, flags, upd, rollback_from):
+@jit_inline
+def write_estimate(x, P, m, out, prm, regime, regime_prev, u_before, flags, upd, rollback_from):
     """Phase 5: the estimate at this sample into state.out (layout O_*): the state with the
     sensor's lag undone, the reported variances with what the model cannot see, the
     health flags."""
-    x, P, m, out = state.x, state.P, state.misc, state.out
     if regime == UNINITIALISED:
         out[O_POS] = 0.0
         out[O_VEL] = 0.0
@@ -1062,34 +1049,34 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     """One sample in, the estimate at t_s out (written to `state.out`, layout O_*), in named
     phases: propagate → judge the standstill (a StandstillDecision) → roll back a gentle
     start → update → remember the sample → write the estimate."""
-    m = state.misc
+    x, P, m, ring_z, ring_ok, snap, gain, out = state
     count = int(m[M_COUNT])
     ok = z_valid and math.isfinite(z)
-    flags, transition, regime_prev = propagate(state, prm, t_s, z, ok, lost_before, int(m[M_REGIME]))
-    decision = judge_standstill(state, prm, t_s, z, ok, regime_prev)
+    flags, transition, regime_prev = propagate(x, P, m, prm, t_s, z, ok, lost_before, int(m[M_REGIME]))
+    decision = judge_standstill(x, P, m, ring_z, ring_ok, prm, t_s, z, ok, regime_prev)
     flags |= decision.flags
     if decision.transition != T_NONE:
         transition = decision.transition
     rollback_from = -1
     if decision.decided and decision.regime == MOTION and regime_prev == STANDSTILL:
-        rollback_from = roll_back_to_onset(state, prm, t_s, z, lost_before, count)
+        rollback_from = roll_back_to_onset(x, P, m, snap, prm, t_s, z, lost_before, count)
         if rollback_from >= 0:
             transition = T_MOTION
             flags |= F_ROLLBACK
-    upd = apply_updates(state, prm, t_s, z, ok, decision, regime_prev, count)
+    upd = apply_updates(x, P, m, gain, prm, t_s, z, ok, decision, regime_prev, count)
     flags |= upd.flags
     if upd.transition != T_NONE:
         transition = upd.transition
-    soft, soft_y, soft_s = soft_hinted_update(state, prm, z, ok, decision)
+    soft, soft_y, soft_s = soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, decision)
     if soft:
         flags |= F_HINT_SOFT
-        upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft_y, soft_s, state.gain[0], state.gain[1],
-                           state.gain[2], upd.flags, transition)
+        upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft_y, soft_s, gain[0], gain[1],
+                           gain[2], upd.flags, transition)
     else:
         upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, upd.zupt_innovation, upd.zupt_var, upd.gain_p,
                            upd.gain_v, upd.gain_b, upd.flags, transition)
-    u_before = remember_sample(state, z, ok, lost_before, count, decision.regime)
-    write_estimate(state, prm, decision.regime, regime_prev, u_before, flags, upd, rollback_from)
+    u_before = remember_sample(x, P, m, snap, z, ok, lost_before, count, decision.regime)
+    write_estimate(x, P, m, out, prm, decision.regime, regime_prev, u_before, flags, upd, rollback_from)
 
 
 def new_state(prm: np.ndarray) -> KernelState:
