@@ -21,6 +21,7 @@ import numpy as np
 
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator_settings import EstimatorSettings
+from gateway.core.hint_latency import aligned_hint, hint_latency
 from gateway.core.integration import double_integrate, hold_invalid
 from gateway.core.kalman_paper import DEFAULT_JERK_DENSITY, run_paper_filter
 from gateway.core.reference_point import NoRestError, find_initial_rest
@@ -512,13 +513,16 @@ class RunCounts:
 def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
                     settings: EstimatorSettings | None = None, lost_before=None,
                     known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY,
-                    standstill_hint=None) -> EstimateTrack:
+                    standstill_hint=None, align_hint: bool = False) -> EstimateTrack:
     """Estimate position and velocity for every sample of a recording.
 
     valid: False where the sample is unusable (NaN/inf are invalid anyway).
     lost_before: samples lost before each one (from seq gaps); None → from time gaps.
     standstill_hint: the machine's word per sample — 1 at rest, 0 moving, NaN unknown
-        (realtime and smoothed only; evidence, not an order: estimator_kernel step 2).
+        (realtime and smoothed only; evidence, not an order: estimator_kernel.hint_gate).
+        Its latency against the accelerometer's own edges is measured and reported in the
+        notes (hint_latency); align_hint: shift the hint by it before use (off by default:
+        docs/decisions/0120-hint-latency-measured-not-applied.md).
     known_bias_mps2: the true bias per sample (simulation only) — the noise floor: the
         realtime/smoothed filter is fed z − b_true and told the bias is exactly zero.
     Raises NoRestError when nothing can be estimated (no standstill to start from).
@@ -559,6 +563,10 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         hint = np.ascontiguousarray(standstill_hint, dtype=float)
         if hint.size != t.size:
             raise ValueError("standstill_hint and t_s differ in length")
+        latency = hint_latency(t, acc, ok, hint, settings.standstill_false_motion_prob)
+        notes.append(latency.describe(applied=align_hint))
+        if align_hint and latency.lag_s is not None:
+            hint = aligned_hint(t, hint, latency.lag_s)
     track = _filter(t, acc, ok, lost, hint, settings, method == "smoothed", notes)
     init = track.initialised
     if not init.any():
