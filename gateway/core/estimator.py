@@ -370,7 +370,7 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     cols["bias"] = np.where(init, st_x[:, 2], 0.0)
     held = hold_invalid(acc, valid)
     cols["acc"] = np.where(init & ~still, held - cols["bias"], 0.0)
-    # undo the sensor filter's lag as the kernel does (estimator_kernel, step 5)
+    # undo the sensor filter's lag as the kernel does (estimator_kernel.write_estimate)
     lag = prm[K.P_LAG]
     moving = init & ~still
     y_edge = np.zeros(n)
@@ -418,7 +418,7 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
         del stores
         seen = stops_seen_from_the_end(t, z, ok, lost, hint, settings, flags, cols)
         # the backward run's stops enter the forward pass as a rest hint where the machine
-        # gave none: evidence the forward pass still checks (estimator_kernel step 2), not
+        # gave none: evidence the forward pass still checks (estimator_kernel.hint_gate), not
         # an order; the hint's own flags there are not the machine's
         derived = np.zeros(n, dtype=bool) if seen is None else seen & ~np.isfinite(hint)
         stores = _forward(prm, t, z, ok, lost, np.where(derived, 1.0, hint), cols, flags, smooth)

@@ -14,7 +14,7 @@ Model (continuous time, state x = [p, v, b]):
                 motion piled up corrects position and bias through their correlations.
     Hinted at rest, no standstill (a rest shorter than the window, a ringing mount): a
                 soft v = 0 to within the velocity swing of the hinted samples, in motion
-                (step 3c) — the same correction through the same correlations, weaker.
+                (soft_hinted_update) — the same correction through the same correlations, weaker.
 
 Sample k's acceleration is its period's mean (the duty cycle measures the whole
 period), so it is integrated over [t_k, t_(k+1)]: step k first propagates the state from
@@ -84,7 +84,7 @@ M_RING_FILL = 8
 M_COUNT = 9  # samples processed
 M_STILL_START = 10  # sample number where the current standstill began
 # The machine's own word on the axis, set by the caller before a step (set_hint):
-# +1 "at rest", −1 "moving", 0 unknown. Evidence, not an order (see step 2).
+# +1 "at rest", −1 "moving", 0 unknown. Evidence, not an order (hint_gate).
 M_HINT = 11
 M_HINT_RUN = 12  # consecutive samples with the rest hint (a window of them may contradict it)
 M_LAST_STILL_T = 13  # time of the latest standstill sample (start of the current motion)
@@ -101,7 +101,7 @@ M_QUIET_FROM_V = 23  # velocity where the current quiet stretch in motion began 
 M_QUIET_FROM_T = 24  # and its time
 M_READING_DRIFT = 25  # position a modulator reading at its edge would have added since the tare (m)
 # Σ (position correction)² of the stops the machine's hint and the integrated accelerometer
-# disagreed on (since the tare): the reported σ covers both answers (step 2, the hint gate)
+# disagreed on (since the tare): the reported σ covers both answers (hint_gate)
 M_DISAGREE_VAR = 26
 N_MISC = 27
 
@@ -135,14 +135,14 @@ O_FLAGS = 11
 O_TRANSITION = 12
 O_ZARU_Y = 13
 O_ZARU_S = 14  # 0 when no ZARU at this sample
-# the velocity update at this sample — a standstill's ZUPT or a soft hinted one (step 3c),
+# the velocity update at this sample — a standstill's ZUPT or a soft hinted one (soft_hinted_update),
 # never both — as the smoother needs it
 O_ZUPT_Y = 15
 O_ZUPT_S = 16  # 0 when no velocity update at this sample
 O_ZUPT_K0 = 17
 O_ZUPT_K1 = 18
 O_ZUPT_K2 = 19
-O_ROLLBACK_FROM = 20  # −1, or the sample whose state the filter returned to (see step 3b)
+O_ROLLBACK_FROM = 20  # −1, or the sample whose state the filter returned to (roll_back_to_onset)
 N_OUT = 21
 
 # ---- health flags ---------------------------------------------------------------------
@@ -163,7 +163,7 @@ F_OFFSET_STEP = 1024  # a quiet stretch after a move sits off the bias: the offs
 F_HINT_REST = 2048  # this sample's standstill was accepted on the machine's hint
 F_FAULT = 4096  # the state is not finite or has diverged: the numbers mean nothing (reset it)
 F_BIAS_ESTIMATING = 8192  # the bias is not measured yet (before the first standstill, or asked anew)
-F_HINT_SOFT = 16384  # in motion, hinted at rest: a soft v = 0 within the hinted samples' swing (step 3c)
+F_HINT_SOFT = 16384  # in motion, hinted at rest: a soft v = 0 within the hinted samples' swing (soft_hinted_update)
 
 # a velocity beyond this is no motion of any machine the sensor rides on: the filter diverged
 DIVERGED_SPEED_MPS = 1000.0
@@ -418,7 +418,7 @@ def open_offset_step(P, delta, since_s):
 
 def mark_velocity_unknown(state: KernelState) -> None:
     """After a restart or a board reset mid-operation (fresh state): the axis may be moving,
-    so the first quiet window is not taken as a rest (see step 2). The position is not
+    so the first quiet window is not taken as a rest (judge_standstill). The position is not
     trustworthy from the first sample on, not only once that window is full: while the
     window fills, the axis may be moving (cleared where a stop is accepted on evidence)."""
     state.misc[M_VEL_UNKNOWN] = 1.0
@@ -1111,7 +1111,7 @@ def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:
 
 @jit
 def soft_update_bound(hint, w):
-    """The most soft hinted velocity updates (step 3c) a run over `hint` can make — one per
+    """The most soft hinted velocity updates (soft_hinted_update) a run over `hint` can make — one per
     hinted sample from the MIN_WINDOW_SAMPLES-th to the w-th of its hinted run: room for
     their records, so that the smoother's forward pass need not run twice."""
     run = 0
@@ -1134,7 +1134,7 @@ def run_forward(prm, t_s, z, z_ok, lost, hint, state,
     With store, keeps what the smoother needs:
     filtered x (N×3) and P (N×6: 00 01 02 11 12 22), the transition into each sample,
     ZARU (y, S) per sample, and the sparse velocity-update records (index; y, S, K0, K1, K2):
-    the ZUPTs and the soft hinted updates (step 3c).
+    the ZUPTs and the soft hinted updates (soft_hinted_update).
     After a rollback the records of the samples run again are rewritten (motion, no
     update), so the smoother sees the sequence the filter state now stands on.
     Returns the number of ZUPT records (more than zupt_index holds: run again with room)."""
