@@ -1,7 +1,8 @@
 """Which Modbus TCP connections the server keeps: a limit, priority clients, idle time.
 
-Pure decisions (no sockets), so they are tested on their own. The server asks
-`admit()` for each new connection and `idle()` on a timer.
+The decisions are pure (no sockets), so they are tested on their own: `admit()` for each
+new connection, `idle()` on a timer. `ConnectionTable` applies them to the server's
+connections (any object with the `Peer` methods) and says what it did in the peer log.
 
 Policy, chosen so that no peer can hold the gateway — the PLC is never locked out, a
 new client gets in, and the process never runs out of file descriptors (with an
@@ -23,8 +24,14 @@ open-file limit of 1 024, 1 100 idle connections used to stop every accept):
 from __future__ import annotations
 
 import ipaddress
-from collections.abc import Hashable, Iterable, Sequence
+import logging
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
+
+from .peer_log import PeerLogLimiter
+
+log = logging.getLogger(__name__)
 
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
 
@@ -88,3 +95,64 @@ def idle(connections: Iterable[Connection], now_s: float, idle_timeout_s: float)
     if idle_timeout_s <= 0:
         return []
     return [c.key for c in connections if now_s - c.last_request_s >= idle_timeout_s]
+
+
+class Peer(Protocol):
+    """What the table needs of a connection (the server's request handler)."""
+
+    peer_ip: str | None
+    source: str
+    priority: bool
+
+    def connection(self) -> Connection: ...
+
+    def close_connection(self, abort: bool) -> None: ...
+
+
+class ConnectionTable:
+    """The admitted TCP connections, in admission order, kept to the policy above."""
+
+    def __init__(self, max_connections: int, priority_networks: Sequence[Network], idle_timeout_s: float,
+                 peer_log: PeerLogLimiter, count: Callable[..., None]) -> None:
+        self._max_connections = max_connections
+        self._priority_networks = tuple(priority_networks)
+        self._idle_timeout_s = idle_timeout_s
+        self._peer_log = peer_log
+        self._count = count  # count(refused_connections=1): the server's counters
+        self._peers: dict[int, Peer] = {}
+
+    def admit(self, peer: Peer) -> bool:
+        """Whether a new connection may stay (closing another for it if need be); sets
+        its `priority`."""
+        peer.priority = address_in(peer.peer_ip, self._priority_networks)
+        decision = admit(peer.priority, [p.connection() for p in self._peers.values()], self._max_connections)
+        if not decision.admitted:
+            self._count(refused_connections=1)
+            self._peer_log.note(peer.peer_ip or "?", "refused",
+                                f"Modbus connection refused: {self._max_connections} open (max_connections)")
+            return False
+        if decision.evict is not None:
+            victim = self._peers.get(decision.evict)
+            if victim is not None:
+                self._peer_log.note(victim.peer_ip or "?", "evicted",
+                                    f"Modbus connection {victim.source} closed at max_connections: it had done "
+                                    f"least, room for {'priority ' if peer.priority else ''}client "
+                                    f"{peer.peer_ip}")
+                victim.close_connection(abort=True)
+        self._peers[id(peer)] = peer
+        return True
+
+    def release(self, peer: Peer) -> None:
+        """It no longer counts against max_connections (closed, or closing)."""
+        self._peers.pop(id(peer), None)
+
+    def close_idle(self, now_s: float) -> None:
+        """Close (gracefully) the connections without a complete request for idle_timeout_s."""
+        for key in idle([p.connection() for p in self._peers.values()], now_s, self._idle_timeout_s):
+            peer = self._peers.get(key)
+            if peer is not None:
+                log.debug("Modbus connection %s idle for %.0f s: closing", peer.source, self._idle_timeout_s)
+                peer.close_connection(abort=False)
+
+    def clear(self) -> None:
+        self._peers.clear()

@@ -93,8 +93,9 @@ class StatusExtBits(enum.IntFlag):
     OFFSET_STEP = 1 << 4
     #: The current standstill was accepted on the machine's hint.
     STOP_BY_HINT = 1 << 5
-    #: The MQTT (Sparkplug B) edge node is on but not connected to its broker; it keeps
-    #: reconnecting, and the fleet's host sees this gateway as dead meanwhile.
+    #: The MQTT (Sparkplug B) edge node is on but not publishing: not connected to its
+    #: broker (it keeps reconnecting), or waiting for its primary host to be online; the
+    #: fleet's host sees this gateway as dead meanwhile.
     MQTT_DOWN = 1 << 6
 
 

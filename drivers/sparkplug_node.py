@@ -24,6 +24,12 @@ simulated ones) drives itself with `drive_itself=True`.
 - Each connection: subscribe to NCMD/DCMD, then NBIRTH (seq 0) and DBIRTH. An NCMD
   "Node Control/Rebirth" repeats the births; a DCMD carries commands, refused and
   counted unless commands_enabled (as Modbus and CAN refuse them).
+- With a primary host (Sparkplug 3.0, `primary_host_id`): each connection also
+  subscribes to the host's STATE (retained by the broker) and is born only once the host
+  says online=true; meanwhile the DDATA wait in the backlog as while the broker is away.
+  An offline STATE no older than the last one (the timestamp tells a late death of the
+  host's previous session from the current one) ends a born session: NDEATH, disconnect,
+  and the connection starts over (with one broker it then waits for the host there).
 - A broker that is missing or refuses the node: one log line per kind of failure,
   reconnects with back-off (RECONNECT_MIN_S doubling to RECONNECT_MAX_S); the other
   wires never notice.
@@ -67,6 +73,18 @@ class SparkplugError(Exception):
     """The edge node cannot be set up (a TLS file that cannot be read)."""
 
 
+def tls_ca_problem(path: str) -> str | None:
+    """Why the TLS CA file `path` cannot be used (missing, unreadable, no PEM certificate
+    in it), or None: loaded as the node loads it, into a client TLS context."""
+    try:
+        ssl.create_default_context(cafile=path)
+    except ssl.SSLError as err:  # read, but not a certificate the TLS library can load
+        return f"holds no CA certificate TLS can load ({err.reason or err})"
+    except OSError as err:
+        return f"cannot be read ({err.strerror or err})"
+    return None
+
+
 @dataclass(frozen=True, slots=True)
 class SparkplugSettings:
     """Settings; the names match the [mqtt] section of the daemon's config."""
@@ -83,6 +101,8 @@ class SparkplugSettings:
     password: str | None = field(default=None, repr=False)
     tls_ca_file: str | None = None
     commands_enabled: bool = False
+    #: Sparkplug 3.0 primary host application: wait for its STATE online before birth
+    primary_host_id: str | None = None
 
     @property
     def backlog_len(self) -> int:
@@ -99,6 +119,7 @@ class NodeCounters:
     commands_done: int = 0
     commands_refused: int = 0  # commands disabled, or the daemon declined
     bad_payloads: int = 0
+    host_offline_ends: int = 0  # sessions ended because the primary host said it is offline
 
 
 class SparkplugNode:
@@ -121,8 +142,10 @@ class SparkplugNode:
         # each CONNECT takes the next; a node that replaces another (a reload) goes on from its
         # last, so that a late NDEATH of the old session never matches the new birth
         self._bd_seq = (first_bd_seq - 1) % spb.SEQ_MODULO
-        self._last_sent: dict[str, Any] | None = None
-        self._backlog: collections.deque[tuple[int, dict[str, Any]]] = collections.deque()
+        self._last_reading: spb.Reading | None = None  # what the last birth or DDATA carried
+        self._dropped_sent = 0  # the mqtt/dropped last sent
+        #: DDATA made while not born: (timestamp ms, the reading, its mqtt/ddata_count)
+        self._backlog: collections.deque[tuple[int, spb.Reading, int]] = collections.deque()
         self._drive_itself = drive_itself
         self._period_s = 1.0 / settings.rate_hz
         self._due_s = 0.0  # time.monotonic() of the next due poll
@@ -133,6 +156,8 @@ class SparkplugNode:
         self._reconnect_now = asyncio.Event()
         self._tasks: list[asyncio.Task] = []
         self._failure_said: str | None = None  # the last failure logged (said once until it changes)
+        self._host_online = False  # the primary host said online=true in this connection
+        self._host_state_ms: int | None = None  # timestamp of the newest valid STATE (kept across connections)
         s = settings
         self.topics = {
             "NBIRTH": spb.node_topic(s.group_id, "NBIRTH", s.edge_node_id),
@@ -142,11 +167,18 @@ class SparkplugNode:
             "DDATA": spb.device_topic(s.group_id, "DDATA", s.edge_node_id, s.device_id),
             "DCMD": spb.device_topic(s.group_id, "DCMD", s.edge_node_id, s.device_id),
         }
+        if s.primary_host_id:
+            self.topics["STATE"] = spb.state_topic(s.primary_host_id)
 
     @property
     def bd_seq(self) -> int:
         """The current (or last) session's bdSeq."""
         return self._bd_seq
+
+    @property
+    def publishing(self) -> bool:
+        """Connected and born: a host sees this node's data now."""
+        return self.connected and self._born
 
     @property
     def where(self) -> str:
@@ -160,10 +192,10 @@ class SparkplugNode:
         if s.username is not None:
             client.username_pw_set(s.username, s.password)
         if s.tls_ca_file:
-            try:
-                client.tls_set(ca_certs=s.tls_ca_file, tls_version=ssl.PROTOCOL_TLS_CLIENT)
-            except (OSError, ssl.SSLError) as err:
-                raise SparkplugError(f"MQTT TLS CA file {s.tls_ca_file}: {err}") from err
+            problem = tls_ca_problem(s.tls_ca_file)  # (checked before start too; the file may have changed since)
+            if problem:
+                raise SparkplugError(f"MQTT TLS CA file {s.tls_ca_file}: {problem}")
+            client.tls_set(ca_certs=s.tls_ca_file, tls_version=ssl.PROTOCOL_TLS_CLIENT)
         client.max_queued_messages_set(MAX_PAHO_QUEUE)
         client.on_pre_connect = self._pre_connect
         client.on_connect = self._on_connect
@@ -246,7 +278,8 @@ class SparkplugNode:
         client = self._client
         if client is None:
             return
-        if self._socket_ready and (now >= self._read_due_s or not self.connected):
+        read_now = self._socket_ready and (now >= self._read_due_s or not self.connected)
+        if read_now:
             self._read_due_s = now + READ_EVERY_S
             client.loop_read()  # every packet waiting; callbacks run here
         try:
@@ -254,8 +287,10 @@ class SparkplugNode:
         except Exception:  # a bug: say it, keep the node (and the daemon) alive
             log.exception("MQTT data tick failed")
         if self._socket_ready:
-            client.loop_write()
-            client.loop_misc()
+            if client.want_write():  # (a publish writes at once; this is what the kernel did not take)
+                client.loop_write()
+            if read_now:  # keep-alive: a ping due, a ping unanswered — seconds, checked with the reads
+                client.loop_misc()
 
     # ------------------------------------------------ paho's callbacks (in polls) --
     def _pre_connect(self, client: mqtt.Client, _userdata: Any) -> None:
@@ -298,7 +333,16 @@ class SparkplugNode:
         else:
             log.info("MQTT connected to %s (session bdSeq %d)", self.where, self._bd_seq)
         self._failure_said = None
-        self._client.subscribe([(self.topics["NCMD"], 1), (self.topics["DCMD"], 1)])
+        self._host_online = False
+        subscriptions = [(self.topics["NCMD"], 1), (self.topics["DCMD"], 1)]
+        if "STATE" in self.topics:  # the broker retains the host's last STATE: it comes at once if there is one
+            subscriptions.append((self.topics["STATE"], 1))
+            log.info("MQTT waiting for primary host %s to be online before birth", self.settings.primary_host_id)
+        self._client.subscribe(subscriptions)
+        if "STATE" not in self.topics:
+            self._be_born()
+
+    def _be_born(self) -> None:
         self._birth()
         self._send_backlog()
 
@@ -320,17 +364,18 @@ class SparkplugNode:
         now_ms = self._now_ms()
         self._seq = 0
         self._publish(self.topics["NBIRTH"], spb.node_birth(now_ms, self._next_seq(), self._bd_seq, self._version))
-        row = self._row()
+        reading = self._reading()
+        row = spb.row_of(reading)
+        row[spb.DDATA_COUNT] = self.counters.ddata_made
+        row[spb.MQTT_DROPPED] = self._dropped_sent = self.counters.dropped
         self._publish(self.topics["DBIRTH"], spb.device_birth(now_ms, self._next_seq(), row))
-        self._last_sent = row
+        self._last_reading = reading
         self._born = True
         self.counters.births += 1
 
-    def _row(self) -> dict[str, Any]:
-        row = spb.device_row(current(self._values))
-        row[spb.DDATA_COUNT] = self.counters.ddata_made
-        row[spb.MQTT_DROPPED] = self.counters.dropped
-        return row
+    def _reading(self) -> spb.Reading:
+        """The device metrics of the newest snapshot, the node's own counters aside."""
+        return spb.device_reading(current(self._values))
 
     def _publish(self, topic: str, payload: bytes) -> bool:
         info = self._client.publish(topic, payload, qos=self.settings.qos)
@@ -341,35 +386,35 @@ class SparkplugNode:
 
     def _tick(self) -> None:
         """One rate period: a DDATA with what changed, or into the backlog while away."""
-        row = self._row()
-        row.pop(spb.DDATA_COUNT)
-        row.pop(spb.MQTT_DROPPED)
-        previous = self._last_sent if self._born else (self._backlog[-1][1] if self._backlog else self._last_sent)
-        changed = spb.changes(previous, row)
+        reading = self._reading()
+        previous = self._backlog[-1][1] if self._backlog and not self._born else self._last_reading
+        changed = spb.reading_changes(previous, reading)
         if not changed:
             return
-        self.counters.ddata_made += 1
+        counters = self.counters
+        counters.ddata_made += 1
         now_ms = self._now_ms()
         if not self._born:
             if len(self._backlog) >= self.settings.backlog_len:
                 self._backlog.popleft()
-                self.counters.dropped += 1
-            self._backlog.append((now_ms, {**row, spb.DDATA_COUNT: self.counters.ddata_made}))
+                counters.dropped += 1
+            self._backlog.append((now_ms, reading, counters.ddata_made))
             return
-        changed[spb.DDATA_COUNT] = self.counters.ddata_made
-        if self.counters.dropped != (self._last_sent or {}).get(spb.MQTT_DROPPED):
-            changed[spb.MQTT_DROPPED] = self.counters.dropped
+        changed[spb.DDATA_COUNT] = counters.ddata_made
+        if counters.dropped != self._dropped_sent:
+            changed[spb.MQTT_DROPPED] = self._dropped_sent = counters.dropped
         if self._publish(self.topics["DDATA"], spb.device_data(now_ms, self._next_seq(), changed)):
-            self.counters.ddata_sent += 1
-        self._last_sent = {**(self._last_sent or {}), **changed}
+            counters.ddata_sent += 1
+        self._last_reading = reading
 
     def _send_backlog(self) -> None:
         """What was made while the broker was away, after the births, flagged historical."""
-        previous: dict[str, Any] | None = None
+        previous: spb.Reading | None = None
         while self._backlog and self._born:
-            stamp_ms, row = self._backlog.popleft()
-            changed = spb.changes(previous, row)
-            previous = row
+            stamp_ms, reading, count = self._backlog.popleft()
+            changed = spb.reading_changes(previous, reading)
+            changed[spb.DDATA_COUNT] = count
+            previous = reading
             if self._publish(self.topics["DDATA"], spb.device_data(stamp_ms, self._next_seq(), changed,
                                                                   historical=True)):
                 self.counters.ddata_sent += 1
@@ -377,6 +422,9 @@ class SparkplugNode:
     # ------------------------------------------------------------- commands --
     def _message(self, topic: str, data: bytes) -> None:
         if self._client is None:
+            return
+        if topic == self.topics.get("STATE"):
+            self._host_state(data)
             return
         try:
             _, metrics = spb.decode(data)
@@ -387,7 +435,7 @@ class SparkplugNode:
         if topic == self.topics["NCMD"]:
             if any(m.name == spb.REBIRTH and m.value for m in metrics):
                 log.info("MQTT rebirth asked (NCMD)")
-                if self.connected:
+                if self._born:  # (not while waiting for the primary host)
                     self._birth()
             return
         if topic == self.topics["DCMD"]:
@@ -395,6 +443,37 @@ class SparkplugNode:
                 command = spb.COMMANDS.get(m.name)
                 if command is not None and m.value:
                     self._command(command, topic)
+
+    def _host_state(self, data: bytes) -> None:
+        """The primary host's STATE: online → born (once per connection); offline → a born
+        session ends (NDEATH, disconnect, start over). Older than the newest seen: a late
+        message of a host session already over, ignored."""
+        try:
+            state = spb.decode_state(data)
+        except ValueError as err:
+            self.counters.bad_payloads += 1
+            log.warning("MQTT %s: %s", self.topics["STATE"], err)
+            return
+        if self._host_state_ms is not None and state.timestamp_ms < self._host_state_ms:
+            log.info("MQTT primary host %s: a STATE older than the last one, ignored", self.settings.primary_host_id)
+            return
+        self._host_state_ms = state.timestamp_ms
+        host = self.settings.primary_host_id
+        if state.online:
+            if self.connected and not self._host_online:
+                self._host_online = True
+                log.info("MQTT primary host %s is online: birth", host)
+                self._be_born()
+            return
+        self._host_online = False
+        if not self._born:
+            log.info("MQTT primary host %s is offline: waiting for it before birth", host)
+            return
+        log.warning("MQTT primary host %s went offline: NDEATH, disconnect, connect again", host)
+        self.counters.host_offline_ends += 1
+        self._born = False  # the data wait in the backlog from now on
+        self._client.publish(self.topics["NDEATH"], spb.node_death(self._bd_seq), qos=1)
+        self._client.disconnect()  # (sent with the NDEATH at this poll's write; then the reconnect loop)
 
     def _command(self, command: Command, topic: str) -> None:
         if not self.settings.commands_enabled or self._on_command is None:

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import enum
 import functools
+import json
 import math
-from collections.abc import Callable, Iterable, Mapping
+import operator
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,12 +56,9 @@ class MetricDef:
     datatype: DataType
     unit: str
     description: str
-    #: The value in a snapshot (None: null); None for the metrics the node fills itself.
-    read: Callable[[PublishedValues], Any] | None = None
-
-
-def _finite(x: float | None) -> float | None:
-    return x if x is not None and math.isfinite(x) else None
+    #: The PublishedValues attribute the value is read from (a Double that is not finite
+    #: is sent as null); None for the metrics the node fills itself and the commands.
+    source: str | None = None
 
 
 #: Node metrics: in NBIRTH (and bdSeq in NDEATH). "Node Control/Rebirth" is the host's way
@@ -78,25 +77,22 @@ MQTT_DROPPED = "mqtt/dropped"
 COMMAND_PREFIX = "Commands/"
 
 _MEASURED: tuple[MetricDef, ...] = (
-    MetricDef("position_m", DataType.DOUBLE, "m", "Position since the tare (null: no estimate).",
-              lambda v: _finite(v.position_m)),
-    MetricDef("velocity_mps", DataType.DOUBLE, "m/s", "Velocity.", lambda v: _finite(v.velocity_mps)),
+    MetricDef("position_m", DataType.DOUBLE, "m", "Position since the tare (null: no estimate).", "position_m"),
+    MetricDef("velocity_mps", DataType.DOUBLE, "m/s", "Velocity.", "velocity_mps"),
     MetricDef("acceleration_mps2", DataType.DOUBLE, "m/s²", "Acceleration along the axis, bias removed.",
-              lambda v: _finite(v.acceleration_mps2)),
-    MetricDef("position_std_m", DataType.DOUBLE, "m", "1σ of the position estimate.",
-              lambda v: _finite(v.position_std_m)),
+              "acceleration_mps2"),
+    MetricDef("position_std_m", DataType.DOUBLE, "m", "1σ of the position estimate.", "position_std_m"),
     MetricDef("bias_estimate_mps2", DataType.DOUBLE, "m/s²", "The accelerometer bias the estimator removes.",
-              lambda v: _finite(v.bias_estimate_mps2)),
+              "bias_estimate_mps2"),
     MetricDef("board_temp_c", DataType.DOUBLE, "°C", "Board temperature (null: no sensor or no STATUS yet).",
-              lambda v: _finite(v.board_temp_c)),
+              "board_temp_c"),
     MetricDef("last_sample_age_ms", DataType.DOUBLE, "ms", "Age of the newest sample (null: none yet).",
-              lambda v: _finite(v.last_sample_age_ms)),
+              "last_sample_age_ms"),
     MetricDef("usable", DataType.BOOLEAN, "", "VALID set and no bit against it: the numbers may be acted on.",
-              lambda v: v.usable),
-    MetricDef("status", DataType.UINT32, "", "The status word (StatusBits), as in Modbus STATUS.",
-              lambda v: int(v.status)),
+              "usable"),
+    MetricDef("status", DataType.UINT32, "", "The status word (StatusBits), as in Modbus STATUS.", "status"),
     MetricDef("status_ext", DataType.UINT32, "", "The second status word (StatusExtBits), as in Modbus STATUS_EXT.",
-              lambda v: int(v.status_ext)),
+              "status_ext"),
 )
 
 
@@ -109,15 +105,14 @@ _BITS: tuple[MetricDef, ...] = tuple(_bit_metric("status", b, "status") for b in
     _bit_metric("status_ext", b, "status_ext") for b in StatusExtBits)
 
 _COUNTERS: tuple[MetricDef, ...] = (
-    MetricDef("sample_counter", DataType.UINT64, "count", "Board samples processed since start.",
-              lambda v: v.sample_counter),
+    MetricDef("sample_counter", DataType.UINT64, "count", "Board samples processed since start.", "sample_counter"),
     MetricDef("lost_samples", DataType.UINT64, "count", "Samples missing on the serial line since start.",
-              lambda v: v.lost_samples),
+              "lost_samples"),
     MetricDef("crc_errors", DataType.UINT64, "count", "Board frames dropped for a CRC mismatch since start.",
-              lambda v: v.crc_errors),
-    MetricDef("board_resets", DataType.UINT64, "count", "Board resets seen since start.", lambda v: v.board_resets),
+              "crc_errors"),
+    MetricDef("board_resets", DataType.UINT64, "count", "Board resets seen since start.", "board_resets"),
     MetricDef("can_send_errors", DataType.UINT64, "count", "CAN frames that could not be sent since start.",
-              lambda v: v.can_send_errors),
+              "can_send_errors"),
     MetricDef(DDATA_COUNT, DataType.UINT64, "count",
               "DDATA messages this node made since start, sent or not: a host that sees it jump has lost "
               "messages (the node's own drops are in mqtt/dropped)."),
@@ -129,7 +124,7 @@ _COUNTERS: tuple[MetricDef, ...] = (
 _COMMANDS: tuple[MetricDef, ...] = tuple(
     MetricDef(f"{COMMAND_PREFIX}{c.name}", DataType.BOOLEAN, "",
               f"Write true (DCMD): the command {c.name}, as over Modbus and CAN; refused unless "
-              "mqtt.commands_enabled. Reads false.", lambda v: False) for c in Command)
+              "mqtt.commands_enabled. Reads false.") for c in Command)
 
 #: Device metrics: in DBIRTH, and those that changed in each DDATA.
 DEVICE_METRICS: tuple[MetricDef, ...] = _MEASURED + _BITS + _COUNTERS + _COMMANDS
@@ -140,9 +135,14 @@ BY_NAME: dict[str, MetricDef] = {m.name: m for m in NODE_METRICS + DEVICE_METRIC
 BY_ALIAS: dict[int, MetricDef] = {ALIASES[m.name]: m for m in NODE_METRICS + DEVICE_METRICS}
 #: DCMD metric name → the command it carries.
 COMMANDS: dict[str, Command] = {f"{COMMAND_PREFIX}{c.name}": c for c in Command}
-_READABLE = tuple(m for m in DEVICE_METRICS if m.read is not None and not m.name.startswith(COMMAND_PREFIX))
-#: Every row key but the status bits.
-_WORD_KEYS = tuple(m.name for m in _READABLE) + (DDATA_COUNT, MQTT_DROPPED)
+_READABLE = tuple(m for m in DEVICE_METRICS if m.source is not None)
+# device_row's work, prepared once: it runs rate_hz times a second in the daemon's event
+# loop, cold each time, so it reads the snapshot with one C call and loops only over the
+# few metrics that need converting
+_READ_SOURCES = operator.attrgetter(*(m.source for m in _READABLE))
+_READABLE_NAMES = tuple(m.name for m in _READABLE)
+_DOUBLE_INDEXES = tuple(i for i, m in enumerate(_READABLE) if m.datatype is DataType.DOUBLE)
+_WORD_INDEXES = (_READABLE_NAMES.index("status"), _READABLE_NAMES.index("status_ext"))
 
 
 # ------------------------------------------------------------------ topics --
@@ -152,6 +152,35 @@ def node_topic(group: str, kind: str, node: str) -> str:
 
 def device_topic(group: str, kind: str, node: str, device: str) -> str:
     return f"{NAMESPACE}/{group}/{kind}/{node}/{device}"
+
+
+def state_topic(host_id: str) -> str:
+    """Where a primary host application says whether it is online (Sparkplug 3.0)."""
+    return f"{NAMESPACE}/STATE/{host_id}"
+
+
+@dataclass(frozen=True, slots=True)
+class HostState:
+    online: bool
+    timestamp_ms: int
+
+
+MAX_STATE_BYTES = 1024  # {"online": true, "timestamp": <ms>}: tens of bytes; more is not that
+
+
+def decode_state(data: bytes) -> HostState:
+    """A STATE payload (JSON: online, timestamp in UTC ms); ValueError naming what is wrong."""
+    if len(data) > MAX_STATE_BYTES:
+        raise ValueError(f"STATE payload of {len(data)} bytes (at most {MAX_STATE_BYTES})")
+    try:
+        state = json.loads(data)
+    except (ValueError, RecursionError) as err:  # (UnicodeDecodeError is a ValueError)
+        raise ValueError(f"STATE payload is not JSON: {err}") from err
+    online = state.get("online") if isinstance(state, dict) else None
+    timestamp = state.get("timestamp") if isinstance(state, dict) else None
+    if not isinstance(online, bool) or isinstance(timestamp, bool) or not isinstance(timestamp, int) or timestamp < 0:
+        raise ValueError('STATE payload is not {"online": true|false, "timestamp": <UTC ms>}')
+    return HostState(online, timestamp)
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,34 +213,75 @@ def _bits(status: int, status_ext: int) -> dict[str, bool]:
     return bits
 
 
-def device_row(values: PublishedValues) -> dict[str, Any]:
-    """The readable device metrics of one snapshot (commands and the node's counters aside)."""
-    row = {m.name: m.read(values) for m in _READABLE}
-    row.update(_bits(row["status"], row["status_ext"]))
+Reading = tuple[Any, ...]
+
+
+def device_reading(values: PublishedValues) -> Reading:
+    """The readable device metrics of one snapshot but the status bits, in table order,
+    as one tuple: what the node compares each 1/rate_hz (a tuple equal to the last one is
+    one C comparison; the bits follow from the two words). A Double that is not finite
+    (NaN: no estimate) is None, sent as null."""
+    read = list(_READ_SOURCES(values))
+    for i in _DOUBLE_INDEXES:
+        x = read[i]
+        if x is not None and not math.isfinite(x):
+            read[i] = None
+    i, j = _WORD_INDEXES
+    read[i], read[j] = int(read[i]), int(read[j])
+    return tuple(read)
+
+
+def row_of(reading: Reading) -> dict[str, Any]:
+    """Every readable device metric by name, the status bits included (a birth's row)."""
+    row = dict(zip(_READABLE_NAMES, reading, strict=True))
+    i, j = _WORD_INDEXES
+    row.update(_bits(reading[i], reading[j]))
     return row
 
 
-def _set(metric, definition: MetricDef, value: Any) -> None:
-    metric.datatype = int(definition.datatype)
-    if value is None:
-        metric.is_null = True
-    else:
-        setattr(metric, _VALUE_FIELD[definition.datatype], value)
+def device_row(values: PublishedValues) -> dict[str, Any]:
+    """The readable device metrics of one snapshot (commands and the node's counters aside)."""
+    return row_of(device_reading(values))
+
+
+def reading_changes(previous: Reading | None, reading: Reading) -> dict[str, Any]:
+    """The metrics whose value differs from `previous` (all of them without one), the
+    status bits that flipped included."""
+    if previous is None:
+        return row_of(reading)
+    if previous == reading:
+        return {}
+    changed = {name: new for name, old, new in zip(_READABLE_NAMES, previous, reading, strict=True) if old != new}
+    i, j = _WORD_INDEXES
+    if previous[i] != reading[i] or previous[j] != reading[j]:
+        old_bits, new_bits = _bits(previous[i], previous[j]), _bits(reading[i], reading[j])
+        changed.update((name, bit) for name, bit in new_bits.items() if old_bits[name] != bit)
+    return changed
+
+
+#: name → (alias, datatype number, the Metric's value field): what encoding a metric needs,
+#: looked up once per metric (a DDATA is encoded rate_hz times a second)
+_ENCODING: dict[str, tuple[int, int, str]] = {
+    m.name: (ALIASES[m.name], int(m.datatype), _VALUE_FIELD[m.datatype]) for m in NODE_METRICS + DEVICE_METRICS}
 
 
 def _add(payload, name: str, value: Any, *, birth: bool, timestamp_ms: int | None = None,
          historical: bool = False) -> None:
-    definition = BY_NAME[name]
+    alias, datatype, value_field = _ENCODING[name]
     metric = payload.metrics.add()
     if birth or name == BDSEQ:
         metric.name = name  # births name every metric; NDEATH's bdSeq goes by name
     if birth or name != BDSEQ:
-        metric.alias = ALIASES[name]
+        metric.alias = alias
     if timestamp_ms is not None:
         metric.timestamp = timestamp_ms
     if historical:
         metric.is_historical = True
-    _set(metric, definition, value)
+    metric.datatype = datatype
+    if value is None:
+        metric.is_null = True
+    else:
+        setattr(metric, value_field, value)
 
 
 def node_birth(timestamp_ms: int, seq: int, bd_seq: int, version: str) -> bytes:
@@ -241,23 +311,21 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
     """DDATA with the changed metrics; historical: values of a moment ago sent late (kept
     while the broker was away), flagged so that no host takes them as the current ones."""
     p = Payload(timestamp=timestamp_ms, seq=seq)
+    if historical:
+        for name, value in changed.items():
+            _add(p, name, value, birth=False, timestamp_ms=timestamp_ms, historical=True)
+        return p.SerializeToString()
+    add = p.metrics.add  # (the current data: _add written out, by alias only)
     for name, value in changed.items():
-        _add(p, name, value, birth=False, timestamp_ms=timestamp_ms if historical else None, historical=historical)
+        alias, datatype, value_field = _ENCODING[name]
+        metric = add()
+        metric.alias = alias
+        metric.datatype = datatype
+        if value is None:
+            metric.is_null = True
+        else:
+            setattr(metric, value_field, value)
     return p.SerializeToString()
-
-
-def changes(previous: Mapping[str, Any] | None, row: Mapping[str, Any]) -> dict[str, Any]:
-    """The metrics of `row` whose value differs from `previous` (all of them without one).
-    The status bits follow from the two status words: compared only when a word changed
-    (most ticks it did not, and they are 23 of the 40 metrics)."""
-    if previous is None:
-        return dict(row)
-    words_same = previous.get("status") == row.get("status") and previous.get("status_ext") == row.get("status_ext")
-    keys = _WORD_KEYS if words_same else row.keys()
-    return {k: row[k] for k in keys if k in row and previous.get(k, _MISSING) != row[k]}
-
-
-_MISSING = object()
 
 
 @dataclass(frozen=True, slots=True)

@@ -200,6 +200,10 @@ SCHEMA: tuple[Key, ...] = (
         "A file whose first line is username:password (keep it readable by the gateway only). Empty: none."),
     Key("mqtt", "tls_ca_file", "", str,
         "Connect with TLS, trusting the broker certificates this CA file signs. Empty: plain TCP."),
+    Key("mqtt", "primary_host_id", "", str,
+        "Sparkplug 3.0 primary host application (the SCADA or historian that must get the data): be born "
+        "only once its STATE topic spBv1.0/STATE/<id> says online, keep the data meanwhile (60 s), end the "
+        "session when it says offline. Empty: none, born at each connection.", _sparkplug_id_or_empty),
     Key("mqtt", "commands_enabled", False, bool,
         "Accept commands as DCMD (tare, the machine's standstill hint, bias re-estimation); else refused and "
         "counted, as over Modbus and CAN."),
@@ -216,8 +220,9 @@ SCHEMA: tuple[Key, ...] = (
         "force after it was written; a PLC writes it every cycle while it holds.", _range(10, 600_000)),
     Key("estimator", "travel_m", [-10.0, 10.0], list,
         "The axis's travel, [lowest, highest] published position in m (from the tare point). A saved "
-        "position outside it is refused at start (the state file is then moved aside), and a restored "
-        "position is never less uncertain than the travel allows. Default: 10 m either way, 30 times the "
+        "position outside it is refused at start (the state file is then moved aside), a restored "
+        "position is never less uncertain than the travel allows, and no POSITION_STD is more than the "
+        "distance to the farther end of the travel. Default: 10 m either way, 30 times the "
         "paper's 0.3 m stroke and 12 times the robot's 0.8 m move; set your machine's.", _travel),
     Key("estimator", "still_while_down", False, bool,
         "true: nothing moves the axis while the gateway is down (it is locked, or the gateway's stop stops "

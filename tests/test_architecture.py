@@ -63,3 +63,19 @@ def test_the_offline_side_needs_nothing_of_the_daemon(path):
     for name in imports_of(path):
         assert not name.startswith("gateway.daemon") and not name.startswith("gateway.commands"), \
             f"{path.name} imports {name}"
+
+
+@pytest.mark.parametrize("path", python_files("gateway") + python_files("drivers"),
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_the_shipped_code_needs_no_tests_benchmarks_or_test_helpers(path):
+    """gateway/ and drivers/ are what the wheel carries; tests/, testing/ and benchmarks/ are not in it."""
+    for name in imports_of(path):
+        assert name.split(".")[0] not in {"tests", "testing", "benchmarks"}, f"{path.name} imports {name}"
+
+
+@pytest.mark.parametrize("path", python_files("tests") + python_files("testing"),
+                         ids=lambda p: str(p.relative_to(ROOT)))
+def test_tests_and_their_helpers_never_import_a_benchmark(path):
+    """Benchmarks measure; what tests and benchmarks share lives in testing/."""
+    for name in imports_of(path):
+        assert name.split(".")[0] != "benchmarks", f"{path.name} imports {name}"

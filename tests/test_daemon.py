@@ -12,7 +12,7 @@ import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.can_frames import dbc_text
-from drivers.modbus_map import MAP_VERSION
+from drivers.modbus_map import MAP_VERSION, CommandResult
 from drivers.published_values import StatusBits
 from tests.daemon_helpers import CLI, Emulator, gateway_config, read_inputs, running_gateway, wait_for
 
@@ -374,3 +374,103 @@ def test_start_at_rest_is_believed_only_after_an_orderly_stop_at_rest(tmp_path, 
     assert not Gateway(cfg).starts_at_rest
     # the setting off: never believed, whatever the file says
     assert not Gateway(gateway_config(tmp_path, str(emu.link), estimator={"start_at_rest": False})).starts_at_rest
+
+
+def test_modbus_answers_while_the_board_side_is_built_and_says_nothing_is_measured(tmp_path, monkeypatch):
+    """The wires listen before numpy, numba and the compiled estimator are loaded (a second or
+    more): a PLC polling a gateway that (re)starts gets answers at once, and those answers say
+    that nothing is measured yet — no VALID, BOARD_LOST, NOT_REFERENCED, NaN position — and
+    commands are declined; once built, the gateway opens the board's port and serves as ever."""
+    import math
+    import threading
+
+    from gateway.daemon import sample_pipeline
+    from gateway.daemon.supervisor import Gateway
+
+    release = threading.Event()
+    real = sample_pipeline.SamplePipeline
+
+    class HeldPipeline(real):  # the build waits for the test: what a slow load looks like
+        def __init__(self, *args, **kwargs):
+            assert release.wait(30), "never released"
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(sample_pipeline, "SamplePipeline", HeldPipeline)
+    emu = Emulator(tmp_path, "--scenario", "standstill")
+    cfg = gateway_config(tmp_path, str(emu.link), estimator={"start_at_rest": False})
+
+    async def scenario():
+        gw = Gateway(cfg)
+        starting = asyncio.create_task(gw.start())
+        try:
+            await wait_for(lambda: gw.modbus is not None and gw.modbus.tcp_port, 20, what="Modbus listening")
+            client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
+            await client.connect()
+            regs = await read_inputs(client)
+            status = StatusBits(regs["STATUS"])
+            assert StatusBits.VALID not in status
+            assert status & StatusBits.BOARD_LOST and status & StatusBits.NOT_REFERENCED
+            assert status & StatusBits.POSITION_UNTRUSTED  # start_at_rest off: the axis may move
+            assert math.isnan(regs["POSITION"]) and regs["SAMPLE_COUNTER"] == 0
+            assert not gw.ready and not starting.done()
+            wr = await client.write_register(0, 1)  # CMD_TARE
+            assert wr.isError()  # exception 04: declined
+            assert (await read_inputs(client))["LAST_COMMAND_RESULT"] == CommandResult.DECLINED
+            release.set()
+            await starting
+            await gw.wait_ready(30)
+            await wait_for(lambda: gw.pipeline.counters.samples > 100, 20, what="samples")
+            regs = await read_inputs(client)
+            assert regs["SAMPLE_COUNTER"] > 100 and not StatusBits(regs["STATUS"]) & StatusBits.BOARD_LOST
+            client.close()
+        finally:
+            release.set()
+            await asyncio.gather(starting, return_exceptions=True)
+            await gw.stop()
+
+    try:
+        run(scenario())
+    finally:
+        emu.stop()
+
+
+def test_a_stop_while_the_estimator_loads_does_not_wait_for_it(tmp_path, monkeypatch):
+    """SIGTERM (request_stop) while the board side is still being built — seconds warm,
+    minutes when numba compiles into an empty cache — ends `run` at once: the unit's
+    TimeoutStopSec is 2 s. The wires are closed and the state file is as it was."""
+    import json
+    import threading
+
+    from gateway.daemon import sample_pipeline
+    from gateway.daemon.supervisor import Gateway
+
+    release = threading.Event()
+    real = sample_pipeline.SamplePipeline
+
+    class HeldPipeline(real):
+        def __init__(self, *args, **kwargs):
+            assert release.wait(60), "never released"
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(sample_pipeline, "SamplePipeline", HeldPipeline)
+    cfg = gateway_config(tmp_path, str(tmp_path / "no-board-yet"))
+
+    async def scenario():
+        gw = Gateway(cfg)
+        running = asyncio.create_task(gw.run())
+        await wait_for(lambda: gw.modbus is not None and gw.modbus.tcp_port, 20, what="Modbus listening")
+        port = gw.modbus.tcp_port
+        gw.request_stop()
+        assert await asyncio.wait_for(running, 10) == 0  # not waiting for the build
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+
+    try:
+        run(scenario())  # asyncio.run's end included: it does not wait for the build's thread either
+        builders = [t for t in threading.enumerate() if t.name.startswith("board-side")]
+        assert builders and all(t.is_alive() for t in builders) and not release.is_set()
+    finally:
+        release.set()
+    for t in builders:
+        t.join(60)
+    assert json.loads((tmp_path / "state.json").read_text())["stopped_at_rest_unix_s"] is None

@@ -224,3 +224,24 @@ def test_a_reload_shows_at_once_on_modbus_even_while_the_board_is_silent(tmp_pat
             client.close()
 
     run(scenario())
+
+
+def test_a_reload_of_the_travel_reaches_the_published_sigma_and_the_state_file_check(tmp_path, pty):
+    """estimator.travel_m bounds the published σ and the position a later start restores:
+    a reload that changes it changes both."""
+    from gateway.daemon.state_store import PersistentState
+
+    cfg = gateway_config(tmp_path, str(pty.link))
+    source = Reloadable(cfg)
+
+    async def scenario():
+        async with running_gateway(cfg, reload=source) as gw:
+            assert gw.pipeline.travel_m == (-10.0, 10.0)
+            source.cfg = cfg.replace({"estimator.travel_m": [-0.5, 1.5]})
+            await gw.reload()
+            assert gw.counters.config_reloads == 1 and gw.pipeline.travel_m == (-0.5, 1.5)
+        return gw
+
+    store = run(scenario()).state_store
+    store.save(PersistentState(last_position_m=2.0, saved_at_unix_s=1.0))  # inside the old travel
+    assert store.load().last_position_m is None and "outside the axis's travel" in store.last_error

@@ -45,14 +45,16 @@ class Demo:
         self.proc = subprocess.Popen([*CLI, "demo", "--modbus-port", str(free_port())], env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
-    def wait_for_view(self, timeout_s: float = 60) -> str:
-        """The first line of the live view (off a terminal: one plain line per draw)."""
+    def wait_for_view(self, timeout_s: float = 60, board_up: bool = False) -> str:
+        """The first line of the live view (off a terminal: one plain line per draw); with
+        `board_up`, the first once the emulated board runs (the view draws from the moment
+        the estimator is loaded, while the board's process may still be starting)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             line = self.proc.stdout.readline()
             if not line:
                 break
-            if line.startswith("position"):
+            if line.startswith("position") and not (board_up and "board not open yet" in line):
                 return line
         self.proc.kill()
         raise AssertionError(f"no view line; stderr: {self.proc.communicate()[1]}")
@@ -80,7 +82,7 @@ def test_demo_runs_the_emulated_board_and_keeps_nothing(tmp_path):
 
 def test_a_killed_demo_takes_its_board_with_it(tmp_path):
     demo = Demo(tmp_path)
-    demo.wait_for_view()
+    demo.wait_for_view(board_up=True)
     board = demo.board_pid()
     assert alive(board)
     demo.proc.kill()  # SIGKILL: no handler runs, no cleanup code

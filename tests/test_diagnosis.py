@@ -1,6 +1,6 @@
 """The diagnosis finds effects it is not told about, and its parts agree with independent sums.
 
-Cases (tests/diagnosis_cases.py): a simulated 4-stroke recording (a 60 s standstill for
+Cases (testing/diagnosis_cases.py): a simulated 4-stroke recording (a 60 s standstill for
 bias_random_walk) with one or two effects of gateway.core.sensor_effects hidden in it,
 parameters drawn at the documented sizes from a seeded generator; diagnose gets only
 the recording. Seeds here are 9000+, never the benchmark's (0…N−1), so the tests are
@@ -19,6 +19,7 @@ import pytest
 from scipy.stats import multivariate_normal, norm
 
 from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
+from gateway.core.diagnosis.criterion import block_predictive_loglik
 from gateway.core.diagnosis.model_fit import fit_model
 from gateway.core.diagnosis.reading import WHITE, gaussian_loglik, sensor_reading
 from gateway.core.diagnosis.screening import correlations
@@ -26,7 +27,7 @@ from gateway.core.diagnosis.side_effects import local_level_loglik
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.simulator import period_mean_lowpass
-from tests.diagnosis_cases import CHECKS, EFFECTS, SENSOR, make_case, run_case
+from testing.diagnosis_cases import CHECKS, EFFECTS, SENSOR, make_case, run_case
 
 ROOT = Path(__file__).resolve().parents[1]
 SINGLE_SEEDS = (9000, 9001)
@@ -92,9 +93,9 @@ def test_clean_recordings_name_nothing_and_are_mostly_white():
 
 # --- (d) the code under test is never told the answer
 
-# either generator: the simulator and its effects, or the independent one in tests/
+# either generator: the simulator and its effects, or the independent one in testing/
 FORBIDDEN = ("gateway.core.sensor_effects", "gateway.core.simulator", "gateway.core.motion_profiles",
-             "tests.independent_generator", "tests")
+             "testing", "tests")
 
 
 def _imported_modules(path: Path) -> list[str]:
@@ -197,6 +198,32 @@ def test_local_level_loglik_is_the_exact_gaussian_density(k):
     cov = sigma**2 * (1.0 + np.eye(n - 1)) + k * k * dt * np.minimum.outer(i, i)
     brute = multivariate_normal(np.zeros(n - 1), cov).logpdf(y[1:] - y[0])
     assert local_level_loglik(y, dt, k, sigma) == pytest.approx(brute, rel=1e-10, abs=1e-9)
+    # a fold left out (how the walk's out-of-fold fit sees the record): the density of the
+    # values used, the others skipped — the marginal of the same Gaussian
+    use = np.ones(n, dtype=bool)
+    use[10:15] = False
+    kept = use[1:]
+    marginal = multivariate_normal(np.zeros(kept.sum()), cov[np.ix_(kept, kept)]).logpdf((y[1:] - y[0])[kept])
+    assert local_level_loglik(y, dt, k, sigma, use) == pytest.approx(marginal, rel=1e-10, abs=1e-9)
+
+
+def test_block_press_residuals_are_the_refit_without_the_block():
+    """The criterion's out-of-block prediction of a linear model (criterion.py) against
+    refitting by least squares on the other blocks and predicting the block left out."""
+    rng = np.random.default_rng(8)
+    n = 300
+    x = np.column_stack([np.ones(n), np.linspace(0, 1, n), rng.standard_normal(n)])
+    y = x @ np.array([0.3, -1.0, 0.5]) + rng.standard_normal(n)
+    ids = np.repeat(np.arange(20), n // 20)
+    resid = y - x @ np.linalg.lstsq(x, y, rcond=None)[0]
+    got = block_predictive_loglik(resid, x, ids)
+    var = float(np.dot(resid, resid)) / n  # the criterion scores both ways under the fit's own variance
+    for b in range(20):
+        out = ids == b
+        coef = np.linalg.lstsq(x[~out], y[~out], rcond=None)[0]
+        e = y[out] - x[out] @ coef
+        expected = float(np.sum(-0.5 * (np.log(2 * np.pi * var) + e**2 / var)))
+        assert got[b] == pytest.approx(expected, rel=1e-9)
 
 
 def test_model_fit_without_effects_is_least_squares_offset_and_drift():

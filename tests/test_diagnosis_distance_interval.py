@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from gateway.core.diagnosis.judgement import HOST_SCATTER_PERIODS, distance_interval, matters
-from tests.diagnosis_cases import run_case
+from testing.diagnosis_cases import run_case
 
 
 def gain(before_mm, after_mm, metric="stop_rms_mm"):

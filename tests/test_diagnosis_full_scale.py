@@ -14,7 +14,7 @@ import pytest
 from gateway.core.diagnosis.context import G, prepare
 from gateway.core.diagnosis.model_fit import predict
 from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS
-from tests.diagnosis_cases import SENSOR, make_case, run_diagnosis
+from testing.diagnosis_cases import SENSOR, make_case, run_diagnosis
 
 SCALE = next(e for e in SIGNAL_EFFECTS if e.name == "scale_factor")
 

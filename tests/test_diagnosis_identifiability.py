@@ -3,7 +3,7 @@ import numpy as np
 
 from gateway.core.diagnosis.context import prepare
 from gateway.core.diagnosis.identifiability import temperature_in_line_with_drift, what_separates
-from tests.diagnosis_cases import make_case, run_diagnosis
+from testing.diagnosis_cases import make_case, run_diagnosis
 
 
 def test_a_temperature_that_runs_in_line_with_time_cannot_be_told_from_the_drift():

@@ -1,8 +1,9 @@
 """The diagnosis on data it was not built from: the independent generator
-(tests/independent_generator), with hidden effects diagnose is not told about.
+(testing/independent_generator), with hidden effects diagnose is not told about.
 
-Seeds 40000+: not the benchmark's (30000+), nor those looked at while the design was
-made (500, 20000). The generator shares no code with the simulator (checked here).
+The slow test runs the first seed of the generator's one run after its design was frozen
+(docs/diagnosis.md §7: seeds 50000+); the rows it checks were chosen before that run.
+The generator shares no code with the simulator or the candidates (checked here).
 """
 from __future__ import annotations
 
@@ -18,13 +19,17 @@ from gateway.core.diagnosis.judgement import (
     physical,
     setup_range,
 )
-from tests.diagnosis_cases import estimator_settings
-from tests.independent_generator.cases import IN_VOCABULARY, make_case, run_case
-from tests.independent_generator.motion import strokes
+from testing.diagnosis_cases import estimator_settings
+from testing.independent_generator.cases import IN_VOCABULARY, make_case, run_case
+from testing.independent_generator.motion import strokes
 
 ROOT = Path(__file__).resolve().parents[1]
-GENERATOR_FILES = sorted((ROOT / "tests" / "independent_generator").glob("*.py"))
-FORBIDDEN = ("gateway.core.simulator", "gateway.core.sensor_effects", "gateway.core.motion_profiles")
+GENERATOR_FILES = sorted((ROOT / "testing" / "independent_generator").glob("*.py"))
+# the own simulator, and the diagnosis's candidate models: the generator makes each cause
+# the way it works, not in the form a candidate fits
+FORBIDDEN = ("gateway.core.simulator", "gateway.core.sensor_effects", "gateway.core.motion_profiles",
+             "gateway.core.filters", "gateway.core.diagnosis.signal_effects",
+             "gateway.core.diagnosis.side_effects", "gateway.core.model_compensation")
 
 
 @pytest.mark.parametrize("path", GENERATOR_FILES, ids=lambda p: p.name)
@@ -38,12 +43,14 @@ def test_the_independent_generator_shares_no_code_with_the_simulator(path):
 
 # --- hidden effects: named, and nothing else named
 
+FROZEN_RUN_SEED = 50000
+
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", [None, "vibration", "reference_delay", "scale_factor", "cross_axis", "hum"],
+@pytest.mark.parametrize("effect", [None, "vibration", "reference_delay", "scale_factor", "cross_talk", "hum"],
                          ids=lambda e: e or "clean")
 def test_a_hidden_effect_of_the_independent_generator_is_named_alone(effect):
-    out = run_case(effect, 40000, estimator_settings())
+    out = run_case(effect, FROZEN_RUN_SEED, estimator_settings())
     assert out.correct, out.describe()
     if effect in IN_VOCABULARY:
         for key, truth in out.truth.items():

@@ -16,7 +16,7 @@ import pytest
 from gateway.core.diagnosis.context import G, prepare
 from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS
 from gateway.core.evaluation import summarise_errors
-from tests.diagnosis_cases import SENSOR, make_case, run_diagnosis
+from testing.diagnosis_cases import SENSOR, make_case, run_diagnosis
 
 NONLINEARITY = next(e for e in SIGNAL_EFFECTS if e.name == "nonlinearity")
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gateway.core.filters import moved_pole, one_pole_lowpass
-from tests.diagnosis_cases import SENSOR, make_case, part_within_tolerance, run_diagnosis
+from testing.diagnosis_cases import SENSOR, make_case, part_within_tolerance, run_diagnosis
 
 
 def test_moving_the_pole_is_the_filter_at_the_other_bandwidth():

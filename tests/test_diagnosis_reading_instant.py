@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gateway.core.diagnosis import list_effects
-from tests.diagnosis_cases import SENSOR, make_case, run_diagnosis
+from testing.diagnosis_cases import SENSOR, make_case, run_diagnosis
 
 
 def _reading_instant(result):

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.diagnosis_cases import make_case, run_diagnosis
+from testing.diagnosis_cases import make_case, run_diagnosis
 
 pytestmark = pytest.mark.slow
 

@@ -9,7 +9,7 @@ import gateway.core.diagnosis.selection as selection
 from gateway.cli import main
 from gateway.core.diagnosis.timestamps import TimestampError, check_host_clock, check_sample_clock
 from gateway.offline.recording import write_recording
-from tests.diagnosis_cases import make_case, run_diagnosis
+from testing.diagnosis_cases import make_case, run_diagnosis
 
 
 def _bursty_host(data, seed):

@@ -17,7 +17,7 @@ import pytest
 from gateway.core.diagnosis.judgement import HOST_SCATTER_PERIODS
 from gateway.core.diagnosis.side_effects import BASELINE_LATENCY_MEAN_S, host_time_position_mm
 from gateway.core.motion_profiles import StrokeSettings
-from tests.diagnosis_cases import STROKES, make_case, run_diagnosis
+from testing.diagnosis_cases import STROKES, make_case, run_diagnosis
 
 
 def test_the_position_is_the_top_speed_times_the_delay_scatter_beyond_the_baseline_link():

@@ -6,7 +6,7 @@ import pytest
 
 from gateway.core.diagnosis.context import prepare
 from gateway.core.filters import mount_resonance
-from tests.diagnosis_cases import make_case, run_diagnosis
+from testing.diagnosis_cases import make_case, run_diagnosis
 
 
 # (a ringing in quadrature, gain 0 and q −3 on seed 9301, is found too but with

@@ -12,7 +12,7 @@ from gateway.core.diagnosis.context import prepare
 from gateway.core.diagnosis.side_effects import BiasRandomWalk
 from gateway.core.motion_profiles import StrokeSettings
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
-from tests.diagnosis_cases import make_case, run_diagnosis
+from testing.diagnosis_cases import make_case, run_diagnosis
 
 # strokes with rests long enough to hold the walk's blocks (the paper's 1 s dwells do not)
 LONG_DWELLS = StrokeSettings(strokes=4, dwell_s=4.0, rest_start_s=4.0, rest_end_s=4.0)
@@ -31,9 +31,9 @@ def test_a_wander_only_in_motion_is_not_a_walk_and_one_at_rest_is():
     walk = _walk(data.t_s, 2e-3 * G, rng)  # 2 mg/√s: unmissable where it is looked for
     test = BiasRandomWalk()
     in_motion = test.test(prep, white + np.where(prep.rest, 0.0, walk))
-    assert not in_motion.significant(1e-3), in_motion.params
+    assert not in_motion.predictive(1e-3), in_motion.params
     everywhere = test.test(prep, white + walk)
-    assert everywhere.significant(1e-3)
+    assert everywhere.predictive(1e-3)
     assert everywhere.params["random_walk_ug_per_rts"][0] == pytest.approx(2000.0, rel=0.5)
 
 
@@ -41,7 +41,7 @@ def test_a_stroke_record_with_short_rests_says_it_cannot_see_a_walk():
     _, data = make_case((), 3)  # the paper's strokes: 1 s dwells, 0.3 s of each is settling
     prep = prepare(data)
     out = BiasRandomWalk().test(prep, np.zeros(data.t_s.size))
-    assert "too few to see a walk" in out.detail and not out.significant(1e-3)
+    assert "too few to see a walk" in out.detail and not out.predictive(1e-3)
     (walk,) = [c for c in run_diagnosis(data).candidates if c.name == "bias_random_walk"]
     assert walk.status == "rejected" and "too few to see a walk" in walk.reason
 

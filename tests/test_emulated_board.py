@@ -81,3 +81,32 @@ def test_sigterm_ends_the_board_cleanly_while_it_watches_stdin(tmp_path):
             board.wait()
     assert board.returncode == 0, err
     assert "Fatal Python error" not in err, err
+
+
+def test_a_gateway_killed_by_sigkill_leaves_a_board_directory_the_next_one_removes(tmp_path, monkeypatch):
+    """SIGKILL runs no cleanup: the board's private directory stays behind in the temp dir.
+    Whose owner is gone is known for sure (its flock is free): the next emulated board
+    removes those, and never the directory of a gateway that lives."""
+    import asyncio
+    import tempfile
+
+    from gateway.daemon.emulated_board import EmulatedBoard, remove_stale_board_dirs
+
+    parent = subprocess.Popen([sys.executable, "-c", PARENT], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "TMPDIR": str(tmp_path)})
+    board = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait(timeout=30)
+    deadline = time.monotonic() + 30
+    while alive(board) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    (left,) = tmp_path.glob("adxlgw-board-*")  # what the killed gateway left
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    living = EmulatedBoard()  # holds its directory's lock (its child not started)
+    try:
+        assert remove_stale_board_dirs(str(tmp_path), min_age_s=0) == [left]
+        assert not left.exists() and living.link.parent.is_dir()
+    finally:
+        asyncio.run(living.stop())
+    assert list(tmp_path.glob("adxlgw-board-*")) == []

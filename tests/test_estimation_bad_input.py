@@ -104,7 +104,7 @@ def test_a_gap_across_a_change_of_acceleration_loses_the_velocity_and_says_so(st
 def test_a_gap_at_rest_across_the_start_of_a_stroke_is_not_taken_as_rest(strokes):
     """50 ms lost from just before the second stroke starts (at rest, the filter holding the
     position): the axis may have started moving in the gap. It used to be held as rest —
-    metres off with every flag clear (benchmarks/gap_phase.py: 5 of 140 positions for
+    metres off with every flag clear (docs/decisions/0160, gap_phase: 5 of 140 positions for
     50 ms gaps). Now the gap is propagated as motion: the start shows as uncertainty."""
     run, t, z = strokes
     moving = np.flatnonzero(run.ref_vel_mps != 0.0)

@@ -1,6 +1,6 @@
 """The issue's goals on the paper's experiment, on seeds the benchmark and tuning never used.
 
-Goals (benchmarks/estimation_benchmark.py measures them on seeds 0–19): realtime ≤ 1 mm
+Goals (benchmarks/accuracy/estimation_benchmark.py measures them on seeds 0–19): realtime ≤ 1 mm
 median at the 10th stop and within 2× of the noise floor (the same filter told the true
 bias and drift); smoothed better still (in motion: at a stop both are on the noise floor); the paper's
 filter drifts (tens of mm).

@@ -42,7 +42,7 @@ def test_an_offset_step_is_flagged_within_two_seconds_and_kept(strokes):
     the velocity test cannot decide afterwards, so it says so — flag 256 within 2 s, held to
     the end, no stop accepted on a velocity it cannot trust — and its σ grows with the
     error instead of a confident position. (Where the test can still decide, the stop is
-    accepted and the step corrected: benchmarks/bias_step_limit.py.)"""
+    accepted and the step corrected: docs/decisions/0160-one-off-studies-retired.md.)"""
     run, t, z, resting = strokes
     k, z5 = _stepped(run, t, z, 5.0)
     track = estimate_series(t, z5, method="realtime", settings=SETTINGS)
@@ -261,7 +261,7 @@ def test_a_hinted_stop_shorter_than_the_window_corrects_the_position():
         assert abs(err) <= 3 * hinted.pos_std_m[end]
         plain_err.append(plain.pos_m[end] - run.ref_pos_m[end])
         hint_err.append(err)
-    # measured (benchmarks/design_checks.py item 6): RMS 9.87 mm without the hint, 3.16 mm with it
+    # measured (docs/decisions/0160, design_checks item 6): RMS 9.87 mm without the hint, 3.16 mm with it
     assert np.sqrt(np.mean(np.square(hint_err))) < 0.5 * np.sqrt(np.mean(np.square(plain_err)))
 
 

@@ -32,7 +32,7 @@ def test_a_two_second_cruise_at_one_metre_per_second_is_not_a_standstill(seed):
     profile = single_move(distance_m=2.1, max_speed_mps=1.0, max_acc_mps2=10.0, rest_start_s=1.0, rest_end_s=1.0)
     sensor, run, t, z = _run(profile, seed)
     # the filter's own σ: this part's sensitivity is exact, and the share a calibrated
-    # one's would add (0.5 % of 2.1 m) is tested in test_estimation_sensitivity_sigma.py
+    # one's would add (0.5 % of 2.1 m) is tested in test_estimation_sigma_carries_the_sensitivity.py
     settings = from_sensor_model(sensor, sensitivity_std_frac=0.0)
     cruise = (run.ref_vel_mps == 1.0) & (run.ref_acc_mps2 == 0.0)
     assert t[cruise][-1] - t[cruise][0] > 1.9

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from gateway.cli import main as cli_main
 from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
-from tests import hostile_files
-from tests.hostile_files import run_measured
+from testing import hostile_files
+from testing.hostile_files import run_measured
 from tests.pty_helpers import stderr_on_a_pty
 from tests.test_retiming import bursty_arrivals
 
@@ -314,3 +314,33 @@ def test_a_last_line_cut_short_is_refused_as_a_truncated_file(tmp_path, capsys):
     whole = hostile_files.without_metadata(hostile_files.write_raw(tmp_path / "w.csv", sim), tmp_path / "g.csv")
     whole.write_bytes(whole.read_bytes().rstrip(b"\n"))
     assert cli_main(["import", str(whole), "--arrival-col", "t_host_s", "--acc-col", "t1x", "--out", str(out)]) == 0
+
+
+def test_the_streamed_import_writes_what_the_whole_file_gives(tmp_path, capsys, monkeypatch):
+    """A trusted time column goes block by block from the file to the recording (memory
+    follows the block, not the file): cut into blocks of 7 rows, the very same recording as
+    in one block; a time going back across a block's edge and a one-row file are named as before."""
+    import gateway.commands.import_csv as import_csv
+
+    body = "".join(f"{1000 + 2 * i},{0.01 * (i % 5)},{i * 1e-3},{'' if i % 9 else 'rest'},{i}\n"
+                   for i in range(100) if i != 40) + "1300,,1,,\n"  # a row without acceleration
+    src = _write(tmp_path, "t_ms,acc,pos,state,other\n" + body)
+    args = ["import", str(src), "--time-col", "t_ms", "--time-unit", "ms", "--acc-col", "acc", "--acc-unit", "g",
+            "--ref-pos-col", "pos", "--hint-col", "state", "--hint-rest-value", "rest", "--hint-moving-value", "run"]
+    outputs = {}
+    for block_rows in (7, 1 << 16):
+        monkeypatch.setattr(import_csv, "BLOCK_ROWS", block_rows)
+        out = tmp_path / f"o{block_rows}.csv"
+        assert cli_main([*args, "--out", str(out)]) == 0, capsys.readouterr().err
+        assert "99 samples" in capsys.readouterr().err
+        outputs[block_rows] = out.read_text()
+    assert outputs[7] == outputs[1 << 16]
+
+    monkeypatch.setattr(import_csv, "BLOCK_ROWS", 7)
+    back = _write(tmp_path, "t,acc\n" + rows(7) + "0.01,0\n" + rows(5, t=lambda i: 1 + i), name="back.csv")
+    assert cli_main(["import", str(back), "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / "b.csv")]) == 2
+    assert "back.csv:9: column 't': time does not increase" in capsys.readouterr().err
+    one = _write(tmp_path, "t,acc\n0,1\n", name="one.csv")
+    assert cli_main(["import", str(one), "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / "c.csv")]) == 2
+    assert "1 rows with both 't' and 'acc'; a recording needs at least 2" in capsys.readouterr().err
+    assert not (tmp_path / "b.csv").exists() and not (tmp_path / "c.csv").exists()

@@ -19,8 +19,8 @@ from pymodbus.client import AsyncModbusTcpClient
 from drivers import sparkplug_payload as spb
 from drivers.published_values import StatusExtBits
 from drivers.sparkplug_host import FleetListener, write_true
+from testing.mqtt_helpers import Broker, free_port
 from tests.daemon_helpers import gateway_config, read_inputs, running_gateway, wait_for
-from tests.mqtt_helpers import Broker, free_port
 
 GROUP = "plant-test"
 WAIT_S = 30  # generous: a loaded 2-core machine

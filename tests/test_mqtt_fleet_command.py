@@ -8,8 +8,8 @@ import json
 import math
 import sys
 
+from testing.mqtt_helpers import Broker, free_port
 from tests.daemon_helpers import gateway_config, running_gateway, wait_for
-from tests.mqtt_helpers import Broker, free_port
 
 GROUP = "line-7"
 WAIT_S = 30

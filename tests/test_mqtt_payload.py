@@ -51,10 +51,13 @@ def test_a_number_the_gateway_does_not_have_is_null_not_a_value():
 
 
 def test_data_by_exception_sends_only_what_changed():
-    a = spb.device_row(PublishedValues(position_m=0.1, status=StatusBits.VALID))
-    b = spb.device_row(PublishedValues(position_m=0.2, status=StatusBits.VALID))
-    assert spb.changes(a, b) == {"position_m": 0.2}
-    assert spb.changes(a, a) == {}
+    a = spb.device_reading(PublishedValues(position_m=0.1, status=StatusBits.VALID))
+    b = spb.device_reading(PublishedValues(position_m=0.2, status=StatusBits.VALID))
+    assert spb.reading_changes(a, b) == {"position_m": 0.2}
+    assert spb.reading_changes(a, a) == {}
+    nan = spb.device_reading(PublishedValues())  # nothing estimated: NaN is null, and null equals null
+    assert spb.reading_changes(nan, spb.device_reading(PublishedValues())) == {}
+    assert spb.reading_changes(None, a) == spb.device_row(PublishedValues(position_m=0.1, status=StatusBits.VALID))
 
 
 @settings(max_examples=300, deadline=None)
@@ -98,6 +101,7 @@ def test_a_gap_in_the_ddata_count_is_lost_and_a_seq_skip_is_counted():
 
 
 def test_a_status_bit_that_changes_is_sent_and_unchanged_bits_are_not():
-    a = spb.device_row(PublishedValues(position_m=0.1, status=StatusBits.VALID))
-    b = spb.device_row(PublishedValues(position_m=0.1, status=StatusBits.VALID | StatusBits.STANDSTILL))
-    assert spb.changes(a, b) == {"status": int(StatusBits.VALID | StatusBits.STANDSTILL), "status/STANDSTILL": True}
+    a = spb.device_reading(PublishedValues(position_m=0.1, status=StatusBits.VALID))
+    b = spb.device_reading(PublishedValues(position_m=0.1, status=StatusBits.VALID | StatusBits.STANDSTILL))
+    assert spb.reading_changes(a, b) == {"status": int(StatusBits.VALID | StatusBits.STANDSTILL),
+                                         "status/STANDSTILL": True}

@@ -11,8 +11,8 @@ import pytest
 import gateway.offline.recording as recording
 from gateway.errors import RecordingError
 from gateway.offline.recording import open_recording, read_recording, to_acceleration, write_recording
-from tests import hostile_files as hostile
-from tests.hostile_files import write_raw
+from testing import hostile_files as hostile
+from testing.hostile_files import write_raw
 
 
 def adxlgw(*args, cwd=None):
@@ -219,3 +219,17 @@ def test_a_file_of_one_sample_is_refused_in_one_line(tmp_path):
     r = adxlgw("estimate", path, "--out", tmp_path / "e.csv")
     one_line_exit_2(r, "r.csv: cannot estimate (realtime): only 1 sample")
     assert not (tmp_path / "e.csv").exists()
+
+
+@pytest.mark.parametrize("plot, message", [
+    ("missing/p.png", "no directory"),
+    ("p.xlsx", "not a figure's extension"),
+])
+def test_a_plot_it_cannot_write_is_refused_before_the_work(tmp_path, sim_columns, plot, message):
+    """A long estimate or fit that only then finds it cannot save its figure loses the run:
+    the plot's path is checked first (a recording that does not even exist shows it)."""
+    path = write_raw(tmp_path / "r.csv", sim_columns)
+    out = ("--out", tmp_path / "e.csv")
+    for command in (("estimate", path, *out, "--plot", tmp_path / plot), ("fit-drift", path, "--plot", tmp_path / plot),
+                    ("estimate", tmp_path / "absent.csv", *out, "--plot", tmp_path / plot)):
+        one_line_exit_2(adxlgw(*command), f"--plot {tmp_path / plot}: {message}")

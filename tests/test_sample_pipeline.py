@@ -358,7 +358,8 @@ def test_before_the_first_estimate_the_position_is_untrusted_unless_known_to_sta
     any sample is estimated: the wires must not wait for the first window to say that
     position is not trustworthy (the fault benchmark's restart showed it 0.5 s late)."""
     from drivers.published_values import StatusBits
-    from gateway.daemon.board_intake import BoardIntake, LinkHealth
+    from gateway.daemon.board_intake import BoardIntake
+    from gateway.daemon.status_flags import LinkHealth
 
     health = LinkHealth(port_open=True, last_byte_s=0.0, stale_after_s=0.2, lost_after_s=1.0)
     for at_rest, untrusted in ((False, True), (True, False)):
@@ -373,3 +374,28 @@ def test_before_the_first_estimate_the_position_is_untrusted_unless_known_to_sta
     intake.pipeline.reset()
     intake.publish(0.0)
     assert StatusBits.POSITION_UNTRUSTED in intake.snapshot(health).status
+
+
+def test_the_published_sigma_never_exceeds_the_distance_to_the_farther_end_of_the_travel():
+    """After a board reset the velocity is unknown and the filter's σ grows without bound
+    (the fault benchmark: 25 m within 20 s on a 20 m travel); the axis cannot leave its
+    travel, so no position it can have is farther from the estimate than the farther end."""
+    def reset_then_quiet(p: SamplePipeline) -> None:
+        p.feed(encode_hello(uptime_s=0, **REPORT))
+        seq = at_rest(p, 0, 200)
+        seq = accelerate(p, accelerate(p, seq, 0.3, 50), -0.3, 50)
+        at_rest(p, seq, 100)
+        p.feed(encode_hello(uptime_s=0, **REPORT))  # a board reset: the velocity is lost
+        at_rest(p, 0, 2500)  # 5 s the filter cannot tell from a cruise
+
+    unbounded = pipeline()
+    reset_then_quiet(unbounded)
+    bounded = pipeline()
+    bounded.set_travel((-0.2, 0.3))
+    reset_then_quiet(bounded)
+    est, free = bounded.latest(), unbounded.latest()
+    farthest = max(est.pos_m + 0.2, 0.3 - est.pos_m)
+    assert free.pos_std_m > farthest  # the case the bound is for
+    assert est.pos_std_m == pytest.approx(farthest) and est.pos_m == free.pos_m
+    bounded.set_travel((-10.0, 10.0))  # a reload: the new travel from the next read on
+    assert bounded.latest().pos_std_m == pytest.approx(min(free.pos_std_m, 10.0 + abs(est.pos_m)))

@@ -77,3 +77,17 @@ def test_the_board_port_batches_unless_can_sends_per_sample(tmp_path):
     assert wake(serial={"batch_frames": 17}) == 255
     assert wake(can={"min_interval_ms": 0}) == SAMPLE_FRAME_LENGTH
     assert wake(can={"min_interval_ms": 0, "enabled": False}) == 5 * SAMPLE_FRAME_LENGTH
+
+
+def test_watchdog_is_fed_by_progress_since_the_last_check_not_by_staleness():
+    from gateway.daemon.supervisor import board_alive_for_watchdog
+
+    check_every_s, lost_after_s = 15.0, 1.0  # WatchdogSec=30 s, serial.lost_after_ms = 1000
+    assert not board_alive_for_watchdog(100.0, None, check_every_s, lost_after_s)  # no sample yet
+    # a board slowed into 3 s bursts (values STALE between them) is slow, not hung: fed
+    assert board_alive_for_watchdog(100.0, 97.0, check_every_s, lost_after_s)
+    # no sample since the previous check: not fed, so systemd restarts after WatchdogSec
+    assert not board_alive_for_watchdog(100.0, 100.0 - check_every_s, check_every_s, lost_after_s)
+    # a short WatchdogSec (checks every 0.1 s): the freshness bound is the longer and rules
+    assert board_alive_for_watchdog(100.0, 99.5, 0.1, lost_after_s)
+    assert not board_alive_for_watchdog(100.0, 98.9, 0.1, lost_after_s)

@@ -14,8 +14,8 @@ def add_parser(sub) -> None:
                        description="With --default: print a complete, commented default configuration. "
                                    "With --check FILE: validate FILE, run every check `adxlgw run` makes "
                                    "before it starts (port set and present, drift-model file, Modbus host, "
-                                   "CAN interface), and print the effective settings. Exit 2 if anything "
-                                   "would stop or stall the daemon.")
+                                   "CAN interface, the MQTT credentials and TLS CA files), and print the "
+                                   "effective settings. Exit 2 if anything would stop or stall the daemon.")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--default", action="store_true", help="print the default configuration (TOML)")
     g.add_argument("--check", metavar="FILE", help="validate FILE (exit 2 on problems, each on one line)")

@@ -5,6 +5,7 @@ import argparse
 import json
 import math
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -13,7 +14,7 @@ from gateway.core.diagnosis import DiagnosisInput, diagnose, list_effects
 from gateway.core.diagnosis.context import reference_resolution_block
 from gateway.core.diagnosis.judgement import REFERENCE_INTERVALS_PER_BLOCK
 from gateway.core.diagnosis.timestamps import TimestampError, check_sample_clock
-from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
 from gateway.core.model_compensation import ModelTerm, SensorModel
 from gateway.core.reference_point import NoRestError
 from gateway.core.sensor_model import SensorParams
@@ -190,15 +191,32 @@ def _write_json(path: str, doc: dict) -> None:
         raise InputError(f"{path}: cannot write: {err.strerror or err}") from err
 
 
-def _run(args: argparse.Namespace) -> int:
-    if args.list_effects:
-        effects = list_effects()
-        width = max(len(name) for name, _ in effects)
-        for name, summary in effects:
-            print(f"{name.ljust(width)}  {summary}")
-        return 0
-    if not args.recording:
-        args._parser.error("the following arguments are required: FILE.csv (or --list-effects)")
+@dataclass
+class _Prepared:
+    """A recording read, checked and made ready for the diagnosis."""
+
+    path: str
+    series: object  # AccelerationSeries
+    data: DiagnosisInput
+    settings: EstimatorSettings
+    #: what the preparation could not do as asked, said before the result
+    notes: list[str]
+
+
+_NO_REST = ("no reference motion and no standstill to start the smoothed estimate from "
+            "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
+
+
+def _print_effects() -> None:
+    effects = list_effects()
+    width = max(len(name) for name, _ in effects)
+    for name, summary in effects:
+        print(f"{name.ljust(width)}  {summary}")
+
+
+def _prepare(args: argparse.Namespace) -> _Prepared:
+    """Reads the recording and checks it is one the diagnosis can work on (InputError
+    naming what is wrong otherwise)."""
     path = args.recording
     source = open_recording(path)
     with reading_bar(source) as bar:
@@ -218,29 +236,37 @@ def _run(args: argparse.Namespace) -> int:
         check_sample_clock(data.t_s, data.lost_before)
     except TimestampError as err:
         raise InputError(f"{path}: {err}") from err
-    no_rest = ("no reference motion and no standstill to start the smoothed estimate from "
-               "(record a rest at the start, or add ref_pos_m, ref_vel_mps, ref_acc_mps2)")
     try:
         settings = settings_for(series, rec.form, "auto", None)
     except NoRestError as err:
         if data.reference is None:
-            raise _nothing(path, f"{no_rest}: {err}") from err
+            raise _nothing(path, f"{_NO_REST}: {err}") from err
         # a reference is there: the fit needs no rest; the filter takes the data-sheet noise
         notes.append(f"no initial rest for the filter's noise settings ({err}): the ADXL202 data-sheet "
                      "values are used, so the distance gains are indicative only")
         settings = from_sensor_model(SensorParams(), axis=series.axis)
-    for note in notes:
-        _warn(note)
+    return _Prepared(path, series, data, settings, notes)
+
+
+def _diagnosed(prepared: _Prepared, returns_to_start: bool):
+    """The diagnosis of a prepared recording (InputError when it cannot be analysed)."""
+    path, data = prepared.path, prepared.data
     try:
-        result = diagnose(data, settings, returns_to_start=args.returns_to_start, progress=_progress)
+        result = diagnose(data, prepared.settings, returns_to_start=returns_to_start, progress=_progress)
     except NoRestError as err:
         if data.reference is None or data.reference == "estimated":
-            raise _nothing(path, f"{no_rest}: {err}") from err
+            raise _nothing(path, f"{_NO_REST}: {err}") from err
         raise InputError(f"{path}: cannot analyse: {err}") from err
     except ValueError as err:
         raise InputError(f"{path}: cannot analyse: {err}") from err
-    result.cannot[:0] = notes
-    for c in result.cannot[len(notes):]:
+    result.cannot[:0] = prepared.notes
+    return result
+
+
+def _report(args: argparse.Namespace, prepared: _Prepared, result) -> None:
+    """The summary on stdout and the files asked for (--json, --model-out, --report)."""
+    path = prepared.path
+    for c in result.cannot[len(prepared.notes):]:
         _warn(c)
     print(text_summary(result, path))
     if args.json:
@@ -252,7 +278,20 @@ def _run(args: argparse.Namespace) -> int:
         print(f"wrote {args.model_out}: {len(model.terms)} term(s)"
               + (f"; not compensated: {', '.join(model.not_compensated)}" if model.not_compensated else ""))
     if args.report:
-        ref_pos = series.reference.get("ref_pos_m") if data.reference == "recorded" else None
+        ref_pos = prepared.series.reference.get("ref_pos_m") if prepared.data.reference == "recorded" else None
         files = write_report(args.report, result, path, ref_pos)
         print(f"wrote {files[0]} and {len(files) - 1} plots")
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.list_effects:
+        _print_effects()
+        return 0
+    if not args.recording:
+        args._parser.error("the following arguments are required: FILE.csv (or --list-effects)")
+    prepared = _prepare(args)
+    for note in prepared.notes:
+        _warn(note)
+    result = _diagnosed(prepared, args.returns_to_start)
+    _report(args, prepared, result)
     return 0

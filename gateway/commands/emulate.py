@@ -80,8 +80,8 @@ def _stop_at_end_of_stdin() -> None:
     os.kill(os.getpid(), signal.SIGTERM)
 
 
-def run(args: argparse.Namespace) -> int:
-    settings = EmulatorSettings(
+def _settings(args: argparse.Namespace) -> EmulatorSettings:
+    return EmulatorSettings(
         scenario=scenario_from_args(args),
         seed=args.seed,
         loop=args.loop,
@@ -93,64 +93,98 @@ def run(args: argparse.Namespace) -> int:
             drop_every_s=args.drop_every,
         ),
     )
-    if args.reopen_every and args.port:
-        raise DeviceError("--reopen-every works on the emulator's own pty, not with --port")
-    out = _SerialOut(args.port) if args.port else PtyPort(args.link)
-    print(out.path, flush=True)
 
+
+def _stop_switch(args: argparse.Namespace) -> StopOnSignal:
     stop = StopOnSignal()
     if args.exit_with_stdin:
         threading.Thread(target=_stop_at_end_of_stdin, daemon=True, name="stdin-watch").start()
         # a parent that led a terminal's session (the demo on a terminal) takes its process
         # group with it by SIGHUP when it dies: stop in order then too (the link removed)
         signal.signal(signal.SIGHUP, lambda _signum, frame: setattr(stop, "stop", True))
+    return stop
 
+
+class _Player:
+    """Plays the board's schedule on a port, paced, with the faults that concern the port:
+    a burst (50 ms of chunks held back, then sent at once) and a reopen (the pty closed
+    and made again)."""
+
+    def __init__(self, out: PtyPort | _SerialOut, args: argparse.Namespace, reopen_gap_s: float) -> None:
+        self.out = out
+        self._args = args
+        self._reopen_gap_s = reopen_gap_s
+        self._pacer = Pacer(args.fast)
+        self._next_burst = args.burst_every or float("inf")
+        self._next_reopen = args.reopen_every or float("inf")
+        self._held: list[bytes] = []
+        self._hold_until = -1.0
+        self.sent = {"sample": 0, "status": 0, "hello": 0, "garbage": 0}
+        self.overflow = 0  # writes cut short because the reader fell behind and the buffer was full
+        self.unheard = 0  # chunks sent while nobody had the port open
+
+    def play(self, chunk) -> None:
+        if chunk.due_s >= self._next_reopen and isinstance(self.out, PtyPort):
+            self._next_reopen += self._args.reopen_every
+            self._reopen()
+        if chunk.due_s >= self._next_burst:
+            self._next_burst += self._args.burst_every
+            self._hold_until = chunk.due_s + 0.05
+        if chunk.due_s < self._hold_until:
+            self._held.append(chunk.data)
+        else:
+            self._send(chunk)
+        self.sent[chunk.kind] += 1
+
+    def _reopen(self) -> None:
+        self.out.close()
+        log.info("port closed (fault: reopen); back in %.1f s", self._reopen_gap_s)
+        time.sleep(self._reopen_gap_s)
+        self.out = PtyPort(self._args.link)
+        print(self.out.path, flush=True)
+
+    def _send(self, chunk) -> None:
+        self._pacer.wait_until(chunk.due_s)
+        if self._held:
+            chunk.data = b"".join(self._held) + chunk.data
+            self._held.clear()
+        if not self.out.has_reader():
+            self.unheard += 1  # a real line with nobody listening: the bytes are gone
+        elif self.out.write(chunk.data, block=self._args.fast) < len(chunk.data):
+            self.overflow += 1
+
+    def flush_held(self) -> None:
+        if self._held:
+            self.out.write(b"".join(self._held))
+
+    def summary(self) -> str:
+        return ("emulate: sent " + ", ".join(f"{v} {k}" for k, v in self.sent.items())
+                + f"; {self.unheard} chunks sent with nobody listening; {self.overflow} writes cut short "
+                "(reader behind)")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = _settings(args)
+    if args.reopen_every and args.port:
+        raise DeviceError("--reopen-every works on the emulator's own pty, not with --port")
+    out = _SerialOut(args.port) if args.port else PtyPort(args.link)
+    print(out.path, flush=True)
+    stop = _stop_switch(args)
     if not args.no_wait:
         while not stop and not out.wait_for_reader(timeout_s=0.2):
             pass
-    pacer = Pacer(args.fast)
-    sent = {"sample": 0, "status": 0, "hello": 0, "garbage": 0}
-    next_burst = args.burst_every or float("inf")
-    next_reopen = args.reopen_every or float("inf")
-    held: list[bytes] = []
-    hold_until = -1.0
-    overflow = 0  # writes cut short because the reader fell behind and the buffer was full
-    unheard = 0  # chunks sent while nobody had the port open
+    player = _Player(out, args, settings.faults.reopen_gap_s)
     try:
         for chunk in board_schedule(settings):
             if stop:
                 break
-            if chunk.due_s >= next_reopen and isinstance(out, PtyPort):
-                next_reopen += args.reopen_every
-                out.close()
-                log.info("port closed (fault: reopen); back in %.1f s", settings.faults.reopen_gap_s)
-                time.sleep(settings.faults.reopen_gap_s)
-                out = PtyPort(args.link)
-                print(out.path, flush=True)
-            if chunk.due_s >= next_burst:
-                next_burst += args.burst_every
-                hold_until = chunk.due_s + 0.05
-            if chunk.due_s < hold_until:
-                held.append(chunk.data)
-            else:
-                pacer.wait_until(chunk.due_s)
-                if held:
-                    chunk.data = b"".join(held) + chunk.data
-                    held.clear()
-                if not out.has_reader():
-                    unheard += 1  # a real line with nobody listening: the bytes are gone
-                elif out.write(chunk.data, block=args.fast) < len(chunk.data):
-                    overflow += 1
-            sent[chunk.kind] += 1
-        if held:
-            out.write(b"".join(held))
+            player.play(chunk)
+        player.flush_held()
         if not stop:
             time.sleep(args.linger)
     except OSError as err:
-        raise DeviceError(f"writing to {out.path} failed: {err.strerror or err}") from err
+        raise DeviceError(f"writing to {player.out.path} failed: {err.strerror or err}") from err
     finally:
-        out.close(remove_link=True)
-        print("emulate: sent " + ", ".join(f"{v} {k}" for k, v in sent.items())
-              + f"; {unheard} chunks sent with nobody listening; {overflow} writes cut short (reader behind)",
-              file=sys.stderr)
+        player.out.close(remove_link=True)
+        print(player.summary(), file=sys.stderr)
     return 0

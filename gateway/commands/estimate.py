@@ -20,7 +20,7 @@ from gateway.core.retiming import RetimingError, retime
 from gateway.core.sensor_model import SensorParams
 from gateway.drift_model_file import load_drift_model
 from gateway.errors import InputError, RecordingError
-from gateway.offline.figures import save_figure
+from gateway.offline.figures import check_plot_path, save_figure
 from gateway.offline.progress import progress_bar, reading_bar
 from gateway.offline.recording import (
     AccelerationSeries,
@@ -36,7 +36,7 @@ from gateway.offline.recording import (
 # Memory of the smoothed estimate per sample, bytes: the recording's columns and the
 # series, the forward pass's states kept for the backward pass (~90), the output columns
 # and what writing them takes. Measured: 266 (peak RSS 5.75 GB for 21.6 M samples,
-# benchmarks/offline_scale.py, docs/estimation.md), rounded up; plus ~42 when the stops
+# benchmarks/speed/offline_scale.py, docs/estimation.md), rounded up; plus ~42 when the stops
 # are decided from both ends (estimator.stops_seen_from_the_end: the one-pass answer
 # kept beside the second pass, the derived hint) — not measured at 12 h, counted; plus
 # up to 48 (an index and 5 floats) for the soft hinted velocity updates' records
@@ -267,10 +267,9 @@ class HintUse:
                   f"{self.moving} 'moving', {self.unknown} unknown)", file=sys.stderr)
 
 
-def run(args: argparse.Namespace) -> int:
-    source = open_recording(args.recording)
-    if args.method == "realtime" and not args.plot and not args.model:
-        return run_streamed(args, source)
+def _read_series(args: argparse.Namespace, source: RecordingSource) -> tuple[AccelerationSeries, str]:
+    """The recording as acceleration (its form: raw or acceleration), checked: samples
+    left after --skip-s, a time axis an estimate can run on."""
     if args.method == "smoothed":
         check_fits_in_memory(args.recording, SMOOTHED_BYTES_PER_SAMPLE * source.estimated_rows(),
                              f"the smoothed estimate ({SMOOTHED_BYTES_PER_SAMPLE} bytes per sample)")
@@ -288,6 +287,11 @@ def run(args: argparse.Namespace) -> int:
     if len(series) < 2:
         raise RecordingError(f"{args.recording}: fewer than two samples, nothing to estimate")
     check_time_axis(args.recording, series.t_s)
+    return series, form
+
+
+def _estimated(args: argparse.Namespace, series: AccelerationSeries, form: str):
+    """The track of the method asked for, and the filter's settings (None for raw/paper)."""
     drift = load_drift_model(args.drift_model) if args.drift_model else None
     settings = None
     try:
@@ -309,6 +313,11 @@ def run(args: argparse.Namespace) -> int:
         hints.say()
     except NoRestError as err:
         raise _no_rest(args, err) from err
+    return track, settings
+
+
+def _report(args: argparse.Namespace, series: AccelerationSeries, track, settings) -> None:
+    """The notes and settings, the track written, the errors against the reference, the plot."""
     for note in track.notes:
         print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
     if settings is not None:
@@ -320,6 +329,17 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         plot_track(args.plot, track, series.reference, f"{Path(args.recording).name}: {track.method}")
         print(f"wrote {args.plot}")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        check_plot_path(args.plot)  # before the work
+    source = open_recording(args.recording)
+    if args.method == "realtime" and not args.plot and not args.model:
+        return run_streamed(args, source)
+    series, form = _read_series(args, source)
+    track, settings = _estimated(args, series, form)
+    _report(args, series, track, settings)
     return 0
 
 
@@ -353,6 +373,53 @@ def print_errors(args, summary: ErrorSummary | None, with_stops: bool, final_pos
         print(f"final position (the motion returns to its start, so this is the error): {_mm(final_pos_m)}")
 
 
+class _Streamed:
+    """The realtime estimate of one recording, fed chunk by chunk: the filter (its
+    settings from the first chunk), the track's writer and the errors against the
+    reference summed up as the chunks pass."""
+
+    def __init__(self, args: argparse.Namespace, form: str) -> None:
+        self._args = args
+        self._form = form
+        self._drift = load_drift_model(args.drift_model) if args.drift_model else None
+        self.hints = HintUse(args)
+        self.runner: RealtimeChunks | None = None
+        self.writer = None
+        self.settings = None
+        self.judge: StreamedErrors | None = None
+        self.ref_names: list[str] = []
+        self.last_series: AccelerationSeries | None = None
+        self.last_track = None
+
+    def _start(self, series: AccelerationSeries) -> None:
+        self.settings = settings_for(series, self._form, self._args.noise_from, self._drift)
+        self.runner = RealtimeChunks(self.settings)
+        self.ref_names = [k for k, v in series.reference.items() if not np.all(np.isnan(v))]
+        if "ref_pos_m" in self.ref_names:
+            self.judge = StreamedErrors()
+
+    def feed(self, series: AccelerationSeries) -> None:
+        check_time_axis(self._args.recording, series.t_s)
+        if self.runner is None:
+            self._start(series)
+        raw = self._form == "raw"
+        track = self.runner.feed(series.t_s, series.acc_mps2, series.valid,
+                                 series.lost_before if raw else None, self.hints.of(series))
+        if self.writer is None:
+            self.writer = track_writer(self._args.out, track)
+        self.writer.write(track.columns())
+        if self.judge is not None:
+            ref, names = series.reference, self.ref_names
+            self.judge.feed(track.t_s, track.pos_m, ref["ref_pos_m"],
+                            ref["ref_vel_mps"] if "ref_vel_mps" in names else np.full(len(track), np.nan),
+                            ref["ref_acc_mps2"] if "ref_acc_mps2" in names else None)
+        self.last_series, self.last_track = series, track
+
+    def abort(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+
+
 def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
     """The realtime estimate chunk by chunk: memory follows the chunk, not the recording.
 
@@ -362,13 +429,7 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
     exactly the whole-file numbers. The errors against a reference are summed up as the
     chunks pass (StreamedErrors); a reference column empty in the first chunk is taken
     as absent (the whole-file path looks at the whole column)."""
-    drift = load_drift_model(args.drift_model) if args.drift_model else None
-    raw = source.form == "raw"
-    runner = writer = settings = None
-    judge: StreamedErrors | None = None
-    ref_names: list[str] = []
-    last_series = None
-    hints = HintUse(args)
+    run = _Streamed(args, source.form)
     skip = Skip(args.skip_s)
     try:
         with reading_bar(source, "estimating") as bar:
@@ -376,44 +437,25 @@ def run_streamed(args: argparse.Namespace, source: RecordingSource) -> int:
                 series = skip(series)
                 if args.skip_s and not len(series):
                     continue
-                check_time_axis(args.recording, series.t_s)
-                if runner is None:
-                    settings = settings_for(series, source.form, args.noise_from, drift)
-                    runner = RealtimeChunks(settings)
-                    ref_names = [k for k, v in series.reference.items() if not np.all(np.isnan(v))]
-                    if "ref_pos_m" in ref_names:
-                        judge = StreamedErrors()
-                track = runner.feed(series.t_s, series.acc_mps2, series.valid,
-                                    series.lost_before if raw else None, hints.of(series))
-                if writer is None:
-                    writer = track_writer(args.out, track)
-                writer.write(track.columns())
-                if judge is not None:
-                    ref = series.reference
-                    judge.feed(track.t_s, track.pos_m, ref["ref_pos_m"],
-                               ref["ref_vel_mps"] if "ref_vel_mps" in ref_names else np.full(len(track), np.nan),
-                               ref["ref_acc_mps2"] if "ref_acc_mps2" in ref_names else None)
-                last_series = series
-        if runner is None:
+                run.feed(series)
+        if run.runner is None:
             raise RecordingError(f"{args.recording}: no data rows"
                                  + (f" after the first {args.skip_s:g} s (--skip-s)" if args.skip_s else ""))
-        notes = runner.finish()
-        hints.say()
+        notes = run.runner.finish()
+        run.hints.say()
     except NoRestError as err:
-        if writer is not None:
-            writer.abort()
+        run.abort()
         raise _no_rest(args, err) from err
     except BaseException:
-        if writer is not None:
-            writer.abort()
+        run.abort()
         raise
-    _warn_input(last_series)
+    _warn_input(run.last_series)
     for note in notes:
         print(f"adxlgw estimate: warning: {note}", file=sys.stderr)
-    for line in settings.describe():
+    for line in run.settings.describe():
         print(f"settings: {line}")
-    writer.commit()
-    print(f"wrote {args.out}: {runner.counts.samples} samples, method realtime")
-    print_errors(args, judge.result() if judge is not None else None, "ref_vel_mps" in ref_names,
-                 float(track.pos_m[-1]))
+    run.writer.commit()
+    print(f"wrote {args.out}: {run.runner.counts.samples} samples, method realtime")
+    print_errors(args, run.judge.result() if run.judge is not None else None, "ref_vel_mps" in run.ref_names,
+                 float(run.last_track.pos_m[-1]))
     return 0

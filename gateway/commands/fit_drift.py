@@ -13,7 +13,7 @@ from gateway.commands.common import positive_float
 from gateway.core.drift_fit import DriftFit, fit_drift
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import InputError, RecordingError
-from gateway.offline.figures import save_figure
+from gateway.offline.figures import check_plot_path, save_figure
 from gateway.offline.progress import reading_bar
 from gateway.offline.recording import open_recording, read_all, to_acceleration
 
@@ -118,6 +118,8 @@ def plot_fit(path: str, fit: DriftFit, t0_s: float, title: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    plot_path = args.plot or f"{Path(args.recording).stem}_drift.png"
+    check_plot_path(plot_path)  # before the work
     source = open_recording(args.recording)
     # the fit needs the time and the measured axis only: the reference, the host's arrival
     # time and the temperature are not read (~40 bytes per sample less)
@@ -133,7 +135,6 @@ def run(args: argparse.Namespace) -> int:
         raise RecordingError(f"{args.recording}: cannot fit the drift model: {err}") from err
     for line in report(fit):
         print(line)
-    plot_path = args.plot or f"{Path(args.recording).stem}_drift.png"
     plot_fit(plot_path, fit, float(series.t_s[0]), f"zero drift of {Path(args.recording).name}")
     print(f"wrote {plot_path}")
     if args.model_out:

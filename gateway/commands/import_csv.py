@@ -23,8 +23,10 @@ from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
 from gateway.offline.progress import progress_bar
 from gateway.offline.recording import (
+    FORMAT_ID,
     HINT_COLUMN,
     MAX_LINE_BYTES,
+    ColumnWriter,
     cell_text,
     check_output,
     line_blocks,
@@ -198,9 +200,19 @@ class _Column:
         return np.frombuffer(self.values, dtype=float) if self.values else np.zeros(0)
 
 
-def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
-    """Numbers of the wanted columns for rows with a time and an acceleration, and their
-    line numbers; the file streamed (only these columns kept), with a progress bar."""
+#: Rows per block of the streamed import: the memory a block takes (a few MB), not the file's.
+BLOCK_ROWS = 1 << 16
+
+
+class _Skipped:
+    rows = 0  # rows without a time or an acceleration, so far
+
+
+def foreign_blocks(args, skipped: _Skipped, block_rows: int | None = None):
+    """The wanted columns' numbers for rows with a time and an acceleration, and their line
+    numbers, a block of `block_rows` (BLOCK_ROWS) rows at a time; the file streamed, with a
+    progress bar."""
+    block_rows = block_rows or BLOCK_ROWS
     path = args.foreign
     try:
         size = os.path.getsize(path)
@@ -211,9 +223,18 @@ def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
     limit = csv.field_size_limit(MAX_LINE_BYTES)
     try:
         with progress_bar(size, f"reading {Path(path).name}") as bar:
-            return _read_rows(args, csv.reader(_text_lines(path, bar, end), delimiter=args.delimiter), end)
+            reader = csv.reader(_text_lines(path, bar, end), delimiter=args.delimiter)
+            yield from _row_blocks(args, reader, end, skipped, block_rows)
     finally:
         csv.field_size_limit(limit)  # the process's setting, as it was
+
+
+def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+    """The whole file's numbers (foreign_blocks put together): what the re-timing needs."""
+    skipped = _Skipped()
+    blocks = list(foreign_blocks(args, skipped, block_rows=1 << 62))
+    values, lines = blocks[0] if blocks else ({}, np.zeros(0, dtype=np.int64))
+    return values, lines, skipped.rows
 
 
 def _csv_error(path: str, reader, err: csv.Error) -> RecordingError:
@@ -224,7 +245,7 @@ def _csv_error(path: str, reader, err: csv.Error) -> RecordingError:
     return RecordingError(f"{path}:{reader.line_num}: cannot be read as CSV: {err}")
 
 
-def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+def _row_blocks(args, reader, end: dict, skipped: _Skipped, block_rows: int):
     path = args.foreign
     try:
         header = [h.strip() for h in next(reader)]
@@ -245,7 +266,6 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
         index[role] = header.index(name)
     columns = {role: _Column(relative=role in ("time", "check")) for role in wanted}
     lines = array("q")
-    skipped = 0
     last_cells = len(header)
     rows = iter(reader)
     while True:
@@ -261,7 +281,7 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
         last_cells = len(row)
         cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
         if not cells["time"] or not cells["acc"]:
-            skipped += 1
+            skipped.rows += 1
             continue
         for role, cell in cells.items():
             column = columns[role]
@@ -277,12 +297,24 @@ def _read_rows(args, reader, end: dict) -> tuple[dict[str, np.ndarray], np.ndarr
             else:
                 column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
         lines.append(line)
+        if len(lines) >= block_rows:
+            yield _block(columns, lines)
+            lines = array("q")
     if end["cut"] and last_cells < len(header):
         # a logger killed mid-row (rows of fewer cells are fine elsewhere: other kinds of row)
         raise RecordingError(f"{path}:{reader.line_num}: has {last_cells} cells, the header has {len(header)} "
                              "(the last line is cut short: a truncated file?)")
-    return ({role: column.numbers() for role, column in columns.items()},
-            np.frombuffer(lines, dtype=np.int64) if lines else np.zeros(0, dtype=np.int64), skipped)
+    if lines:
+        yield _block(columns, lines)
+
+
+def _block(columns: dict[str, _Column], lines: array) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The rows gathered so far as arrays; the columns start the next block empty (a relative
+    column keeps its first cell)."""
+    values = {role: column.numbers() for role, column in columns.items()}
+    for column in columns.values():
+        column.values = array("d")
+    return values, np.frombuffer(lines, dtype=np.int64)
 
 
 def _retime(args, arrival_s: np.ndarray, lines: list[int]) -> Retiming:
@@ -327,27 +359,126 @@ def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
     check_output(args.out)  # before the work
+    if args.arrival_col or args.ref_delay_s != 0:
+        # the re-timing fits the whole file's arrivals, a delayed reference is resampled
+        # across rows: both need every row at once
+        return _run_whole(args)
+    return _run_streamed(args)
+
+
+def _check_increasing(args, t_in: np.ndarray, lines: np.ndarray, before_s: float = -math.inf) -> None:
+    back = np.flatnonzero(np.diff(np.concatenate([[before_s], t_in])) <= 0)
+    if back.size:
+        raise RecordingError(f"{args.foreign}:{lines[back[0]]}: column {args.time_col!r}: time does not increase")
+
+
+def _check_rate(args, t_in: np.ndarray) -> None:
+    rate_hz = 1.0 / float(np.median(np.diff(t_in)))
+    if rate_hz < MIN_RATE_HZ:
+        raise RecordingError(
+            f"{args.foreign}: column {args.time_col!r} read in {args.time_unit}: {rate_hz:.3g} samples/s, too slow "
+            f"for an accelerometer's log (a move of the paper or the robot lasts under a second: fewer than "
+            f"{MIN_RATE_HZ:g} sample/s cannot follow it); a time in another unit? give --time-unit")
+
+
+def _too_few(args, rows: int, need: int) -> RecordingError:
+    return RecordingError(f"{args.foreign}: {rows} rows with both {args.arrival_col or args.time_col!r} and "
+                          f"{args.acc_col!r}; {'re-timing needs' if args.arrival_col else 'a recording needs'} "
+                          f"at least {need}")
+
+
+def _metadata(args) -> dict[str, str]:
+    time_col = args.arrival_col or args.time_col
+    roles = _wanted(args)
+    return {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " "),
+            "imported_columns": (
+                f"time={time_col} ({args.time_unit}), acc_x={args.acc_col} ({args.acc_unit} × {args.acc_scale:g})"
+                + (f", acc_y={args.acc_y_col}" if args.acc_y_col else "")
+                + "".join(f", {REFERENCE_ROLES[r]}={getattr(args, r + '_col')} ({args.ref_unit} × {args.ref_scale:g})"
+                          for r in REFERENCE_ROLES if r in roles)
+                + (f", reference taken at the {args.ref_clock} time, {args.ref_delay_s:g} s late"
+                   if any(r in roles for r in REFERENCE_ROLES) else "")
+                + (f", {HINT_COLUMN}={args.hint_col}" if args.hint_col else ""))}
+
+
+def _columns(args, values: dict[str, np.ndarray], t_s: np.ndarray, t_host_s: np.ndarray | None,
+             resample: bool = False) -> dict[str, np.ndarray]:
+    """The recording's columns for these rows (the reference resampled only when asked:
+    `_run_whole`, which has every row)."""
+    scale = UNIT_SCALES[args.acc_unit] * args.acc_scale
+    columns = {"t_s": t_s, "acc_x_mps2": np.array(values["acc"], dtype=float) * scale}
+    if "acc_y" in values:
+        columns["acc_y_mps2"] = np.array(values["acc_y"], dtype=float) * scale
+    if "temp" in values:
+        columns["temp_c"] = np.array(values["temp"], dtype=float)
+    if t_host_s is not None:
+        columns["t_host_s"] = t_host_s
+    ref_scale = LENGTH_SCALES[args.ref_unit] * args.ref_scale
+    # the reference as a signal of time: taken at t_ref (sample or arrival time), describing
+    # the motion at t_ref − delay, wanted at the sample times
+    t_ref = t_host_s if args.ref_clock == "arrival" else t_s
+    for role, column in REFERENCE_ROLES.items():
+        if role in values:
+            ref = np.array(values[role], dtype=float) * ref_scale
+            columns[column] = on_sample_clock(t_ref - args.ref_delay_s, ref, t_s) if resample else ref
+    if "hint" in values:
+        columns[HINT_COLUMN] = np.array(values["hint"], dtype=float)
+    return columns
+
+
+def _wrote(args, rows: int, last_t_s: float, skipped: int, notes: list[str]) -> int:
+    rate = (rows - 1) / last_t_s
+    print(f"wrote {args.out}: {rows} samples, {last_t_s:.3f} s, {rate:.1f} samples/s; "
+          f"skipped {skipped} rows without {args.arrival_col or args.time_col!r}/{args.acc_col!r}", file=sys.stderr)
+    for note in notes:
+        print(note, file=sys.stderr)
+    return 0
+
+
+def _run_streamed(args: argparse.Namespace) -> int:
+    """A trusted time column: block by block from the file to the recording, so memory
+    follows the block (BLOCK_ROWS rows), not the file. The rate is judged on the first
+    block (a time column in the wrong unit is wrong on every row alike)."""
+    skipped = _Skipped()
+    rows, last_t_s, writer = 0, -math.inf, None
+    try:
+        for values, lines in foreign_blocks(args, skipped):
+            t_in = values["time"] * TIME_SCALES[args.time_unit]  # seconds since the first row
+            _check_increasing(args, t_in, lines, last_t_s)
+            if writer is None:
+                if t_in.size < 2:
+                    rows = t_in.size
+                    break  # a file of one row: too few, said below
+                _check_rate(args, t_in)
+            columns = _columns(args, values, t_in, None)
+            if writer is None:
+                writer = ColumnWriter(args.out, list(columns), {"format": FORMAT_ID, **_metadata(args)})
+            writer.write(columns)
+            rows += t_in.size
+            last_t_s = float(t_in[-1])
+        if rows < 2:
+            raise _too_few(args, rows, 2)
+        writer.commit()
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    return _wrote(args, rows, last_t_s, skipped.rows, [])
+
+
+def _run_whole(args: argparse.Namespace) -> int:
     values, lines, skipped = read_foreign(args)
     time_col = args.arrival_col or args.time_col
     need = RetimingSettings().min_rows if args.arrival_col else 2
     if len(lines) < need:
-        raise RecordingError(f"{args.foreign}: {len(lines)} rows with both {time_col!r} and {args.acc_col!r}; "
-                             f"{'re-timing needs' if args.arrival_col else 'a recording needs'} at least {need}")
+        raise _too_few(args, len(lines), need)
     t_in = values["time"] * TIME_SCALES[args.time_unit]  # seconds since the first row
     if not args.arrival_col:  # arrival times are checked by the re-timing
-        back = np.flatnonzero(np.diff(t_in) <= 0)
-        if back.size:
-            raise RecordingError(f"{args.foreign}:{lines[back[0] + 1]}: column {time_col!r}: time does not "
-                                 "increase")
-        rate_hz = 1.0 / float(np.median(np.diff(t_in)))
-        if rate_hz < MIN_RATE_HZ:
-            raise RecordingError(
-                f"{args.foreign}: column {time_col!r} read in {args.time_unit}: {rate_hz:.3g} samples/s, too slow "
-                f"for an accelerometer's log (a move of the paper or the robot lasts under a second: fewer than "
-                f"{MIN_RATE_HZ:g} sample/s cannot follow it); a time in another unit? give --time-unit")
+        _check_increasing(args, t_in, lines)
+        _check_rate(args, t_in)
 
     notes: list[str] = []
-    metadata = {"source": "import", "axis": "x", "imported_from": args.foreign.replace("\n", " ")}
+    metadata = _metadata(args)
     if args.arrival_col:
         timing = _retime(args, t_in, lines)
         tail = timing.falling_behind
@@ -381,40 +512,6 @@ def run(args: argparse.Namespace) -> int:
                          f"(after removing a constant {err.offset_s:.4f} s)")
     else:
         t_s, t_host_s = t_in, None
-
-    scale = UNIT_SCALES[args.acc_unit] * args.acc_scale
-    columns = {"t_s": t_s, "acc_x_mps2": np.array(values["acc"], dtype=float) * scale}
-    if "acc_y" in values:
-        columns["acc_y_mps2"] = np.array(values["acc_y"], dtype=float) * scale
-    if "temp" in values:
-        columns["temp_c"] = np.array(values["temp"], dtype=float)
-    if t_host_s is not None:
-        columns["t_host_s"] = t_host_s
-    ref_scale = LENGTH_SCALES[args.ref_unit] * args.ref_scale
-    # the reference as a signal of time: taken at t_ref (sample or arrival time), describing
-    # the motion at t_ref − delay, wanted at the sample times
-    t_ref = t_host_s if args.ref_clock == "arrival" else t_s
     resample = args.ref_clock == "arrival" or args.ref_delay_s != 0
-    for role, column in REFERENCE_ROLES.items():
-        if role in values:
-            ref = np.array(values[role], dtype=float) * ref_scale
-            columns[column] = on_sample_clock(t_ref - args.ref_delay_s, ref, t_s) if resample else ref
-    if "hint" in values:
-        columns[HINT_COLUMN] = np.array(values["hint"], dtype=float)
-
-    metadata["imported_columns"] = (
-        f"time={time_col} ({args.time_unit}), acc_x={args.acc_col} ({args.acc_unit} × {args.acc_scale:g})"
-        + (f", acc_y={args.acc_y_col}" if args.acc_y_col else "")
-        + "".join(f", {REFERENCE_ROLES[r]}={getattr(args, r + '_col')} ({args.ref_unit} × {args.ref_scale:g})"
-                  for r in REFERENCE_ROLES if r in values)
-        + (f", reference taken at the {args.ref_clock} time, {args.ref_delay_s:g} s late"
-           if any(r in values for r in REFERENCE_ROLES) else "")
-        + (f", {HINT_COLUMN}={args.hint_col}" if args.hint_col else "")
-    )
-    write_recording(args.out, metadata, columns)
-    rate = (t_s.size - 1) / t_s[-1]
-    print(f"wrote {args.out}: {t_s.size} samples, {t_s[-1]:.3f} s, {rate:.1f} samples/s; "
-          f"skipped {skipped} rows without {time_col!r}/{args.acc_col!r}", file=sys.stderr)
-    for note in notes:
-        print(note, file=sys.stderr)
-    return 0
+    write_recording(args.out, metadata, _columns(args, values, t_s, t_host_s, resample))
+    return _wrote(args, t_s.size, float(t_s[-1]), skipped, notes)

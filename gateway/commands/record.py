@@ -92,6 +92,83 @@ def _open_with_retry(source: SerialSource, once: bool, should_stop) -> bool:
     return False
 
 
+class _Session:
+    """The board's frames → rows in files. Samples wait until the board tells its tick rate
+    (STATUS or HELLO; `assumed_tick_hz` when it never does); a board reset (HELLO) or a new
+    tick rate starts a new file."""
+
+    def __init__(self, segments: _Segments, assumed_tick_hz: float | None) -> None:
+        self.segments = segments
+        self._assumed_tick_hz = assumed_tick_hz
+        self.tick_hz: float | None = None
+        self._temp_c: float | None = None
+        self.pending: list[dict] = []  # samples before the board told its tick rate
+
+    def take(self, frame: object, t_host_s: float) -> None:
+        segments = self.segments
+        if isinstance(frame, Sample):
+            row = {"seq": frame.seq, "t1x": frame.t1x_ticks, "t1y": frame.t1y_ticks, "t2": frame.t2_ticks,
+                   "flags": frame.flags, "t_host_s": round(t_host_s, 6), "temp_c": self._temp_c}
+            if segments.writer is None:
+                self.pending.append(row)
+            else:
+                segments.write(row)
+        elif isinstance(frame, (Status, Hello)):
+            if isinstance(frame, Hello) and (segments.rows_total or self.pending) and segments.writer is not None:
+                log.warning("board reset (HELLO): continuing in a new file")
+                segments.next()
+            elif segments.writer is not None and frame.tick_hz != self.tick_hz:
+                log.warning("board changed its tick rate %s → %s: new file", self.tick_hz, frame.tick_hz)
+                segments.next()
+            self.tick_hz = frame.tick_hz
+            self._temp_c = frame.temp_c
+
+    def settle(self) -> None:
+        """Opens the file once the tick rate is known (writing the samples that waited) and
+        puts what was written on disk."""
+        segments = self.segments
+        if segments.writer is None and self.tick_hz is None and self._assumed_tick_hz and self.pending:
+            self.tick_hz = self._assumed_tick_hz
+        if segments.writer is None and self.tick_hz is not None:
+            segments.open(self.tick_hz)
+            for row in self.pending:
+                segments.write(row)
+            self.pending.clear()
+        if segments.writer is not None:
+            segments.writer.flush()
+
+
+def _record(source: SerialSource, decoder: StreamDecoder, session: _Session, started: float, should_stop) -> int:
+    """Reads and writes until told to stop; the exit code (DeviceError's when the port is
+    lost with --once)."""
+    while not should_stop():
+        try:
+            data = source.read(timeout_s=0.1)
+        except SerialPortError as err:  # only with --once: the port is gone
+            log.error("%s", err)
+            return DeviceError.exit_code
+        if not data:
+            continue
+        t_host_s = time.monotonic() - started
+        for frame in decoder.feed(data):
+            session.take(frame, t_host_s)
+        session.settle()
+    return 0
+
+
+def _report(decoder: StreamDecoder, source: SerialSource, segments: _Segments) -> None:
+    c = decoder.counters
+    state = source.state
+    print(
+        f"record: {segments.rows_total} samples written to {', '.join(segments.paths) or 'no file'}; "
+        f"frames {c.frames_decoded} (samples {c.samples_decoded}, status {c.statuses_decoded}, "
+        f"hello {c.hellos_decoded}); crc errors {c.crc_errors}; bytes skipped {c.bytes_skipped}; "
+        f"samples lost {c.samples_lost}; board resets {c.board_resets}; "
+        f"port losses {state.losses}, reconnects {state.reconnects}",
+        file=sys.stderr,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     stop = StopOnSignal()
     started = time.monotonic()
@@ -101,67 +178,19 @@ def run(args: argparse.Namespace) -> int:
 
     source = SerialSource(SerialSettings(port=args.port, baudrate=args.baudrate, reconnect=not args.once))
     decoder = StreamDecoder()
-    segments = _Segments(args.out, args.port)
-    tick_hz = None
-    temp_c = None
-    pending: list[dict] = []  # samples before the board told its tick rate
+    session = _Session(_Segments(args.out, args.port), args.tick_hz)
     exit_code = 0
     try:
         if not _open_with_retry(source, args.once, should_stop):
             return 0
         log.info("recording %s → %s", args.port, args.out)
-        while not should_stop():
-            try:
-                data = source.read(timeout_s=0.1)
-            except SerialPortError as err:  # only with --once: the port is gone
-                log.error("%s", err)
-                exit_code = DeviceError.exit_code
-                break
-            if not data:
-                continue
-            t_host_s = time.monotonic() - started
-            for frame in decoder.feed(data):
-                if isinstance(frame, Sample):
-                    row = {"seq": frame.seq, "t1x": frame.t1x_ticks, "t1y": frame.t1y_ticks,
-                           "t2": frame.t2_ticks, "flags": frame.flags, "t_host_s": round(t_host_s, 6),
-                           "temp_c": temp_c}
-                    if segments.writer is None:
-                        pending.append(row)
-                    else:
-                        segments.write(row)
-                elif isinstance(frame, (Status, Hello)):
-                    if isinstance(frame, Hello) and (segments.rows_total or pending) and segments.writer is not None:
-                        log.warning("board reset (HELLO): continuing in a new file")
-                        segments.next()
-                    elif segments.writer is not None and frame.tick_hz != tick_hz:
-                        log.warning("board changed its tick rate %s → %s: new file", tick_hz, frame.tick_hz)
-                        segments.next()
-                    tick_hz = frame.tick_hz
-                    temp_c = frame.temp_c
-            if segments.writer is None and tick_hz is None and args.tick_hz and pending:
-                tick_hz = args.tick_hz
-            if segments.writer is None and tick_hz is not None:
-                segments.open(tick_hz)
-                for row in pending:
-                    segments.write(row)
-                pending.clear()
-            if segments.writer is not None:
-                segments.writer.flush()
+        exit_code = _record(source, decoder, session, started, should_stop)
     finally:
-        segments.close()
+        session.segments.close()
         source.close()
-        c = decoder.counters
-        state = source.state
-        print(
-            f"record: {segments.rows_total} samples written to {', '.join(segments.paths) or 'no file'}; "
-            f"frames {c.frames_decoded} (samples {c.samples_decoded}, status {c.statuses_decoded}, "
-            f"hello {c.hellos_decoded}); crc errors {c.crc_errors}; bytes skipped {c.bytes_skipped}; "
-            f"samples lost {c.samples_lost}; board resets {c.board_resets}; "
-            f"port losses {state.losses}, reconnects {state.reconnects}",
-            file=sys.stderr,
-        )
-    if pending:
-        print(f"adxlgw record: error: {len(pending)} samples not written: the board never reported its "
+        _report(decoder, source, session.segments)
+    if session.pending:
+        print(f"adxlgw record: error: {len(session.pending)} samples not written: the board never reported its "
               f"tick rate (no STATUS or HELLO); pass --tick-hz", file=sys.stderr)
         return DeviceError.exit_code
     return exit_code

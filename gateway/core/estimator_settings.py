@@ -115,7 +115,7 @@ class EstimatorSettings:
     # see v = 0 either way). The filter cannot see it; the reported σ must carry it. 0.5 %:
     # a calibrated part known to ±1 % (sensor_model.CALIBRATED_SENSITIVITY_TOLERANCE_FRAC),
     # read as 2σ. A part within that tolerance left 25 % of the simulator's stop errors
-    # outside ±3σ without it (benchmarks/sigma_coverage.py).
+    # outside ±3σ without it (benchmarks/accuracy/sigma_coverage.py).
     sensitivity_std_frac: float = CALIBRATED_SENSITIVITY_TOLERANCE_FRAC / 2.0
     # A duty-cycle part (the ADXL202) whose modulator may read the signal where the duty
     # cycle ends rather than over the period (SensorParams.dcm_reading; the data sheet
@@ -123,7 +123,7 @@ class EstimatorSettings:
     # sign (0.25 mm per stroke of the paper's). Not corrected — which reading a board has
     # is not known — but carried in the reported σ (estimator_kernel.reading_instant_var).
     # On the simulator with edge readings, 69–70 % of the stop errors lay inside ±3σ
-    # without it (benchmarks/sigma_coverage.py --dcm-reading edge). False for other sensors: an ADC
+    # without it (benchmarks/accuracy/sigma_coverage.py --dcm-reading edge). False for other sensors: an ADC
     # samples at a fixed instant.
     duty_cycle_reading_unknown: bool = False
     source: str = "defaults"

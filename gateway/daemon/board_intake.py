@@ -15,7 +15,7 @@ from drivers.published_values import PublishedValues, StatusExtBits, flag_word
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import HOLDING_FLAGS, Estimate
 from gateway.daemon.sample_pipeline import ChunkResult, SamplePipeline
-from gateway.daemon.status_flags import EVENT_HOLD_S, GatewayCondition, status_bits
+from gateway.daemon.status_flags import EVENT_HOLD_S, GatewayCondition, LinkHealth, status_bits
 
 log = logging.getLogger("adxlgw")
 
@@ -24,7 +24,7 @@ SATURATION_HOLD_S = 1.0
 AXIS_INVALID_HOLD_S = 1.0
 # Samples after a silence longer than this (a port lost, a board that stopped talking)
 # start the estimator over with the velocity unknown: bridging a velocity across seconds
-# is a guess (benchmarks/fault_benchmark.py: a 2 s outage bridged came back 2 m off with
+# is a guess (benchmarks/daemon/fault_benchmark.py: a 2 s outage bridged came back 2 m off with
 # a 75 mm σ). Gaps of a few samples stay bridged (they cost < 1 mm there).
 OUTAGE_S = 0.25
 
@@ -48,22 +48,6 @@ class BoardEvents:
     saturated_until_s: float = -1.0
     axis_invalid_until_s: float = -1.0
     outage_at_s: float | None = None
-
-
-@dataclass(slots=True)  # not frozen: built per snapshot, and a frozen init is slower
-class LinkHealth:
-    """What the supervisor knows of the wires, for the status bits and counters."""
-
-    port_open: bool
-    last_byte_s: float | None
-    stale_after_s: float
-    lost_after_s: float
-    config_reloaded_at_s: float | None = None
-    can_send_errors: int = 0
-    can_refused_commands: int = 0
-    simulated: bool = False  # the board is the built-in emulated one
-    mqtt_down: bool = False  # the MQTT edge node is on but not connected to its broker
-    mqtt_dropped: int = 0  # DDATA the edge node dropped (its queue full)
 
 
 class BoardIntake:

@@ -29,7 +29,7 @@ class BoardPort:
         self.source: SerialSource | None = None
         self.path: str | None = None
         self._emulated: EmulatedBoard | None = None
-        self._emulated_path: str | None = None
+        self._emulated_start: asyncio.Task[str] | None = None
         self._reopen = asyncio.Event()
 
     @property
@@ -41,14 +41,20 @@ class BoardPort:
         """The bytes waiting in the port now (never blocks; b"" when none or not open)."""
         return b"" if self.source is None else self.source.read_pending()
 
+    def prepare(self) -> None:
+        """Start now what opening the port will wait for: the emulated board's child (its
+        imports and first frames take seconds — the demo showed "board None" that long),
+        while the daemon loads its estimator."""
+        if self._config().serial.port == "emulated" and self._emulated_start is None:
+            self._emulated = EmulatedBoard()
+            self._emulated_start = asyncio.create_task(self._emulated.start(), name="emulated-board")
+
     async def _board_path(self) -> str:
         port = self._config().serial.port
         if port != "emulated":
             return port
-        if self._emulated is None:
-            self._emulated = EmulatedBoard()
-            self._emulated_path = await self._emulated.start()
-        return self._emulated_path
+        self.prepare()
+        return await self._emulated_start
 
     async def open(self) -> None:
         """Open the port, retrying with back-off (from the config of the moment)."""
@@ -102,5 +108,8 @@ class BoardPort:
     async def close(self) -> None:
         if self.source is not None:
             self.source.close()
+        if self._emulated_start is not None and not self._emulated_start.done():
+            self._emulated_start.cancel()
+            await asyncio.gather(self._emulated_start, return_exceptions=True)
         if self._emulated is not None:
             await self._emulated.stop()

@@ -30,8 +30,9 @@ from dataclasses import dataclass
 
 from drivers.link_checks import check_can_link, check_serial_port
 from drivers.modbus_ports import tcp_listen_check
+from drivers.sparkplug_node import tls_ca_problem
 from gateway.config import Config
-from gateway.drift_model_file import load_drift_model
+from gateway.daemon.settings import read_credentials
 from gateway.errors import ConfigError, DeviceError, InputError
 
 EMULATED = "emulated"
@@ -77,6 +78,8 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
         found.append(Finding("service.view", "error", "the live view needs the offline tools: "
                              "pip install 'adxl-gateway[offline]'"))
     if cfg.estimator.drift_model and changed("estimator", "drift_model"):
+        from gateway.drift_model_file import load_drift_model  # numpy: only when a model is set
+
         try:
             load_drift_model(cfg.estimator.drift_model)
         except InputError as err:
@@ -88,6 +91,26 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
     if cfg.can.enabled and changed("can", "enabled", "interface", "channel"):
         link = check_can_link(cfg.can.interface, cfg.can.channel)
         found += _link("can.interface" if link.wrong_interface else "can.channel", link)
+    if cfg.mqtt.enabled:
+        found += _mqtt_files(cfg, changed)
+    return found
+
+
+def _mqtt_files(cfg: Config, changed) -> list[Finding]:
+    """The files [mqtt] points to. The credentials file is configuration (its format is
+    ours): an error, exit 2. The TLS CA file is what the link to the broker needs to be
+    set up at all: unusable, exit 3, as a Modbus port that cannot be bound."""
+    m = cfg.mqtt
+    found: list[Finding] = []
+    if m.credentials_file and changed("mqtt", "enabled", "credentials_file"):
+        try:
+            read_credentials(m.credentials_file, m.credentials_file)
+        except ConfigError as err:
+            found.append(Finding("mqtt.credentials_file", "error", str(err)))
+    if m.tls_ca_file and changed("mqtt", "enabled", "tls_ca_file"):
+        problem = tls_ca_problem(m.tls_ca_file)
+        if problem:
+            found.append(Finding("mqtt.tls_ca_file", "unusable", f"{m.tls_ca_file}: {problem}"))
     return found
 
 

@@ -225,8 +225,12 @@ class SamplePipeline:
     """
 
     def __init__(self, calibration: Calibration, settings: EstimatorSettings, axis: str = "x",
-                 range_g: float = 2.0, start_position_m: float = 0.0, start_at_rest: bool = False):
+                 range_g: float = 2.0, start_position_m: float = 0.0, start_at_rest: bool = False,
+                 travel_m: tuple[float, float] | None = None):
         self.estimator = RealtimeEstimator(settings)
+        #: the axis's travel, [lowest, highest] published position (estimator.travel_m):
+        #: bounds the published σ (see _build_latest); None: no bound
+        self.travel_m = travel_m
         self._latest: Estimate | None = None  # latest()'s cache, None: build anew
         if not start_at_rest:
             self.estimator.restart()
@@ -379,6 +383,11 @@ class SamplePipeline:
         self.reference_var_m2 = std_m * std_m if math.isfinite(std_m) else math.inf
         self._latest = None
 
+    def set_travel(self, travel_m: tuple[float, float] | None) -> None:
+        """The axis's travel from now on (a reload of estimator.travel_m): it bounds the published σ."""
+        self.travel_m = travel_m
+        self._latest = None
+
     def reset(self) -> None:
         """Start the estimator over (e.g. continuity lost); the position stays continuous
         but is no longer referenced."""
@@ -443,6 +452,17 @@ class SamplePipeline:
         est = Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
         if self.reference_var_m2 > 0.0:  # the start position's own uncertainty, independent of the filter's
             est = replace(est, pos_std_m=math.sqrt(est.pos_std_m * est.pos_std_m + self.reference_var_m2))
+        if self.travel_m is not None:
+            # The axis is somewhere in its travel: the published position is never farther
+            # from the truth than from the farther end of the travel, whatever the filter's
+            # σ says (after a board reset or an outage it grows without bound: metres in
+            # seconds with the velocity unknown). That distance as σ keeps every position
+            # the axis can have within 1σ; an estimate outside the travel gets a σ that
+            # reaches back over all of it.
+            lo, hi = self.travel_m
+            farthest_m = max(est.pos_m - lo, hi - est.pos_m)
+            if est.pos_std_m > farthest_m:
+                est = replace(est, pos_std_m=farthest_m)
         return est
 
     @property

@@ -1,25 +1,32 @@
 """The daemon's config, turned into what each part takes: driver settings, calibration,
 the estimator's settings. Pure functions of a validated `Config` (one place to read
-when a config key seems to have no effect)."""
+when a config key seems to have no effect).
+
+The estimator's, the calibration's and the board protocol's imports (numpy, numba and the
+compiled code they bring, a second or more) are made in the functions that need them: the daemon builds its
+board side off the event loop, after the wires listen (supervisor.Gateway.start), and
+the wires' settings must not wait for them."""
 from __future__ import annotations
 
 import socket
+from typing import TYPE_CHECKING
 
-from drivers.board_protocol import SAMPLE_FRAME_LENGTH
 from drivers.can_frames import frame_table
 from drivers.can_publisher import CanPublisherConfig
 from drivers.modbus_server import ModbusServerConfig
 from drivers.serial_source import SerialSettings
 from drivers.sparkplug_node import SparkplugSettings
 from gateway.config import Config, read_bounded
-from gateway.core.conversion import AxisCalibration, Calibration
-from gateway.core.estimator_settings import EstimatorSettings, from_sensor_model
-from gateway.core.sensor_model import SensorParams
-from gateway.drift_model_file import load_drift_model
 from gateway.errors import ConfigError, InputError
+
+if TYPE_CHECKING:
+    from gateway.core.conversion import Calibration
+    from gateway.core.estimator_settings import EstimatorSettings
 
 
 def calibration_from(cfg: Config) -> Calibration:
+    from gateway.core.conversion import AxisCalibration, Calibration  # numba (see the module's doc)
+
     c = cfg.calibration
     return Calibration(AxisCalibration(c.zero_g_duty_x, c.sensitivity_x),
                        AxisCalibration(c.zero_g_duty_y, c.sensitivity_y))
@@ -67,7 +74,7 @@ def mqtt_settings_from(cfg: Config) -> SparkplugSettings | None:
         host=m.host, port=m.port, group_id=m.group_id, edge_node_id=m.edge_node_id or socket.gethostname(),
         device_id=m.device_id, qos=m.qos, rate_hz=m.rate_hz, keepalive_s=m.keepalive_s,
         username=username, password=password, tls_ca_file=m.tls_ca_file or None,
-        commands_enabled=m.commands_enabled,
+        commands_enabled=m.commands_enabled, primary_host_id=m.primary_host_id or None,
     )
 
 
@@ -95,6 +102,8 @@ def batch_frames_for(cfg: Config) -> int:
 
 
 def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
+    from drivers.board_protocol import SAMPLE_FRAME_LENGTH  # numpy (see the module's doc)
+
     s = cfg.serial
     return SerialSettings(port=port, baudrate=s.baudrate, reconnect_initial_s=s.reconnect_min_s,
                           reconnect_max_s=s.reconnect_max_s,
@@ -103,6 +112,10 @@ def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
 
 def estimator_settings_from(cfg: Config) -> EstimatorSettings:
     """The estimator's settings from the sensor model, with the fitted drift model if one is configured."""
+    from gateway.core.estimator_settings import from_sensor_model  # numba (see the module's doc)
+    from gateway.core.sensor_model import SensorParams
+    from gateway.drift_model_file import load_drift_model
+
     drift = None
     if cfg.estimator.drift_model:
         try:

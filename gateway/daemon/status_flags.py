@@ -36,6 +36,22 @@ class GatewayCondition:
 
 
 
+@dataclass(slots=True)  # not frozen: built per snapshot, and a frozen init is slower
+class LinkHealth:
+    """What the supervisor knows of the wires, for the status bits and counters."""
+
+    port_open: bool
+    last_byte_s: float | None
+    stale_after_s: float
+    lost_after_s: float
+    config_reloaded_at_s: float | None = None
+    can_send_errors: int = 0
+    can_refused_commands: int = 0
+    simulated: bool = False  # the board is the built-in emulated one
+    mqtt_down: bool = False  # the MQTT edge node is on but not connected to its broker
+    mqtt_dropped: int = 0  # DDATA the edge node dropped (its queue full)
+
+
 _VALID = int(StatusBits.VALID)
 _BOARD_LOST = int(StatusBits.BOARD_LOST)
 _STALE = int(StatusBits.STALE)

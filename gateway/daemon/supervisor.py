@@ -25,6 +25,7 @@ PUBLISH_TICK_S).
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import logging
 import math
 import signal
@@ -38,20 +39,23 @@ import can
 from drivers.can_publisher import BusFactory, CanPublisher
 from drivers.modbus_identity import package_version
 from drivers.modbus_server import ModbusServer
-from drivers.published_values import Command, PublishedValues, StatusBits
+from drivers.published_values import Command, PublishedValues, StatusBits, StatusExtBits, flag_word
 from drivers.sparkplug_node import SparkplugNode
 from gateway.config import Config
-from gateway.daemon.board_intake import BoardIntake, LinkHealth
 from gateway.daemon.board_port import BoardPort
 from gateway.daemon.preflight import refuse_reload
-from gateway.daemon.sample_pipeline import SamplePipeline
 from gateway.daemon.sd_notify import SystemdNotifier
 from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
+from gateway.daemon.status_flags import GatewayCondition, LinkHealth, status_bits
 from gateway.daemon.wires import WireContext, WireSet
 from gateway.errors import ConfigError, DeviceError
 
-if TYPE_CHECKING:  # rich, behind the view, is an offline tool's library (pyproject's [offline])
+if TYPE_CHECKING:
+    # rich, behind the view, is an offline tool's library (pyproject's [offline]); the board
+    # side (numpy, numba and its compiled code) is imported by Gateway.start, off the event loop
+    from gateway.daemon.board_intake import BoardIntake
+    from gateway.daemon.sample_pipeline import SamplePipeline
     from gateway.daemon.terminal_view import TerminalView
 
 log = logging.getLogger("adxlgw")
@@ -80,6 +84,18 @@ def _terminal_view() -> TerminalView:
     from gateway.daemon.terminal_view import TerminalView
 
     return TerminalView()
+
+
+def board_alive_for_watchdog(now_s: float, last_sample_s: float | None, check_every_s: float,
+                             lost_after_s: float) -> bool:
+    """Feed systemd's watchdog at this check? The watchdog asks "is the service making
+    progress?", so yes when a sample arrived since the previous check (one check per
+    WatchdogSec/2): a hung board or a blocked loop gives no ping for a whole WatchdogSec and
+    systemd restarts the unit. lost_after_s (serial.lost_after_ms) judges the freshness of
+    the published values (STALE), not liveness: a board whose bytes come in bursts further
+    apart than it (a starved CPU: 2.6-3.6 s gaps seen under qemu) is slow, not hung; it
+    still counts when it is the longer of the two."""
+    return last_sample_s is not None and now_s - last_sample_s < max(check_every_s, lost_after_s)
 
 
 class Gateway:
@@ -117,18 +133,18 @@ class Gateway:
         if cfg.estimator.start_at_rest and not self.starts_at_rest:
             log.warning("estimator.start_at_rest not believed: the last run did not stop in order at rest "
                         "(a crash, a kill, a stop mid-move); position not trusted until a stop is seen")
-        # the last published position is where we continue from, flagged NOT_REFERENCED
-        # (the axis may have moved while the gateway was down): a prior, not a fact
-        self.pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
-                                       start_position_m=saved.last_position_m or 0.0,
-                                       start_at_rest=self.starts_at_rest)
+        self._start_position_m = saved.last_position_m or 0.0
+        #: the board side — bytes → estimates → snapshots —, built by start() off the event
+        #: loop once the wires listen (None until then: the wires show `_starting_values`)
+        self.pipeline: SamplePipeline | None = None
+        self.intake: BoardIntake | None = None
+        self._board_side_built = asyncio.Event()
         # the restored position's σ is set at the first estimate: the axis was unwatched
         # until then (a board that comes late included), not only while the gateway was down
         # (a first start — no state file — has nothing to restore: its position starts at 0
         # by definition, unreferenced)
         self._restored: PersistentState | None = None if self.state_store.found_none else saved
         self._hint_until = math.inf  # when the machine's standstill hint expires
-        self.intake = BoardIntake(self.pipeline)
         self.board = BoardPort(lambda: self.cfg)
         self.wires = WireSet(cfg, WireContext(self.fresh_values, self.on_command, self._drain_now,
                                               can_bus_factory, version=package_version()))
@@ -159,16 +175,62 @@ class Gateway:
         await self.stop()
 
     async def start(self) -> None:
-        """Servers listening, the board port being opened (READY once it is: `wait_ready`)."""
+        """Servers listening, then the board side built, the board port being opened
+        (READY once it is: `wait_ready`).
+
+        The wires first: a PLC polling a gateway that starts (after a crash too) gets an
+        answer that says "nothing measured yet" (`_starting_values`) within a fraction of
+        a second, instead of no connection for as long as numpy, numba and the compiled
+        estimator take to load (a second or more: benchmarks/daemon/daemon_footprint.py). That
+        load runs in a worker thread, so the event loop answers meanwhile."""
         if self._started:
             return
         self._started = True
         self._loop = asyncio.get_running_loop()
         await asyncio.to_thread(self.state_store.save, self._state_while_running)
         await self.wires.start()
+        self.board.prepare()  # the emulated board's child starts meanwhile
+        # a thread of its own, not the loop's default executor: asyncio.run waits for that one
+        # at its end, and a stop must not wait for a build it no longer needs (run)
+        builder = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="board-side")
+        try:
+            self.pipeline, self.intake = await self._loop.run_in_executor(builder, self._build_board_side, self.cfg)
+        except BaseException:
+            await self.wires.stop()
+            await self.board.close()
+            raise
+        finally:
+            builder.shutdown(wait=False)
+        self._board_side_built.set()
+        self._publish(self.clock())  # the wires' images were of the starting values
         self._arm_tick(self.clock(), self.publish_tick_s)
         self._tasks.append(asyncio.create_task(self._housekeeping_task(), name="housekeeping"))
         self._board_task = asyncio.create_task(self._board_supervisor(), name="board")
+
+    def _build_board_side(self, cfg: Config) -> tuple[SamplePipeline, BoardIntake]:
+        """The sample pipeline and its intake (in a worker thread: nothing here touches
+        what the event loop uses). The last published position is where the estimate
+        continues from, flagged NOT_REFERENCED (the axis may have moved while the gateway
+        was down): a prior, not a fact."""
+        from gateway.daemon.board_intake import BoardIntake
+        from gateway.daemon.sample_pipeline import SamplePipeline
+
+        pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
+                                  start_position_m=self._start_position_m, start_at_rest=self.starts_at_rest,
+                                  travel_m=tuple(cfg.estimator.travel_m))
+        return pipeline, BoardIntake(pipeline)
+
+    def _starting_values(self) -> PublishedValues:
+        """What the wires show before the board side is built: nothing measured, nothing
+        referenced, the board not read — the bits a gateway whose port is still closed
+        shows (POSITION_UNTRUSTED too unless the axis is believed to start at rest)."""
+        serial = self.cfg.serial
+        condition = GatewayCondition(now_s=self.clock(), have_estimate=False, port_open=False, last_sample_s=None,
+                                     last_byte_s=None, stale_after_s=serial.stale_after_ms / 1000,
+                                     lost_after_s=serial.lost_after_ms / 1000, referenced=False,
+                                     untrusted=not self.starts_at_rest)
+        simulated = StatusExtBits.SIMULATED if serial.port == "emulated" else 0
+        return PublishedValues(status=status_bits(condition), status_ext=flag_word(StatusExtBits, int(simulated)))
 
     @property
     def ready(self) -> bool:
@@ -198,12 +260,23 @@ class Gateway:
         loop.add_signal_handler(signal.SIGTERM, self.request_stop)
         loop.add_signal_handler(signal.SIGINT, self._interrupted)
         loop.add_signal_handler(signal.SIGHUP, lambda: self._tasks.append(asyncio.create_task(self._reload_logged())))
-        async with self:
-            stopper = asyncio.create_task(self._stop_requested.wait())
-            await asyncio.wait({stopper, self._board_task}, return_when=asyncio.FIRST_COMPLETED)
+        stopper = asyncio.create_task(self._stop_requested.wait())
+        # a stop while the estimator loads (seconds; minutes when numba compiles into an
+        # empty cache) does not wait for it: the unit's TimeoutStopSec is 2 s
+        starting = asyncio.create_task(self.start())
+        try:
+            await asyncio.wait({stopper, starting}, return_when=asyncio.FIRST_COMPLETED)
+            if starting.done():
+                starting.result()  # a start that failed raises here
+                await asyncio.wait({stopper, self._board_task}, return_when=asyncio.FIRST_COMPLETED)
+                if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
+                    raise self._board_task.exception()
+        finally:
             stopper.cancel()
-            if self._board_task.done() and not self._board_task.cancelled() and self._board_task.exception():
-                raise self._board_task.exception()
+            if not starting.done():
+                starting.cancel()
+                await asyncio.gather(starting, return_exceptions=True)
+            await self.stop()
         # Ctrl-C is "interrupted" (exit 130, the README's table); SIGTERM an orderly stop (0)
         return 130 if self._sigint else 0
 
@@ -244,6 +317,9 @@ class Gateway:
 
     # ------------------------------------------------------------- commands --
     def on_command(self, command: Command, source: str) -> bool:
+        if self.pipeline is None:
+            log.warning("%s from %s declined: the gateway is starting", command.name.lower(), source)
+            return False
         self._drain(self.clock())  # act on the newest estimate
         if command == Command.TARE:
             if self.fresh_values().status & (StatusBits.STALE | StatusBits.BOARD_LOST):
@@ -279,7 +355,7 @@ class Gateway:
         wire shows changes: every reader drains first, and each sample keeps the time
         the gateway got it. Why: on a VM the work after each wakeup runs cold, and
         at 500 samples/s a wakeup per sample was most of the daemon's CPU
-        (benchmarks/wakeup_cost.py, docs/daemon.md).
+        (benchmarks/daemon/wakeup_cost.py, docs/daemon.md).
         """
         now = self.clock()
         intake = self.intake
@@ -301,6 +377,8 @@ class Gateway:
         is what every wire shows (saturation and lost samples are held for a while, so
         none is missed).
         """
+        if self.intake is None:
+            return  # starting: nothing received yet (the port opens after the board side is built)
         if now > self._hint_until:
             self.pipeline.set_hint(None)  # expired: the accelerometer alone decides again
             self._hint_until = math.inf
@@ -345,6 +423,8 @@ class Gateway:
     def fresh_values(self) -> PublishedValues:
         """What the wires show, after everything received so far — the bytes waiting in
         the port included — went through the pipeline. Every reader calls this."""
+        if self.intake is None:
+            return self._starting_values()
         if not self._port_just_read:  # (else: asked from inside receive's drain, which took everything)
             self._drain(self.clock())
         return self.intake.snapshot(self._health())
@@ -400,6 +480,8 @@ class Gateway:
 
     # ---------------------------------------------------------------- state --
     def _state_to_save(self, stopping: bool = False) -> PersistentState:
+        if self.pipeline is None:  # stopped while starting: nothing seen, the file stays as it was
+            return self._state_while_running
         values = self.fresh_values()
         est = self.pipeline.latest()
         now = time.time()
@@ -447,7 +529,7 @@ class Gateway:
                 await self._save_state()
 
     def _view_extra(self) -> str:
-        parts = [f"board {self.board.path}"]
+        parts = [f"board {self.board.path or 'not open yet'}"]
         if self.modbus and self.modbus.tcp_port:
             parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
         if self.can:
@@ -461,12 +543,11 @@ class Gateway:
         interval = self.notifier.watchdog_interval_s
         if not interval:
             return
+        check_every_s = interval / 2
         while True:
-            await asyncio.sleep(interval / 2)
-            now = self.clock()
-            last = self.intake.events.last_sample_s
-            if last is not None and now - last < self.cfg.serial.lost_after_ms / 1000:
-                # samples flow: a hung board must let systemd's watchdog fire
+            await asyncio.sleep(check_every_s)
+            if board_alive_for_watchdog(self.clock(), self.intake.events.last_sample_s, check_every_s,
+                                        self.cfg.serial.lost_after_ms / 1000):
                 self.notifier.watchdog()
                 self.counters.watchdog_pings += 1
 
@@ -482,6 +563,7 @@ class Gateway:
         if self._reload is None:
             log.warning("SIGHUP: no config file to reload")
             return
+        await self._board_side_built.wait()  # a SIGHUP while starting: once the start is done
         self.notifier.reloading()
         self._drain(self.clock())  # the bytes received so far, under the config they came with
         try:
@@ -509,6 +591,9 @@ class Gateway:
         self._publish(self._reloaded_at)
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
+        # the travel bounds the published σ, and the saved position read at the next start
+        self.pipeline.set_travel(tuple(new.estimator.travel_m))
+        self.state_store.travel_m = tuple(new.estimator.travel_m)
         port_changed = (old.serial.port != new.serial.port
                         or serial_settings_from(old, "port") != serial_settings_from(new, "port"))
         # while the port is still being opened, the opener takes the new settings itself

@@ -293,7 +293,7 @@ class MqttWire:
 
     def health(self) -> WireHealth:
         n = self.node
-        return WireHealth(self.name, enabled=self.settings is not None, up=n is not None and n.connected,
+        return WireHealth(self.name, enabled=self.settings is not None, up=n is not None and n.publishing,
                           dropped=0 if n is None else n.counters.dropped)
 
 

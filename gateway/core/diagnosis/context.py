@@ -20,6 +20,14 @@ DRIFT_TIME_CONSTANT_S = 1800.0
 # fewer than 64 points in all and the rests are taken joined (fit_noise_model's own floor)
 MIN_NOISE_REST = 16
 MIN_NOISE_POINTS = 64
+# a column an effect reads (the other axis, temp_c, t_host_s) is used when it covers this
+# fraction of the rows: the model with the effect and the model without are compared on
+# the same samples, and the rows it lacks are filled (held, interpolated) — a tenth of
+# filled values stays a small part of what decides
+USABLE_COLUMN_FRACTION = 0.9
+# the board reports its temperature in 0.01 °C (board protocol): a column varying by less
+# than 5 of its counts carries its own rounding (σ 0.003 °C), not a temperature change
+MIN_TEMPERATURE_STD_C = 0.05
 
 
 def held_samples_smoothed(t_s: np.ndarray, held: np.ndarray) -> np.ndarray:
@@ -148,7 +156,7 @@ class DiagnosisInput:
         if x is None:
             return False
         good = np.isfinite(x)
-        return good.mean() > 0.9 and float(np.std(x[good])) > min_std
+        return good.mean() > USABLE_COLUMN_FRACTION and float(np.std(x[good])) > min_std
 
 
 @dataclass

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.diagnosis.context import MIN_TEMPERATURE_STD_C, G, Prepared
 from gateway.core.diagnosis.judgement import MAX_OFFSET_MG_PER_C, physical
 from gateway.core.diagnosis.model_fit import ModelFit, current_signal, cv_gain_of, fit_model
 
@@ -71,7 +71,7 @@ def temperature_in_line_with_drift(prep: Prepared, alpha: float) -> str | None:
     """A sentence when even the largest temperature coefficient could not be told from
     the drift on this record; None when it could (or there is no usable temperature)."""
     d = prep.data
-    if not d.column_ok("temp_c", min_std=0.05):
+    if not d.column_ok("temp_c", min_std=MIN_TEMPERATURE_STD_C):
         return None
     temp = d.temperature_c
     fill = float(np.nanmean(temp))

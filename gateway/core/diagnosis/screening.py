@@ -15,7 +15,7 @@ import numpy as np
 from scipy.signal import find_peaks, welch
 from scipy.stats import norm
 
-from gateway.core.diagnosis.context import Prepared
+from gateway.core.diagnosis.context import USABLE_COLUMN_FRACTION, Prepared
 from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.drift_fit import allan_deviation, ljung_box
 
@@ -25,7 +25,7 @@ WHITENESS_BLOCK_S = 0.01
 def block_whiteness_p(prep: Prepared, whitened: np.ndarray) -> float:
     b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
     m = whitened[: whitened.size // b * b].reshape(-1, b).mean(axis=1)
-    if m.size < 10:
+    if m.size < 10:  # drift_fit.ljung_box's own floor: fewer and whiteness is not judged
         return float("nan")
     return ljung_box(m).p_value
 
@@ -62,7 +62,7 @@ def spectrum_line(prep: Prepared, whitened: np.ndarray, alpha: float) -> dict | 
     # baseline's own, near 200 Hz and its aliases) is no structure an effect could explain
     b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
     whitened = whitened[: whitened.size // b * b].reshape(-1, b).mean(axis=1)
-    if whitened.size < 64:
+    if whitened.size < 64:  # 4 Welch segments of 16 at the least: fewer and no line is judged
         return None
     f, pxx, level, limit = _welch_limit(prep, whitened, alpha, b)
     i = int(np.argmax(pxx[1:])) + 1
@@ -113,7 +113,7 @@ def correlations(prep: Prepared, residual: np.ndarray, regressors: dict[str, np.
     for name, x in regressors.items():
         x = np.asarray(x, dtype=float)
         good = np.isfinite(x)
-        if good.mean() < 0.9:
+        if good.mean() < USABLE_COLUMN_FRACTION:
             continue
         x = np.where(good, x, np.nanmean(x))
         if float(np.std(x[m])) == 0.0:

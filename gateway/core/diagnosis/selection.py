@@ -10,7 +10,7 @@ Selection (signal effects on the measured axis), forward:
 Then each accepted effect is placed (the setup's property, named, or not — judgement.py),
 what else explains the same residual is found (identifiability.py), and the gain is
 measured (gain.py). Side effects (other axis, host clock, seq gaps, bias wander) are each
-tested once with their own likelihood ratio. "Unexplained" is set when the final
+fitted once on their own data and judged by the same out-of-block criterion. "Unexplained" is set when the final
 residual is still not white: structure remains that no candidate explains.
 """
 from __future__ import annotations
@@ -22,7 +22,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2, norm
 
-from gateway.core.diagnosis.context import DiagnosisInput, Prepared, prepare
+from gateway.core.diagnosis.context import (
+    MIN_NOISE_POINTS,
+    USABLE_COLUMN_FRACTION,
+    DiagnosisInput,
+    Prepared,
+    prepare,
+)
 from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.diagnosis.gain import EstimatePlan, distance_gain
 from gateway.core.diagnosis.identifiability import alternatives, temperature_in_line_with_drift
@@ -49,10 +55,11 @@ from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, SignalEffect
 from gateway.core.diagnosis.timestamps import check_host_clock, check_sample_clock
 from gateway.core.estimator_settings import EstimatorSettings
 
-# side effects that have no block structure (host timing) still need "very strong"
-# evidence on Kass & Raftery's scale beside their likelihood-ratio test
-BIC_MARGIN = 10.0
 WHITE_ALPHA = 1e-3  # a 60 s record has 6000 blocks: a small misfit of the noise model must not read as a cause
+# without a reference only the rests are judged for whiteness: 50 samples at rest make the
+# 10 block means of WHITENESS_BLOCK_S (at 500 samples/s) that a Ljung–Box test needs at
+# the least (drift_fit.ljung_box: h = n/5 lags, one at n = 5, and its χ² law wants more)
+MIN_WHITENESS_SAMPLES = 50
 
 ALL_EFFECTS: tuple = SIGNAL_EFFECTS + SIDE_EFFECTS
 
@@ -190,7 +197,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     prep = _prepare_with_estimate(data, plan)
     progress("baseline: offset, drift, noise model")
     base = fit_model(prep, ())
-    if prep.rest.sum() >= 64:
+    if prep.rest.sum() >= MIN_NOISE_POINTS:
         prep.noise = fit_noise_model(prep.noise_series(base.residual))
     else:
         cannot.append("no rest long enough for the noise model: the residual is taken as white")
@@ -261,7 +268,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
         current = fit
         # the rests were seen through the effect (a tilt shifts each end's level): the
         # noise model is refitted on the new residual, and the next round compares on it
-        if prep.rest.sum() >= 64:
+        if prep.rest.sum() >= MIN_NOISE_POINTS:
             prep.noise = fit_noise_model(prep.noise_series(current.residual))
             current = fit_model(prep, tuple(accepted), dict(start), base_start=current.theta[:2])
 
@@ -349,10 +356,15 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
             candidates[s.name] = Candidate(s.name, "failed", reason=test["why"])
             continue
         dbic = -2.0 * (test.loglik_after - test.loglik_before) + test.extra_params * math.log(max(current.n, 2))
-        ok = test.significant(ALPHA / len(SIDE_EFFECTS)) and dbic <= -BIC_MARGIN
+        # the one criterion (criterion.py), at the false-alarm rate split over the side tests
+        alpha = ALPHA / len(SIDE_EFFECTS)
+        ok = test.predictive(alpha)
         # a test that could not be made (no parameters fitted) says why in its detail
+        why_not = test.detail if not test.params else (
+            f"not predictive: {test.cv.text()} (needs > {test.cv.threshold(alpha, test.extra_params):.1f}: "
+            f"α = {alpha:.1g})" if test.cv is not None else "no out-of-block test")
         candidates[s.name] = Candidate(s.name, "accepted" if ok else "rejected", dbic, test.p_value,
-                                       "" if ok else (test.detail if not test.params else "ΔBIC or p not enough"))
+                                       test.cv.text() if ok else why_not)
         if ok:
             progress(f"gain of {s.name}: distance estimate before and after")
             no_estimate = host.why_no_estimate() if host is not None and test.values.get("host_time") else None
@@ -440,7 +452,7 @@ def leftover_structure(prep: Prepared, fit: ModelFit, alpha: float) -> dict | No
     spectrum's bins (a Welch estimate of K segments is the level × χ²₂ₖ/2K). None: none."""
     found = []
     other = prep.data.other_mps2
-    if other is not None and np.isfinite(other).mean() > 0.9:
+    if other is not None and np.isfinite(other).mean() > USABLE_COLUMN_FRACTION:
         # on WHITENESS_BLOCK_S means, as whiteness is judged: both axes are divided by the
         # same T2 count and share its rounding (the baseline's own, at the sample rate)
         b = max(1, int(round(WHITENESS_BLOCK_S / prep.compare_period_s)))
@@ -519,4 +531,4 @@ def _whiteness(prep: Prepared, fit: ModelFit) -> float:
     if prep.data.reference != "estimated":
         return block_whiteness_p(prep, fit.whitened)
     still = prep.rest[prep.fit_mask]
-    return block_whiteness_p(prep, fit.whitened[still]) if still.sum() >= 50 else float("nan")
+    return block_whiteness_p(prep, fit.whitened[still]) if still.sum() >= MIN_WHITENESS_SAMPLES else float("nan")

@@ -1,8 +1,11 @@
 """Effects seen beside the measured axis's prediction: the other axis, the host clock,
 the sequence counter, the slow wander of the bias.
 
-Each is a likelihood-ratio test of the baseline's assumption against a fitted
-extension, on the data the effect lives in:
+Each fits an extension of the baseline's assumption on the data the effect lives in, and
+is judged by the same criterion as the signal effects (criterion.py): the out-of-block
+predictive log-likelihood gain over blocks of that data, above what its k parameters
+gain by chance at the false-alarm rate. The in-sample likelihood ratio's p is reported
+beside it, it does not decide.
 
 - cross_axis: the other axis at rest by the baseline (it reads noise and its own
   offset) against other = k·reading (in-plane misalignment and the part's cross-axis
@@ -11,9 +14,12 @@ extension, on the data the effect lives in:
   link makes them (UART frame time + exponential latency, clocks in step) against a
   host clock that runs at another rate plus a uniform hold-back of up to L (a USB
   adapter's latency timer, bursts);
-- sample_loss: the baseline loses nothing; any sequence gap is the effect;
+- sample_loss: the baseline loses nothing; any sequence gap is the effect (a block with a
+  gap has probability 0 under the baseline: its gain is infinite — a gap is a fact);
 - bias_random_walk: block means of the final residual as white noise against white
-  noise plus a random walk of the bias (a local-level model, exact Kalman likelihood).
+  noise plus a random walk of the bias (a local-level model, exact Kalman likelihood);
+  each fold of the block means is predicted one step ahead by the filter whose
+  variances were fitted without it.
 """
 from __future__ import annotations
 
@@ -24,7 +30,8 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 from scipy.stats import chi2
 
-from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.diagnosis.context import USABLE_COLUMN_FRACTION, G, Prepared
+from gateway.core.diagnosis.criterion import MIN_CV_BLOCKS, CvGain, block_ids, block_predictive_loglik, cv_gain
 from gateway.core.diagnosis.reading import fit_noise_model, gaussian_loglik
 from gateway.core.diagnosis.signal_effects import Compensation
 
@@ -32,6 +39,10 @@ from gateway.core.diagnosis.signal_effects import Compensation
 BASELINE_LATENCY_MEAN_S = 0.2e-3
 # The bin width of the timing test (see Timing)
 TIMING_RESOLUTION_S = 1e-4
+# a stretch between sequence gaps gives the delay's lower edge by its smallest value: of n
+# exponential latencies the smallest lies μ/n above the edge, 20 samples put it within
+# 5 % of the baseline's 0.2 ms (10 µs, a tenth of a bin)
+MIN_EDGE_STRETCH = 20
 
 
 @dataclass
@@ -55,9 +66,12 @@ class SideTest:
     #: the parameters the setup's and the physical ranges judge (judgement.setup_range,
     #: judgement.physical), in their units; None: none to judge
     theta: np.ndarray | None = None
+    #: the out-of-block predictive gain (criterion.py) that judges it; None: no test made
+    cv: CvGain | None = None
 
-    def significant(self, alpha: float) -> bool:
-        return self.p_value < alpha and self.loglik_after > self.loglik_before
+    def predictive(self, alpha: float) -> bool:
+        """The one criterion (criterion.CvGain.predictive) with this test's parameters."""
+        return self.cv is not None and self.cv.predictive(alpha, self.extra_params)
 
 
 class SideEffect:
@@ -86,7 +100,7 @@ class CrossAxis(SideEffect):
         d = prep.data
         if d.reference != "recorded":
             return "needs the recorded reference motion"
-        if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < 0.9:
+        if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < USABLE_COLUMN_FRACTION:
             return "needs the other axis"
         if not d.other_axis_still:
             return ("the other axis has no reference, so its own motion would read as cross-talk: "
@@ -107,8 +121,18 @@ class CrossAxis(SideEffect):
             return coef, r, w
 
         _, r0, w0 = fit(base)
-        coef, r1, w1 = fit(np.column_stack([base, x]))
+        full = np.column_stack([base, x])
+        coef, r1, w1 = fit(full)
         ll0, ll1 = gaussian_loglik(w0), gaussian_loglik(w1)
+        # out of block: each rest and stroke of the other axis predicted by the regression
+        # fitted on the others (exact for a linear model: block PRESS residuals)
+        ids = block_ids(np.flatnonzero(ok), prep.rest)
+
+        def whitened_columns(cols):
+            return np.column_stack([noise.whiten(np.where(ok, c, 0.0))[ok] for c in cols.T])
+
+        cv = cv_gain(block_predictive_loglik(w1, whitened_columns(full), ids),
+                     block_predictive_loglik(w0, whitened_columns(base), ids))
         wx = noise.whiten(np.where(ok, x - x[ok].mean(), 0.0))[ok]
         k = float(coef[2])
         k_std = math.sqrt(float(np.dot(w1, w1)) / w1.size / max(float(np.dot(wx, wx)), 1e-300))
@@ -117,7 +141,7 @@ class CrossAxis(SideEffect):
             params={"other_axis_gain": (k, k_std), "misalignment_deg": (angle, math.degrees(k_std))},
             loglik_before=ll0, loglik_after=ll1, extra_params=1, p_value=_lr_p(ll0, ll1, 1),
             rms_before=float(np.std(r0[ok])), rms_after=float(np.std(r1[ok])),
-            detail="measured on the other axis",
+            detail="measured on the other axis", cv=cv,
             # the axis sees a·cos α of the motion: read the path acceleration as x / cos α
             compensation=Compensation(acc_mps2=None, settings={"scale": 1.0 / math.sqrt(max(1e-6, 1.0 - k * k))}),
         )
@@ -186,47 +210,29 @@ class Timing(SideEffect):
         delay = d.t_host_s[ok] - t_end
         t = t_end - t_end[0]
         # after a gap the board time steps by up to a tick per lost sample: the delay's
-        # lower edge is taken per stretch between gaps (stretches under 20 samples dropped)
+        # lower edge is taken per stretch between gaps (shorter stretches dropped)
         stretch = np.cumsum(d.lost_before > 0)[ok]
         sizes = np.bincount(stretch)
-        keep = sizes[stretch] >= 20
+        keep = sizes[stretch] >= MIN_EDGE_STRETCH
         edge = np.full(sizes.size, np.inf)
         np.minimum.at(edge, stretch[keep], delay[keep])
         delay = (delay - edge[stretch])[keep]
         t = t[keep]
         res = TIMING_RESOLUTION_S
-        # a clock rate error shows as a slope of the delay's lower envelope
-        blocks = np.array_split(np.arange(t.size), max(2, min(50, t.size // 50)))
-        bt = np.array([float(np.median(t[b])) for b in blocks])
-        bd = np.array([float(np.quantile(delay[b], 0.05)) for b in blocks])
-        rate = float(np.polyfit(bt, bd, 1)[0]) if bt.size >= 3 else 0.0
-
-        def histogram(x):
-            x = x - x.min()
-            edges = np.arange(0.0, float(x.max()) + res, res)
-            counts = np.bincount(np.minimum((x / res).astype(np.int64), edges.size - 1), minlength=edges.size)
-            return counts, edges
-
-        # baseline: clocks in step, delay = frame + Exp(μ)
-        c0, e0 = histogram(delay)
-        mu0 = max(float(np.mean(delay - delay.min())), res / 10)
-        fit0 = minimize_scalar(lambda lm: -binned_loglik(c0, e0, 0.0, math.exp(lm)),
-                               bounds=(math.log(mu0) - 4, math.log(mu0) + 2), method="bounded")
-        ll0, mu_base = -float(fit0.fun), math.exp(fit0.x)
-        # extended: the rate removed, then U(0, L) + Exp(μ) (a latency timer, bursts)
+        # every fit and every fold's prediction on TIMING_RESOLUTION_S bins from the lower edge
+        every = np.ones(t.size, dtype=bool)
+        full = _timing_fit(delay, t, every, res)
+        ll0, ll1 = _timing_loglik(delay, t, every, full, res)
+        rate, hold, mu, mu_base = full.rate, full.hold_s, full.mean_s, full.base_mean_s
         x1 = delay - rate * t
-        c1, e1 = histogram(x1)
-        span = float(x1.max() - x1.min())
-        starts = [(math.log(max(f * span, res / 10)), math.log(max(g * mu0, res / 10)))
-                  for f in (0.05, 0.5, 0.9) for g in (0.1, 1.0)]
-        best = min((minimize(lambda p: -binned_loglik(c1, e1, math.exp(p[0]), math.exp(p[1])), s0,
-                             method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 400})
-                    for s0 in starts), key=lambda r: r.fun)
-        hold, mu = (math.exp(v) for v in best.x)
-        ll_exp = -float(minimize_scalar(lambda lm: -binned_loglik(c1, e1, 0.0, math.exp(lm)),
-                                        bounds=(math.log(mu0) - 4, math.log(mu0) + 2), method="bounded").fun)
-        # nested: the baseline is the extension at rate 0 and L = 0
-        ll1 = max(-float(best.fun), ll_exp, ll0)
+        # out of block: each of MIN_CV_BLOCKS stretches of the record predicted by both
+        # models fitted on the others
+        fold = np.minimum((np.arange(t.size) * MIN_CV_BLOCKS) // max(t.size, 1), MIN_CV_BLOCKS - 1)
+        with_effect, without = np.zeros(MIN_CV_BLOCKS), np.zeros(MIN_CV_BLOCKS)
+        for f in range(MIN_CV_BLOCKS):
+            out = _timing_fit(delay, t, fold != f, res, start=full)
+            without[f], with_effect[f] = _timing_loglik(delay, t, fold == f, out, res)
+        cv = cv_gain(with_effect, without)
         spread = float(np.std(np.diff(d.t_host_s[ok])))
         excess0 = delay - delay.min() - mu_base
         excess1 = x1 - x1.min() - (hold / 2 + mu)
@@ -247,7 +253,72 @@ class Timing(SideEffect):
                 float(np.var(x1)) - BASELINE_LATENCY_MEAN_S**2, 0.0)) / d.period_s},
             position_mm=position_mm,
             theta=np.array([hold, rate]),  # the hold-back (s), the clock's rate error (fraction)
+            cv=cv,
         )
+
+
+@dataclass(frozen=True)
+class _TimingFit:
+    rate: float  # the host clock's rate error against the board's (fraction)
+    hold_s: float  # the extension's uniform hold-back L
+    mean_s: float  # the extension's exponential latency μ
+    base_mean_s: float  # the baseline's exponential latency μ
+
+
+def _timing_fit(delay: np.ndarray, t: np.ndarray, use: np.ndarray, res: float,
+                start: _TimingFit | None = None) -> _TimingFit:
+    """Both host-delay models fitted on the samples `use`: the baseline Exp(μ) on the
+    delays, the extension U(0, L) + Exp(μ) on the delays less a clock-rate line."""
+    d, tt = delay[use], t[use]
+    # a clock rate error shows as a slope of the delay's lower envelope: each block's 5th
+    # percentile (the edge, not moved by one early sample), up to 50 blocks of ≥ 50 delays
+    blocks = np.array_split(np.arange(tt.size), max(2, min(50, tt.size // 50)))
+    bt = np.array([float(np.median(tt[b])) for b in blocks])
+    bd = np.array([float(np.quantile(d[b], 0.05)) for b in blocks])
+    rate = float(np.polyfit(bt, bd, 1)[0]) if bt.size >= 3 else 0.0
+    c0, e0 = _delay_histogram(d, res)
+    mu0 = max(float(np.mean(d - d.min())), res / 10)
+    bounds = (math.log(mu0) - 4, math.log(mu0) + 2)
+    base = minimize_scalar(lambda lm: -binned_loglik(c0, e0, 0.0, math.exp(lm)), bounds=bounds, method="bounded")
+    c1, e1 = _delay_histogram(d - rate * tt, res)
+    span = float(np.ptp(d - rate * tt))
+    if start is None:
+        starts = [(math.log(max(f * span, res / 10)), math.log(max(g * mu0, res / 10)))
+                  for f in (0.05, 0.5, 0.9) for g in (0.1, 1.0)]
+    else:  # a fold: from the whole record's fit
+        starts = [(math.log(max(start.hold_s, res / 10)), math.log(max(start.mean_s, res / 10)))]
+    best = min((minimize(lambda p: -binned_loglik(c1, e1, math.exp(p[0]), math.exp(p[1])), s0,
+                         method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 400})
+                for s0 in starts), key=lambda r: r.fun)
+    hold, mu = (math.exp(v) for v in best.x)
+    # nested: the extension at L = 0 is the exponential alone; never below it
+    exp_only = minimize_scalar(lambda lm: -binned_loglik(c1, e1, 0.0, math.exp(lm)), bounds=bounds, method="bounded")
+    if -float(exp_only.fun) > -float(best.fun):
+        hold, mu = 0.0, math.exp(exp_only.x)
+    return _TimingFit(rate, hold, mu, math.exp(base.x))
+
+
+def _delay_histogram(x: np.ndarray, res: float):
+    """Counts of x − min(x) in bins of res (the last open), and the bins' lower edges."""
+    x = x - x.min()
+    edges = np.arange(0.0, float(x.max()) + res, res)
+    counts = np.bincount(np.minimum((x / res).astype(np.int64), edges.size - 1), minlength=edges.size)
+    return counts, edges
+
+
+def _timing_loglik(delay: np.ndarray, t: np.ndarray, sel: np.ndarray, fit: _TimingFit,
+                   res: float) -> tuple[float, float]:
+    """Binned log-likelihoods of the delays `sel` under the baseline and the extension
+    fitted as `fit`; each model's lower edge is where its fit put it (the record's)."""
+    def counts(x, origin):
+        edges = np.arange(0.0, float(x.max() - origin) + 2 * res, res)
+        idx = np.clip(((x[sel] - origin) / res).astype(np.int64), 0, edges.size - 1)
+        return np.bincount(idx, minlength=edges.size), edges
+
+    x1 = delay - fit.rate * t
+    c0, e0 = counts(delay, float(delay.min()))
+    c1, e1 = counts(x1, float(x1.min()))
+    return binned_loglik(c0, e0, 0.0, fit.base_mean_s), binned_loglik(c1, e1, fit.hold_s, fit.mean_s)
 
 
 class SampleLoss(SideEffect):
@@ -270,27 +341,47 @@ class SampleLoss(SideEffect):
             loglik_before=ll0, loglik_after=ll1, extra_params=1, p_value=0.0 if total else 1.0,
             rms_before=0.0, rms_after=0.0, rms_unit=None, detail=f"{total} samples lost in {gaps} gaps",
             values={"lost": True},
+            # a block with a gap has probability 0 under the baseline: predicted infinitely
+            # better by any loss rate; without a gap there is nothing to predict
+            cv=CvGain(math.inf if total else 0.0, 0.0, gaps),
         )
 
 
-def local_level_loglik(y: np.ndarray, dt_s, k: float, sigma: float) -> float:
-    """Exact log-likelihood of y = level + white(σ), level a random walk with Var step K²·dt.
+def local_level_terms(y: np.ndarray, dt_s, k: float, sigma: float, use: np.ndarray | None = None) -> np.ndarray:
+    """Each value's one-step predictive log density under y = level + white(σ), level a
+    random walk with Var step K²·dt (a Kalman filter, diffuse start: the first used value
+    fixes the level and has no term).
 
     dt_s: one spacing, or each step's (len(y) − 1: blocks with motion between them).
-    Kalman filter with a diffuse start (the first block fixes the level)."""
-    q = k * k * np.broadcast_to(np.asarray(dt_s, dtype=float), (max(len(y) - 1, 0),))
+    use: the values the filter updates on (default all); the others are predicted and
+    skipped — how a fold is left out."""
+    n = len(y)
+    q = k * k * np.broadcast_to(np.asarray(dt_s, dtype=float), (max(n - 1, 0),))
+    use = np.ones(n, dtype=bool) if use is None else use
     r = sigma * sigma
-    level, p = float(y[0]), r
-    ll = 0.0
-    for v, qi in zip(y[1:], q, strict=False):
-        p += qi
+    out = np.zeros(n)
+    level, p = None, 0.0
+    for i in range(n):
+        if level is not None and i > 0:
+            p += q[i - 1]
+        if level is None:
+            if use[i]:
+                level, p = float(y[i]), r
+            continue
         s = p + r
-        e = v - level
-        ll += -0.5 * (math.log(2.0 * math.pi * s) + e * e / s)
-        gain = p / s
-        level += gain * e
-        p *= 1.0 - gain
-    return ll
+        e = float(y[i]) - level
+        out[i] = -0.5 * (math.log(2.0 * math.pi * s) + e * e / s)
+        if use[i]:
+            gain = p / s
+            level += gain * e
+            p *= 1.0 - gain
+    return out
+
+
+def local_level_loglik(y: np.ndarray, dt_s, k: float, sigma: float, use: np.ndarray | None = None) -> float:
+    """Exact log-likelihood of the used values (local_level_terms)."""
+    terms = local_level_terms(y, dt_s, k, sigma, use)
+    return float(terms.sum() if use is None else terms[use].sum())
 
 
 class BiasRandomWalk(SideEffect):
@@ -311,9 +402,10 @@ class BiasRandomWalk(SideEffect):
     summary = "the bias wanders as a random walk beyond the exponential drift (Allan slope +1/2)"
     # a block of 0.25 s averages the part's noise (its 50 Hz pole: 25 correlation times)
     # to white block means while a walk of the documented sizes (0.3–0.8 mg/√s) moves by
-    # 0.15–0.4 mg within it; 20 blocks: the local-level model's two variances need them
+    # 0.15–0.4 mg within it; one block at least in each of the criterion's folds (the
+    # local-level model's two variances need a score of them anyway)
     block_s = 0.25
-    MIN_BLOCKS = 20
+    MIN_BLOCKS = MIN_CV_BLOCKS
 
     def unusable(self, prep):
         if not prep.rest.any():
@@ -350,6 +442,7 @@ class BiasRandomWalk(SideEffect):
                     for s0 in starts), key=lambda r: r.fun)
         k, sigma = math.exp(best.x[0]), math.exp(best.x[1])
         ll1 = max(-float(best.fun), ll0)
+        cv = self._out_of_fold(y, dt, best.x, float(null.x))
         # σ of log K from the curvature of the profile likelihood in log K
         h = 0.05
         f0 = nll(best.x)
@@ -363,8 +456,24 @@ class BiasRandomWalk(SideEffect):
             rms_before=sigma0, rms_after=sigma,
             detail=f"means of {y.size} blocks of {self.block_s:g} s of the residual at rest",
             compensation=Compensation(settings={"bias_random_walk_mps2_per_rts": k}),
-            values={"k_mps2_per_rts": k},
+            values={"k_mps2_per_rts": k}, cv=cv,
         )
+
+    @staticmethod
+    def _out_of_fold(y: np.ndarray, dt: np.ndarray, walk_start, null_start: float) -> CvGain:
+        """MIN_CV_BLOCKS contiguous folds of the block means: each predicted one step ahead
+        by the walk and by white noise, both with variances fitted without it."""
+        folds = np.minimum((np.arange(y.size) * MIN_CV_BLOCKS) // y.size, MIN_CV_BLOCKS - 1)
+        with_walk, without = np.zeros(MIN_CV_BLOCKS), np.zeros(MIN_CV_BLOCKS)
+        for f in range(MIN_CV_BLOCKS):
+            use, held = folds != f, folds == f
+            walk = minimize(lambda p, u=use: -local_level_loglik(y, dt, math.exp(p[0]), math.exp(p[1]), u),
+                            walk_start, method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3})
+            null = minimize_scalar(lambda ls, u=use: -local_level_loglik(y, dt, 0.0, math.exp(ls), u),
+                                   bounds=(null_start - 3, null_start + 3), method="bounded")
+            with_walk[f] = local_level_terms(y, dt, math.exp(walk.x[0]), math.exp(walk.x[1]))[held].sum()
+            without[f] = local_level_terms(y, dt, 0.0, math.exp(null.x))[held].sum()
+        return cv_gain(with_walk, without)
 
 
 SIDE_EFFECTS: tuple[SideEffect, ...] = (CrossAxis(), Timing(), SampleLoss(), BiasRandomWalk())

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gateway.core.diagnosis.context import G, Prepared
+from gateway.core.diagnosis.context import MIN_TEMPERATURE_STD_C, USABLE_COLUMN_FRACTION, G, Prepared
 from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC
 from gateway.core.diagnosis.reading import shifted
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
@@ -205,7 +205,7 @@ class TemperatureOffset(SignalEffect):
     param_names = ("offset_mps2_per_c",)
 
     def unusable(self, prep):
-        if not prep.data.column_ok("temp_c", min_std=0.05):
+        if not prep.data.column_ok("temp_c", min_std=MIN_TEMPERATURE_STD_C):
             return "needs a temperature column that varies (temp_c)"
         return None
 
@@ -274,6 +274,8 @@ class Vibration(SignalEffect):
         return np.asarray(best, dtype=float)
 
     def bounds(self, prep):
+        # the fit's search range, wider than the physical range (judgement.physical) so
+        # that a shape fitted outside it is seen and reported as not physical
         return [0.5, 0.003, -100.0, -100.0], [0.9 * self._nyquist(prep), 0.9, 100.0, 100.0]
 
     def apply(self, prep, theta, sig):
@@ -296,6 +298,8 @@ class Bandwidth(SignalEffect):
         return _grid_best(prep, residual, sig, self, [(f,) for f in np.geomspace(0.5, top, 40)])
 
     def bounds(self, prep):
+        # search range: below the physical 2 Hz (judgement.MIN_BANDWIDTH_HZ) so that such a
+        # fit is reported as not physical; above, up to the sampling's Nyquist frequency
         return [0.2], [0.95 * 0.5 / prep.data.period_s]
 
     def apply(self, prep, theta, sig):
@@ -533,7 +537,7 @@ class CrossTalk(SignalEffect):
 
     def unusable(self, prep):
         d = prep.data
-        if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < 0.9:
+        if d.other_mps2 is None or np.isfinite(d.other_mps2).mean() < USABLE_COLUMN_FRACTION:
             return "needs the other axis"
         if d.other_axis_still:
             return "the other axis stands still (--other-axis-still): it has no motion of its own to leak"

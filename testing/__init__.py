@@ -1,0 +1,1 @@
+"""Case generators and helpers that tests and benchmarks share (not shipped in the wheel)."""
