@@ -6,7 +6,7 @@ import pytest
 
 from gateway.core.estimator import estimate_series
 from gateway.core.hint_latency import MIN_EDGES, aligned_hint, hint_latency
-from tests.robot_like_cases import robot_case
+from testing.robot_like_cases import robot_case
 
 # seeds the corpus benchmark never uses (it runs 0 … --seeds − 1, at most 5)
 SEEDS = (41, 42)

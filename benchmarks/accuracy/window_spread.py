@@ -1,6 +1,6 @@
 """How far a window's spread about its own mean tells rest from motion on the robot files.
 
-    PYTHONPATH=. nice .venv/bin/python benchmarks/window_spread.py [--window-s 0.1]
+    nice .venv/bin/python -m benchmarks.accuracy.window_spread [--window-s 0.1] [--json PATH]
 
 A SHOE/GLRT-like detector judges a window by Σ(a − ā)²/σ² against χ² (its level absorbed
 by the bias state), σ from the recording's quiet part (estimator settings from the rest, as
@@ -12,18 +12,12 @@ false-alarm rate passes.
 """
 from __future__ import annotations
 
-import argparse
-import datetime
 import sys
-from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO))
-
-from benchmarks.estimation_corpus import ROBOT_FILES, robot_case  # noqa: E402
-from benchmarks.machine_info import machine  # noqa: E402
+from benchmarks import harness
+from benchmarks.accuracy.estimation_corpus import ROBOT_FILES, robot_case
 
 
 def spread_cells(sd, sigma: float, threshold: float) -> tuple[str, str]:
@@ -33,12 +27,12 @@ def spread_cells(sd, sigma: float, threshold: float) -> tuple[str, str]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = harness.parser(__doc__)
     parser.add_argument("--window-s", type=float, default=0.1)
     args = parser.parse_args()
-    print(f"command: PYTHONPATH=. python benchmarks/window_spread.py --window-s {args.window_s:g}")
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {machine()}\n")
+    run = harness.stamp(__spec__.name)
+    print()
+    rows = []
     print("| file | σ (quiet part) | rest windows: sd/σ p10 / p50 / p90 / p99 | pass | "
           "move windows: sd/σ p10 / p50 / p90 / p99 | pass |")
     print("| --- | --- | --- | --- | --- | --- |")
@@ -48,6 +42,7 @@ def main() -> int:
         case = robot_case(name, "sensor")
         if case.error:
             print(f"| {case.name} | refused: {case.error} | | | | |")
+            rows.append({"file": case.name, "refused": case.error})
             continue
         s = case.settings
         w = max(2, int(round(args.window_s / s.sample_period_s)))
@@ -61,6 +56,9 @@ def main() -> int:
         r, rp = spread_cells(sd[rest], sigma, threshold)
         m, mp = spread_cells(sd[moving], sigma, threshold)
         print(f"| {case.name} | {sigma / 9.80665 * 1e3:.2f} mg | {r} | {rp} | {m} | {mp} |")
+        rows.append({"file": case.name, "sigma_mg": sigma / 9.80665 * 1e3, "rest_sd_over_sigma_p10_50_90_99": r,
+                     "rest_pass": rp, "move_sd_over_sigma_p10_50_90_99": m, "move_pass": mp})
+    harness.write_json(args, {"rows": rows}, run)
     return 0
 
 
