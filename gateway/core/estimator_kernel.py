@@ -31,7 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gateway.core.jit import jit, jit_inline
+from gateway.core.jit import jit, jit_inline, jit_without_refcounts
 from gateway.core.standstill import (
     MIN_WINDOW_SAMPLES,
     hint_gate_open,
@@ -1044,7 +1044,7 @@ def write_estimate(x, P, m, out, prm, regime, regime_prev, u_before, flags, upd,
     out[O_ROLLBACK_FROM] = rollback_from
 
 
-@jit
+@jit_without_refcounts
 def step(state, prm, t_s, z, z_valid, lost_before):
     """One sample in, the estimate at t_s out (written to `state.out`, layout O_*), in named
     phases: propagate → judge the standstill (a StandstillDecision) → roll back a gentle

@@ -62,3 +62,25 @@ def jit_inline(func):
     if _numba is None:
         return func
     return _numba.njit(cache=True, nogil=True, inline="always")(func)
+
+
+
+def jit_without_refcounts(func):
+    """jit, compiled without numba's reference counting of arrays: for a per-sample step
+    that allocates nothing and keeps no array beyond its call (its phases, inlined by
+    jit_inline, take the state's arrays as arguments).
+
+    Numba counts a reference on an array at every assignment and releases it where the
+    variable dies; its pruning pass removes such pairs only within a basic block or a
+    simple diamond, not across a phase's branches (numba issue #2350, its maintainers'
+    example uses this same switch). Each count is an atomic operation through a function
+    pointer: the phased estimator step carried 65 increfs and 176 decrefs in its compiled
+    code (the one-function step 20 and 52) and took 779 against 522 ns per sample offline;
+    without them it takes 468 (benchmarks/speed/estimator_speed.py and the commit that made
+    this). The counts are not needed: the caller (Python, run_forward, the daemon's
+    run_samples) holds every array for the whole call. `_nrt=False` is numba's switch for
+    that (underscored: meant for code such as this, which it checks — any allocation in
+    the function then fails to compile instead of leaking)."""
+    if _numba is None:
+        return func
+    return _numba.njit(cache=True, nogil=True, _nrt=False)(func)
