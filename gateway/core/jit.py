@@ -75,12 +75,15 @@ def jit_without_refcounts(func):
     simple diamond, not across a phase's branches (numba issue #2350, its maintainers'
     example uses this same switch). Each count is an atomic operation through a function
     pointer: the phased estimator step carried 65 increfs and 176 decrefs in its compiled
-    code (the one-function step 20 and 52) and took 779 against 522 ns per sample offline;
-    without them it takes 468 (benchmarks/speed/estimator_speed.py and the commit that made
-    this). The counts are not needed: the caller (Python, run_forward, the daemon's
-    run_samples) holds every array for the whole call. `_nrt=False` is numba's switch for
-    that (underscored: meant for code such as this, which it checks — any allocation in
-    the function then fails to compile instead of leaking)."""
+    code (the one-function step before it 20 and 52; `inspect_llvm` of a fresh compile),
+    and ran about 1.4× the CPU time per sample of that step offline; without the counts it
+    is at least as fast (`python -m benchmarks.speed.estimator_speed --compare DIR`, with
+    a worktree of the older commit). The counts are not needed: the caller (Python,
+    run_forward, the daemon's run_samples) holds every array for the whole call, and the
+    step allocates nothing (with the runtime off, an allocation would fail to compile, not
+    leak). `_nrt=False` is numba's switch for this — underscored, so not a public promise:
+    numba is pinned (constraints.txt), and a numba that dropped the switch would fail
+    at its first compile (KeyError: unrecognized option), in every test."""
     if _numba is None:
         return func
     return _numba.njit(cache=True, nogil=True, _nrt=False)(func)
