@@ -1,7 +1,7 @@
 """Are the estimates of this checkout bit-identical to another's? For a refactor of the
 estimator (its kernel split into phases, its records), the answer must be yes.
 
-    .venv/bin/python -m benchmarks.tools.same_estimates --compare DIR [--json PATH]
+    .venv/bin/python -m benchmarks.tools.compare same-estimates --compare DIR [--json PATH]
 
 DIR is another checkout, e.g. a worktree of main (`git worktree add /work/w_main main`);
 each checkout runs its own code with this interpreter (PYTHONPATH = the checkout). Every
@@ -26,8 +26,6 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-
-from benchmarks import harness
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -135,16 +133,23 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
 
 
-def main() -> int:
-    parser = harness.parser(__doc__)
-    parser.add_argument("--compare", type=Path, required=True, metavar="DIR", help="the other checkout")
-    args = parser.parse_args()
-    run = harness.stamp(__spec__.name)
+def compare_same_estimates(checkouts: list[Path]) -> dict:
+    """The first checkout's estimates against each other's, byte for byte; printed as a table."""
+    found = {}
     with tempfile.TemporaryDirectory() as tmp:
-        ours, our_notes = estimates(ROOT, Path(tmp) / "ours.npz")
-        theirs, their_notes = estimates(args.compare.resolve(), Path(tmp) / "theirs.npz")
+        for i, checkout in enumerate(checkouts):
+            found[checkout] = estimates(checkout, Path(tmp) / f"{i}.npz")
+    ours, our_notes = found[checkouts[0]]
+    results = {}
+    for other in checkouts[1:]:
+        theirs, their_notes = found[other]
+        results[str(other)] = bit_identity_table(ours, theirs, our_notes, their_notes, other)
+    return results
+
+
+def bit_identity_table(ours, theirs, our_notes, their_notes, other: Path) -> dict:
     cases = sorted({key.split("|")[0] for key in ours} | {key.split("|")[0] for key in theirs})
-    print(f"\n| estimate | columns | bit-identical to {args.compare} |")
+    print(f"\n| estimate | columns | bit-identical to {other} |")
     print("| --- | --- | --- |")
     rows, differing = [], 0
     for case in cases:
@@ -155,17 +160,12 @@ def main() -> int:
         rows.append({"estimate": case, "columns": len(cols), "differing": bad})
     print(f"\n{len(cases) - differing} of {len(cases)} estimates bit-identical")
     # notes are text: each note found on one side only, with how many estimates carry it
-    for side, mine, other in (("here", our_notes, their_notes), ("there", their_notes, our_notes)):
+    for side, mine, theirs_ in (("here", our_notes, their_notes), ("there", their_notes, our_notes)):
         only: dict[str, int] = {}
         for key, lines in mine.items():
             for line in lines:
-                if line not in other.get(key, []):
+                if line not in theirs_.get(key, []):
                     only[line] = only.get(line, 0) + 1
         for line, count in sorted(only.items()):
             print(f"note only {side} ({count} estimates): {line}")
-    harness.write_json(args, {"rows": rows, "differing": differing}, run)
-    return 0 if differing == 0 else 1
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return {"rows": rows, "differing": differing}
