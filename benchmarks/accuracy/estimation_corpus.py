@@ -181,6 +181,9 @@ def shifted(rest: np.ndarray, t_s: np.ndarray, shift_s: float) -> np.ndarray:
     return out
 
 
+ALIGN_HINT = os.environ.get("ADXLGW_CORPUS_ALIGN_HINT") == "1"  # --align-hint (set before the workers spawn)
+
+
 def score(case: Case, method: str, hint: np.ndarray | None) -> dict:
     """One estimate of one case, scored."""
     from gateway.core.estimator import estimate_series
@@ -189,7 +192,8 @@ def score(case: Case, method: str, hint: np.ndarray | None) -> dict:
     try:
         track = estimate_series(case.t_s, case.acc_mps2, case.valid, method=method, settings=case.settings,
                                 lost_before=case.lost_before,
-                                standstill_hint=None if hint is None else hint.astype(float))
+                                standstill_hint=None if hint is None else hint.astype(float),
+                                align_hint=ALIGN_HINT)
     except Exception as exc:  # noqa: BLE001 — a refusal is a result too
         return {"error": f"{type(exc).__name__}: {str(exc)[:80]}"}
     flagged = 100.0 * float(track.untrusted.mean())
@@ -304,10 +308,15 @@ def main() -> int:
     parser.add_argument("--json", help="write the results here too")
     parser.add_argument("--compare", action="append", default=[], choices=COMPARED_METHODS,
                         help="a method to judge beside the shipped ones (repeatable)")
+    parser.add_argument("--align-hint", action="store_true",
+                        help="shift the machine's hint by its latency measured on each recording "
+                             "(gateway/core/hint_latency.py) before the estimator sees it")
     args = parser.parse_args()
+    if args.align_hint:
+        os.environ["ADXLGW_CORPUS_ALIGN_HINT"] = "1"  # the pool's spawned workers read it
     compare = tuple(args.compare)
     print(f"command: python -m benchmarks.accuracy.estimation_corpus --seeds {args.seeds}"
-          + (" --no-perturbations" if args.no_perturbations else "")
+          + (" --no-perturbations" if args.no_perturbations else "") + (" --align-hint" if args.align_hint else "")
           + "".join(f" --compare {m}" for m in compare))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")

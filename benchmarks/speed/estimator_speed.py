@@ -2,6 +2,14 @@
 
     python -m benchmarks.speed.estimator_speed [--hours 12]
 
+Side by side with another checkout: `python -m benchmarks.tools.compare speed --compare DIR`
+(side_by_side below): each checkout's own code run by this interpreter in a child process
+on the same recording, the checkouts alternating, --repeats rounds; CPU time (not wall
+time) per sample of the offline realtime and smoothed estimates (the realtime one is the
+kernel's step in a compiled loop, as the daemon's pipeline runs it) and of
+RealtimeEstimator.step called from Python; the minimum and the median over the rounds,
+and each checkout's median against this one's.
+
 The 12-hour recording is made in memory by the simulator (no CSV): the paper's strokes
 (0.3 m at 1 m/s, 1 s dwells) back to back for the whole time, at exactly 500 samples/s
 (T2 = 2.000 ms). The process is pinned to one core. Times exclude the simulation and
@@ -10,9 +18,12 @@ is paid once per installation, not per run).
 """
 from __future__ import annotations
 
+import json
 import os
+import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -39,6 +50,62 @@ def twelve_hours(hours: float, sensor: SensorParams):
     t = sample_times_s(run.t2, run.tick_hz)
     z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
     return t, z, float(run.ref_pos_m[-1])
+
+
+# run inside each checkout (its own gateway): only APIs every version has
+SIDE_BY_SIDE_PROBE = r'''
+import json, os, sys, time
+import numpy as np
+from gateway.core.estimator import RealtimeEstimator, estimate_series
+from gateway.core.estimator_settings import from_sensor_model
+from gateway.core.sensor_model import SensorParams
+if hasattr(os, "sched_setaffinity"):
+    os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+with np.load(sys.argv[1]) as data:
+    t, z = data["t"], data["z"]
+n_step = int(sys.argv[2])
+settings = from_sensor_model(SensorParams(t2_error_frac=0.0))
+lost = np.zeros(t.size, np.int64)
+estimate_series(t[:5000], z[:5000], method="smoothed", settings=settings, lost_before=lost[:5000])  # compile/load
+out = {}
+for method in ("realtime", "smoothed"):
+    start = time.process_time()
+    estimate_series(t, z, method=method, settings=settings, lost_before=lost)
+    out[f"offline {method} ns/sample"] = (time.process_time() - start) / t.size * 1e9
+est = RealtimeEstimator(settings)
+start = time.process_time()
+for k in range(n_step):
+    est.step(float(t[k]), float(z[k]))
+out["RealtimeEstimator.step µs/sample"] = (time.process_time() - start) / n_step * 1e6
+print(json.dumps(out))
+'''
+
+
+def side_by_side(checkouts: list[Path], hours: float, repeats: int, n_step: int = 50_000) -> dict:
+    """Each checkout's CPU time per sample on one recording, alternating; printed as a table."""
+    t, z, _ = twelve_hours(hours, SensorParams(t2_error_frac=0.0))
+    times: dict[Path, dict[str, list[float]]] = {c: {} for c in checkouts}
+    with tempfile.TemporaryDirectory() as tmp:
+        data = Path(tmp) / "recording.npz"
+        np.savez(data, t=t, z=z)
+        for _ in range(repeats):
+            for checkout in checkouts:
+                env = {**os.environ, "PYTHONPATH": str(checkout)}
+                done = subprocess.run([sys.executable, "-c", SIDE_BY_SIDE_PROBE, str(data), str(min(n_step, t.size))],
+                                      cwd=checkout, env=env, capture_output=True, text=True, check=True)
+                for key, value in json.loads(done.stdout.strip().splitlines()[-1]).items():
+                    times[checkout].setdefault(key, []).append(value)
+    print(f"{t.size / 1e6:.2f} M samples ({hours:g} h of the paper's strokes at 500 samples/s), {repeats} rounds; "
+          "CPU time per sample, min / median, and the median against this checkout's")
+    keys = list(times[checkouts[0]])
+    print("| checkout | " + " | ".join(keys) + " |")
+    print("|" + " --- |" * (len(keys) + 1))
+    medians = {c: {k: statistics.median(v) for k, v in times[c].items()} for c in checkouts}
+    for checkout in checkouts:
+        cells = [f"{min(times[checkout][k]):.3g} / {medians[checkout][k]:.3g} "
+                 f"({medians[checkout][k] / medians[checkouts[0]][k]:.2f}×)" for k in keys]
+        print(f"| {'this checkout' if checkout == checkouts[0] else checkout} | " + " | ".join(cells) + " |")
+    return {str(c): times[c] for c in checkouts}
 
 
 def main() -> int:

@@ -4,6 +4,8 @@ before against after, on data the project did not make.
     .venv/bin/python -m benchmarks.tools.compare estimation [--compare DIR ...] [--independent-seeds 10]
     .venv/bin/python -m benchmarks.tools.compare diagnosis [--compare DIR ...]
     .venv/bin/python -m benchmarks.tools.compare initial-rest [--compare DIR ...] [--seeds 5]
+    .venv/bin/python -m benchmarks.tools.compare same-estimates --compare DIR
+    .venv/bin/python -m benchmarks.tools.compare speed --compare DIR [--hours 0.5] [--repeats 5]
 
 `--compare DIR` (repeatable) is another checkout, e.g. a worktree of another commit
 (`git worktree add /work/w_old ff8b6f8`); each checkout runs its own code with this
@@ -19,6 +21,12 @@ estimation — on:
    recording and one per hidden effect, seeds 70000… (spent by the diagnosis benchmark,
    never used to design the estimator): the RMS of the errors at the stops (mm) and the
    share of stop ends inside ±3σ, realtime and smoothed, settings from the sensor model.
+
+same-estimates — every column of every estimate byte for byte, for a refactor of the
+estimator (benchmarks/tools/same_estimates.py says on what).
+
+speed — the estimators' CPU time per sample, each checkout in its own child on one
+simulated recording, alternating (benchmarks/speed/estimator_speed.py, side_by_side).
 
 diagnosis — the two Leiria robot files (each at the default comparison and at every
 sample, as docs/diagnosis.md) and the two hand-lifted airbrakes recordings that return to
@@ -47,6 +55,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import harness
+from benchmarks.speed.estimator_speed import side_by_side
+from benchmarks.tools.same_estimates import compare_same_estimates
 from gateway.cli import main as adxlgw
 from gateway.core import reference_point
 from gateway.offline.recording import read_recording, to_acceleration
@@ -280,10 +290,12 @@ def compare_initial_rest(checkouts: list[Path], seeds: int) -> dict:
 
 def main() -> None:
     ap = harness.parser(__doc__)
-    ap.add_argument("what", choices=("estimation", "diagnosis", "initial-rest"))
+    ap.add_argument("what", choices=("estimation", "diagnosis", "initial-rest", "same-estimates", "speed"))
     ap.add_argument("--compare", type=Path, action="append", default=[], help="another checkout (repeatable)")
     ap.add_argument("--independent-seeds", type=int, default=10, help="estimation: seeds per effect")
     ap.add_argument("--seeds", type=int, default=5, help="initial-rest: independent-generator seeds per effect")
+    ap.add_argument("--hours", type=float, default=0.5, help="speed: the simulated recording's length")
+    ap.add_argument("--repeats", type=int, default=5, help="speed: rounds, the checkouts alternating")
     args = ap.parse_args()
     run = harness.stamp("benchmarks.tools.compare")
     checkouts = [ROOT, *[c.resolve() for c in args.compare]]
@@ -291,6 +303,10 @@ def main() -> None:
         results = compare_estimation(checkouts, args.independent_seeds)
     elif args.what == "diagnosis":
         results = compare_diagnosis(checkouts)
+    elif args.what == "same-estimates":
+        results = compare_same_estimates(checkouts)
+    elif args.what == "speed":
+        results = side_by_side(checkouts, args.hours, args.repeats)
     else:
         results = compare_initial_rest(checkouts, args.seeds)
     harness.write_json(args, results, run)

@@ -40,7 +40,7 @@ from gateway.offline.recording import (
 # are decided from both ends (estimator.stops_seen_from_the_end: the one-pass answer
 # kept beside the second pass, the derived hint) — not measured at 12 h, counted; plus
 # up to 48 (an index and 5 floats) for the soft hinted velocity updates' records
-# (estimator_kernel.soft_update_bound: at most one per hinted sample, reached only by a
+# (kernel_update.soft_update_bound: at most one per hinted sample, reached only by a
 # hint that toggles once per window) — counted, the worst case, not measured.
 SMOOTHED_BYTES_PER_SAMPLE = 360
 # the estimate's columns written as integers

@@ -21,6 +21,7 @@ import numpy as np
 
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator_settings import EstimatorSettings
+from gateway.core.hint_latency import aligned_hint, hint_latency
 from gateway.core.integration import double_integrate, hold_invalid
 from gateway.core.kalman_paper import DEFAULT_JERK_DENSITY, run_paper_filter
 from gateway.core.reference_point import NoRestError, find_initial_rest
@@ -371,7 +372,7 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     cols["bias"] = np.where(init, st_x[:, 2], 0.0)
     held = hold_invalid(acc, valid)
     cols["acc"] = np.where(init & ~still, held - cols["bias"], 0.0)
-    # undo the sensor filter's lag as the kernel does (estimator_kernel, step 5)
+    # undo the sensor filter's lag as the kernel does (kernel_output.write_estimate)
     lag = prm[K.P_LAG]
     moving = init & ~still
     y_edge = np.zeros(n)
@@ -384,7 +385,7 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
 
 
 def _add_disagreement(pos_var, flags, zupt_index, zupt_data) -> None:
-    """The realtime estimate's disagreement term (estimator_kernel.disagreement_var) over a
+    """The realtime estimate's disagreement term (kernel_output.disagreement_var) over a
     smoothed track: from each stop taken on the hint against the integrated velocity on,
     the square of the position its update moved — σ covers both answers."""
     conflicted = (flags[zupt_index] & (K.F_ENTRY | K.F_HINT_CONFLICT)) == (K.F_ENTRY | K.F_HINT_CONFLICT)
@@ -419,7 +420,7 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
         del stores
         seen = stops_seen_from_the_end(t, z, ok, lost, hint, settings, flags, cols)
         # the backward run's stops enter the forward pass as a rest hint where the machine
-        # gave none: evidence the forward pass still checks (estimator_kernel step 2), not
+        # gave none: evidence the forward pass still checks (kernel_standstill_judge.hint_gate), not
         # an order; the hint's own flags there are not the machine's
         derived = np.zeros(n, dtype=bool) if seen is None else seen & ~np.isfinite(hint)
         stores = _forward(prm, t, z, ok, lost, np.where(derived, 1.0, hint), cols, flags, smooth)
@@ -543,13 +544,16 @@ class RunCounts:
 def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
                     settings: EstimatorSettings | None = None, lost_before=None,
                     known_bias_mps2=None, jerk_density: float = DEFAULT_JERK_DENSITY,
-                    standstill_hint=None) -> EstimateTrack:
+                    standstill_hint=None, align_hint: bool = False) -> EstimateTrack:
     """Estimate position and velocity for every sample of a recording.
 
     valid: False where the sample is unusable (NaN/inf are invalid anyway).
     lost_before: samples lost before each one (from seq gaps); None → from time gaps.
     standstill_hint: the machine's word per sample — 1 at rest, 0 moving, NaN unknown
-        (realtime and smoothed only; evidence, not an order: estimator_kernel step 2).
+        (realtime and smoothed only; evidence, not an order: kernel_standstill_judge.hint_gate).
+        Its latency against the accelerometer's own edges is measured and reported in the
+        notes (hint_latency); align_hint: shift the hint by it before use (off by default:
+        docs/decisions/0120-hint-latency-measured-not-applied.md).
     known_bias_mps2: the true bias per sample (simulation only) — the noise floor: the
         realtime/smoothed filter is fed z − b_true and told the bias is exactly zero.
     Raises NoRestError when nothing can be estimated (no standstill to start from).
@@ -590,6 +594,10 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         hint = np.ascontiguousarray(standstill_hint, dtype=float)
         if hint.size != t.size:
             raise ValueError("standstill_hint and t_s differ in length")
+        latency = hint_latency(t, acc, ok, hint, settings.standstill_false_motion_prob)
+        notes.append(latency.describe(applied=align_hint))
+        if align_hint and latency.lag_s is not None:
+            hint = aligned_hint(t, hint, latency.lag_s)
     if method == "zupt":
         track = _zupt_smoothed(t, acc, ok, lost, hint, settings, notes)
     else:

@@ -121,7 +121,7 @@ class EstimatorSettings:
     # cycle ends rather than over the period (SensorParams.dcm_reading; the data sheet
     # does not say): such a reading adds (S·T2/2g)·∫a² dt of position per move, of one
     # sign (0.25 mm per stroke of the paper's). Not corrected — which reading a board has
-    # is not known — but carried in the reported σ (estimator_kernel.reading_instant_var).
+    # is not known — but carried in the reported σ (kernel_output.reading_instant_var).
     # On the simulator with edge readings, 69–70 % of the stop errors lay inside ±3σ
     # without it (benchmarks/accuracy/sigma_coverage.py --dcm-reading edge). False for other sensors: an ADC
     # samples at a fixed instant.

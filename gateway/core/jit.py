@@ -52,3 +52,38 @@ def jit(func):
     # cache: compiled code is kept on disk (NUMBA_CACHE_DIR, gateway/compiled_cache.py), so only
     # the first run of these sources compiles
     return _numba.njit(cache=True, nogil=True)(func)
+
+
+def jit_inline(func):
+    """jit, inlined into its callers at numba's IR level: for a phase of a per-sample step
+    that is its own function for the reader, not for the machine (a call per phase passes
+    the state's arrays and their reference counts on every sample: the phased estimator
+    kernel took twice the CPU time of the one-function step)."""
+    if _numba is None:
+        return func
+    return _numba.njit(cache=True, nogil=True, inline="always")(func)
+
+
+
+def jit_without_refcounts(func):
+    """jit, compiled without numba's reference counting of arrays: for a per-sample step
+    that allocates nothing and keeps no array beyond its call (its phases, inlined by
+    jit_inline, take the state's arrays as arguments).
+
+    Numba counts a reference on an array at every assignment and releases it where the
+    variable dies; its pruning pass removes such pairs only within a basic block or a
+    simple diamond, not across a phase's branches (numba issue #2350, its maintainers'
+    example uses this same switch). Each count is an atomic operation through a function
+    pointer: the phased estimator step carried 65 increfs and 176 decrefs in its compiled
+    code (the one-function step before it 20 and 52; `inspect_llvm` of a fresh compile),
+    and ran about 1.4× the CPU time per sample of that step offline; without the counts it
+    is at least as fast (`python -m benchmarks.speed.estimator_speed --compare DIR`, with
+    a worktree of the older commit). The counts are not needed: the caller (Python,
+    run_forward, the daemon's run_samples) holds every array for the whole call, and the
+    step allocates nothing (with the runtime off, an allocation would fail to compile, not
+    leak). `_nrt=False` is numba's switch for this — underscored, so not a public promise:
+    numba is pinned (constraints.txt), and a numba that dropped the switch would fail
+    at its first compile (KeyError: unrecognized option), in every test."""
+    if _numba is None:
+        return func
+    return _numba.njit(cache=True, nogil=True, _nrt=False)(func)

@@ -41,7 +41,7 @@ no standstill these tests can accept — yet it still says the axis stands: its 
 swings about zero, its mean over the hinted samples is zero. hinted_rest_fits says
 whether the hinted samples contradict the hint; mean_velocity_offset gives the velocity
 now against their mean and its range; the kernel then applies a soft velocity update
-(estimator_kernel, step 3c), not a standstill.
+(kernel_update.soft_hinted_update), not a standstill.
 """
 from __future__ import annotations
 

@@ -24,7 +24,7 @@ time: the record is read as a whole, in three phases, each a small function.
    accelerometer does not show: a hinted stretch must pass the same tests. (Letting a
    hinted window skip the mean test took in the sensor's settling after a stop — sim
    robot-like with the hint 1.4 % worst move against 0.5 % — and gained nothing on the
-   robot files: docs/decisions/0120.)
+   robot files: docs/decisions/0121.)
 2. **Which quiet stretches are rests** (`decide_rests`): a cruise is as quiet as a rest.
    At the first sample of each candidate the filter's velocity is tested as the realtime
    detector tests it: a rest is below the floor speed, |v| ≤ floor, and the test decides
