@@ -131,7 +131,7 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags
     kf = KalmanFilter(dim_x=3, dim_z=1)
     zupt = {int(i): row for i, row in zip(zupt_index, zupt_data, strict=False)}
     xs, ps, priors, prior_ps, phis = [], [], [], [], []
-    u_prev, prev_invalid, have_u = 0.0, False, False
+    u_prev, u_prev2, prev_invalid, have_u = 0.0, 0.0, False, False
     kf.x, kf.P = np.zeros(3), np.diag([0.0, 0.0, prm[K.P_BIAS0_VAR]])
     for k in range(t.size):
         tr = st_trans[k]
@@ -148,6 +148,12 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags
                     u_in, missing_var = u_prev + half * missing / dt, half * half + prm[K.P_R]
                 g = np.array([0.5 * missing**2, missing, 0.0])
                 Q = Q + missing_var * np.outer(g, g)
+                if missing == 0 and ok[k]:
+                    # how the acceleration moved inside the held period: a step at a uniformly
+                    # unknown instant, bounded by the range of the period's mean and its
+                    # neighbours', ±range·dt²/8 taken as uniform (kernel_propagate)
+                    spread = max(u_prev2, u_prev, z[k]) - min(u_prev2, u_prev, z[k])
+                    Q[0, 0] += (spread * dt * dt / 8.0) ** 2 / 3.0
                 B = np.array([[0.5 * dt * dt, 0.0], [dt, 0.0], [0.0, 1.0]])
             else:
                 phi = np.diag([1.0, 0.0, 1.0])
@@ -174,6 +180,7 @@ def _oracle(prm, t, z, ok, lost, st_trans, st_zaru, zupt_index, zupt_data, flags
         xs.append(kf.x.copy())
         ps.append(kf.P.copy())
         if ok[k]:
+            u_prev2 = u_prev if have_u and not prev_invalid else z[k]
             u_prev, prev_invalid, have_u = z[k], False, True
         else:
             prev_invalid = True

@@ -17,7 +17,7 @@ def test_the_reported_variance_is_that_of_p_plus_tau_v():
     period_s = 0.002
     # 2 s at rest (the bias measured, a standstill), then a move starts: 1 g for 40 ms
     acc = np.concatenate([np.zeros(1000), np.full(20, 9.81)]) + rng.normal(0.0, 0.02, 1020)
-    checked = velocity_dominated = 0
+    checked = velocity_matters = 0
     for k, a in enumerate(acc):
         est.step(k * period_s, a)
         P, misc, out = est.state.P, est.state.misc, est.state.out
@@ -29,7 +29,7 @@ def test_the_reported_variance_is_that_of_p_plus_tau_v():
         expected = (K.with_scale_error(share, out[K.O_POS], est.params)
                     + K.reading_instant_var(misc[K.M_READING_DRIFT]) + misc[K.M_DISAGREE_VAR])
         assert out[K.O_POS_VAR] == np.float64(expected) or abs(out[K.O_POS_VAR] - expected) <= 1e-9 * expected
-        velocity_dominated += lag * lag * P[1, 1] > P[0, 0]
+        velocity_matters += share > 1.1 * P[0, 0]
         checked += 1
     assert checked >= 15
-    assert velocity_dominated >= 1  # the case this is about: Var(p) alone would be under half of it
+    assert velocity_matters >= 1  # the case this is about: Var(p) alone would be more than 10 % short

@@ -69,6 +69,7 @@ from gateway.core.kernel_layout import (
     M_STILL_START,
     M_T_PREV,
     M_U_PREV,
+    M_U_PREV2,
     M_UNTRUSTED,
     M_VEL_UNKNOWN,
     M_ZUPT_INNOV,
@@ -150,7 +151,13 @@ from gateway.core.kernel_output import (
     with_scale_error,
     write_estimate,
 )
-from gateway.core.kernel_propagate import drift_at, propagate, propagate_motion, propagate_standstill
+from gateway.core.kernel_propagate import (
+    drift_at,
+    propagate,
+    propagate_motion,
+    propagate_standstill,
+    within_period_position_var,
+)
 from gateway.core.kernel_standstill_judge import (
     StandstillDecision,
     hint_as_taken,
@@ -181,7 +188,8 @@ __all__ = [
     'M_DISAGREE_VAR', 'M_HAVE_PREV', 'M_HAVE_U', 'M_HINT', 'M_HINT_RUN', 'M_LAST_REST_HINT_T', 'M_LAST_STILL_T',
     'M_PEAK_SPEED', 'M_PERIOD', 'M_PREV_INVALID', 'M_QUIET_FROM_T', 'M_QUIET_FROM_V', 'M_QUIET_T0',
     'M_READING_DRIFT', 'M_REGIME', 'M_RING_FILL', 'M_RING_POS', 'M_STEP_OPEN', 'M_STILL_START', 'M_T_PREV',
-    'M_UNTRUSTED', 'M_U_PREV', 'M_VEL_UNKNOWN', 'M_ZUPT_INNOV', 'M_ZUPT_NIS', 'N_MISC', 'N_OUT', 'N_PARAMS',
+    'M_UNTRUSTED', 'M_U_PREV', 'M_U_PREV2', 'M_VEL_UNKNOWN', 'M_ZUPT_INNOV', 'M_ZUPT_NIS', 'N_MISC', 'N_OUT',
+    'N_PARAMS',
     'N_SNAP', 'O_ACC', 'O_BIAS', 'O_BIAS_VAR', 'O_FLAGS', 'O_INNOV', 'O_NIS', 'O_POS', 'O_POS_VAR',
     'O_ROLLBACK_FROM', 'O_TRANSITION', 'O_VEL', 'O_VEL_VAR', 'O_ZARU_S', 'O_ZARU_Y', 'O_ZUPT_INNOV', 'O_ZUPT_K0',
     'O_ZUPT_K1', 'O_ZUPT_K2', 'O_ZUPT_NIS', 'O_ZUPT_S', 'O_ZUPT_Y', 'P_BIAS0_VAR', 'P_DRIFT_C1', 'P_DRIFT_T',
@@ -196,6 +204,7 @@ __all__ = [
     'remember_sample', 'request_bias_reestimate', 'rest_velocity_update', 'roll_back_to_onset', 'scalar_update',
     'set_hint', 'soft_hinted_update', 'soft_update_bound', 'start_moving_after_restart', 'tare',
     'undecidable_quiet', 'undo_sensor_lag', 'unpack_cov', 'window_of', 'window_tests', 'with_scale_error',
+    'within_period_position_var',
     'write_estimate', 'run_forward', 'step',
 ]
 
@@ -215,7 +224,7 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         transition = decision.transition
     rollback_from = -1
     if decision.decided and decision.regime == MOTION and regime_prev == STANDSTILL:
-        rollback_from = roll_back_to_onset(x, P, m, snap, prm, t_s, z, lost_before, count)
+        rollback_from = roll_back_to_onset(x, P, m, snap, prm, t_s, z, ok, lost_before, count)
         if rollback_from >= 0:
             transition = T_MOTION
             flags |= F_ROLLBACK

@@ -80,11 +80,14 @@ M_READING_DRIFT = 25  # position a modulator reading at its edge would have adde
 # Σ (position correction)² of the stops the machine's hint and the integrated accelerometer
 # disagreed on (since the tare): the reported σ covers both answers (hint_gate)
 M_DISAGREE_VAR = 26
-N_MISC = 27
+# the input held before M_U_PREV (sample k−2's mean; = M_U_PREV when there is none): with
+# sample k's, the range that bounds how the acceleration moved inside period k−1
+M_U_PREV2 = 27
+N_MISC = 28
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
-# and the sample's input: z, valid, lost_before
-N_SNAP = 13
+# and the sample's input: z, valid, lost_before; the input held before it (M_U_PREV2 after it)
+N_SNAP = 14
 
 UNINITIALISED = 0
 MOTION = 1

@@ -23,6 +23,7 @@ from gateway.core.kernel_layout import (
     M_REGIME,
     M_T_PREV,
     M_U_PREV,
+    M_U_PREV2,
     M_UNTRUSTED,
     M_ZUPT_INNOV,
     M_ZUPT_NIS,
@@ -144,11 +145,13 @@ def remember_sample(x, P, m, snap, z, ok, lost_before, count, regime):
     m[M_COUNT] = count + 1
     u_before = m[M_U_PREV]
     if ok:
+        m[M_U_PREV2] = m[M_U_PREV] if m[M_HAVE_U] > 0.0 and m[M_PREV_INVALID] == 0.0 else z
         m[M_U_PREV] = z
         m[M_PREV_INVALID] = 0.0
         m[M_HAVE_U] = 1.0
     else:
         m[M_PREV_INVALID] = 1.0
+    snap[j, 13] = m[M_U_PREV2]  # a rollback's replay starts its input range from here
     m[M_REGIME] = regime
     return u_before
 

@@ -46,7 +46,7 @@ from gateway.core.kernel_layout import (
     unpack_cov,
 )
 from gateway.core.kernel_output import disagreement_var
-from gateway.core.kernel_propagate import drift_at, propagate_motion
+from gateway.core.kernel_propagate import drift_at, propagate_motion, within_period_position_var
 from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_fits, mean_velocity_offset, velocity_decidable
 
 
@@ -110,7 +110,7 @@ def rest_velocity_update(x, P, z, ok, lag, target, R, gain):
 
 
 @jit_inline
-def roll_back_to_onset(x, P, m, snap, prm, t_s, z, lost_before, count):
+def roll_back_to_onset(x, P, m, snap, prm, t_s, z, ok, lost_before, count):
     """Phase 2b. Leaving a standstill: the motion began somewhere in the window that just
     failed. A sharp start fails the tests on its first sample; a gentle one is seen late,
     after the zero-acceleration updates took part of it for bias and the position hold lost
@@ -159,14 +159,17 @@ def roll_back_to_onset(x, P, m, snap, prm, t_s, z, lost_before, count):
     t_before = snap[j, 9]
     u = snap[j, 10]
     u_stale = snap[j, 11] == 0.0
+    u2 = snap[j, 13]
     for i in range(s + 1, count + 1):
         ji = i % w
         if i < count:
             t_i = snap[ji, 9]
             lost_i = int(snap[ji, 12])
+            z_i, ok_i = snap[ji, 10], snap[ji, 11] > 0.0
         else:
             t_i = t_s
             lost_i = lost_before
+            z_i, ok_i = z, ok
         dt_i = t_i - t_before
         if dt_i > 0.0:
             if u_stale:
@@ -177,10 +180,13 @@ def roll_back_to_onset(x, P, m, snap, prm, t_s, z, lost_before, count):
                 missing_dt = 0.0
             propagate_motion(x, P, dt_i, u, drift_at(t_i, prm) - drift_at(t_before, prm), prm[P_QV],
                              prm[P_QB], prm[P_MISSING_VAR], missing_dt)
+            if missing_dt == 0.0 and ok_i:
+                P[0, 0] += within_period_position_var(u2, u, z_i, dt_i)
             t_before = t_i
         if i < count:
             pack_state(x, P, snap[ji], 0)
             if snap[ji, 11] > 0.0:
+                u2 = u if not u_stale else snap[ji, 10]
                 u = snap[ji, 10]
                 u_stale = False
             else:
