@@ -26,7 +26,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .published_values import Command, PublishedValues, StatusBits, StatusExtBits
+from .published_values import Command, PublishedValues, StatusBits, StatusExtBits, usable_status
 from .sparkplug import sparkplug_b_pb2
 
 NAMESPACE = "spBv1.0"
@@ -139,10 +139,12 @@ _READABLE = tuple(m for m in DEVICE_METRICS if m.source is not None)
 # device_row's work, prepared once: it runs rate_hz times a second in the daemon's event
 # loop, cold each time, so it reads the snapshot with one C call and loops only over the
 # few metrics that need converting
-_READ_SOURCES = operator.attrgetter(*(m.source for m in _READABLE))
 _READABLE_NAMES = tuple(m.name for m in _READABLE)
 _DOUBLE_INDEXES = tuple(i for i, m in enumerate(_READABLE) if m.datatype is DataType.DOUBLE)
 _WORD_INDEXES = (_READABLE_NAMES.index("status"), _READABLE_NAMES.index("status_ext"))
+_USABLE_INDEX = _READABLE_NAMES.index("usable")
+# (`usable` read as the status word and made from it in ints: the property is flag operations)
+_READ_SOURCES = operator.attrgetter(*("status" if m.source == "usable" else m.source for m in _READABLE))
 
 
 # ------------------------------------------------------------------ topics --
@@ -228,6 +230,7 @@ def device_reading(values: PublishedValues) -> Reading:
             read[i] = None
     i, j = _WORD_INDEXES
     read[i], read[j] = int(read[i]), int(read[j])
+    read[_USABLE_INDEX] = usable_status(read[i])
     return tuple(read)
 
 
