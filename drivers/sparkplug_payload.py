@@ -170,6 +170,11 @@ class HostState:
 MAX_STATE_BYTES = 1024  # {"online": true, "timestamp": <ms>}: tens of bytes; more is not that
 
 
+def encode_state(state: HostState) -> bytes:
+    """A primary host's STATE payload (Sparkplug 3.0): JSON, UTF-8."""
+    return json.dumps({"online": state.online, "timestamp": state.timestamp_ms}).encode()
+
+
 def decode_state(data: bytes) -> HostState:
     """A STATE payload (JSON: online, timestamp in UTC ms); ValueError naming what is wrong."""
     if len(data) > MAX_STATE_BYTES:

@@ -284,7 +284,7 @@ def cpu_round(broker_port: int, seconds: float, mqtt_first: bool, qos: int) -> d
     daemons = {role: real_daemon(tmp, broker_port if role == "on" else 0, f"cpu-{role}", 20.0,
                                  board=str(ptys[role].link), qos=qos) for role in roles}
     for role, pty in ptys.items():
-        if not pty.wait_for_reader(60):
+        if not pty.wait_for_reader(180):  # a daemon starting on a loaded 2-core machine: tens of seconds
             raise SystemExit(f"daemon {role} never opened its board port")
     frames = board_frames(seconds)
     start_ns = time.monotonic_ns() + int(3e9)
