@@ -30,7 +30,6 @@ import paho.mqtt.client as mqtt
 
 from . import sparkplug_payload as spb
 
-
 STATE_FLUSH_S = 2.0  # an orderly exit waits this long for its offline STATE to be acknowledged
 
 
@@ -159,16 +158,6 @@ class FleetView:
                 d.last_count = m.value if d.last_count is None else max(d.last_count, m.value)
             elif not historical:
                 d.values[m.name] = m.value
-
-    def _own_state(self, data: bytes) -> None:
-        """Our own STATE as the broker has it: offline while we are connected (our will
-        from a connection the broker has not yet seen die, or someone else's) is put right."""
-        try:
-            state = spb.decode_state(data)
-        except ValueError:
-            state = None
-        if (state is None or not state.online) and not self._closing:
-            self._say_state(online=True)
 
     def rows(self) -> list[FleetRow]:
         rows = []

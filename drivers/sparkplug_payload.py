@@ -319,20 +319,9 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
     """DDATA with the changed metrics; historical: values of a moment ago sent late (kept
     while the broker was away), flagged so that no host takes them as the current ones."""
     p = Payload(timestamp=timestamp_ms, seq=seq)
-    if historical:
-        for name, value in changed.items():
-            _add(p, name, value, birth=False, timestamp_ms=timestamp_ms, historical=True)
-        return p.SerializeToString()
-    add = p.metrics.add  # (the current data: _add written out, by alias only)
+    metric_timestamp_ms = timestamp_ms if historical else None  # (current data: the payload's timestamp says it)
     for name, value in changed.items():
-        alias, datatype, value_field = _ENCODING[name]
-        metric = add()
-        metric.alias = alias
-        metric.datatype = datatype
-        if value is None:
-            metric.is_null = True
-        else:
-            setattr(metric, value_field, value)
+        _add(p, name, value, birth=False, timestamp_ms=metric_timestamp_ms, historical=historical)
     return p.SerializeToString()
 
 
