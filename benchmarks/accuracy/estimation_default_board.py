@@ -16,7 +16,6 @@ standstill within 5 mm).
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import socket
 import subprocess
@@ -27,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from benchmarks.modbus_poll import InputPoller
 from drivers.published_values import StatusBits
 from gateway.core.scenarios import ScenarioSettings, build_profile
@@ -69,10 +68,7 @@ def main() -> int:
                         help="appended to the config (to measure an alternative, e.g. "
                              "'[estimator]\\nstart_at_rest = false\\n')")
     args = parser.parse_args()
-    print(f"command: python -m benchmarks.accuracy.estimation_default_board --seconds {args.seconds:g} "
-          f"--seed {args.seed}" + (f" --extra-config {args.extra_config!r}" if args.extra_config else ""))
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {machine()}")
+    harness.stamp("benchmarks.accuracy.estimation_default_board")
     truth = simulate(build_profile(ScenarioSettings()), SensorParams(), seed=args.seed).ref_pos_m
     # A pty number is reused as soon as it is free; a process elsewhere on the host that
     # still holds a lock on an old pty of that number makes the daemon's exclusive open fail

@@ -42,7 +42,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import atexit
-import datetime
 import json
 import multiprocessing as mp
 import os
@@ -55,8 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import harness
 from benchmarks.daemon.daemon_benchmark import board_frames, cpu_seconds, pct, writer
-from benchmarks.harness import machine
 from drivers.pty_port import PtyPort
 from drivers.published_values import PublishedValues, StatusBits
 from drivers.sparkplug_host import FleetListener
@@ -412,9 +411,8 @@ def main() -> None:
     ap.add_argument("--skip-cpu", action="store_true")
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
-    print(f"command: nice .venv/bin/python -m benchmarks.daemon.fleet_benchmark {' '.join(sys.argv[1:])}")
-    print(f"date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; machine: {machine()}; "
-          f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
+    harness.stamp("benchmarks.daemon.fleet_benchmark")
+    print(f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
           f"load average (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     results = {}
     if not args.skip_fleet:
