@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import logging
 import socket
 import ssl
@@ -445,9 +446,9 @@ class SparkplugNode:
         """A current QoS 0 DDATA written to the socket as one MQTT PUBLISH packet, without
         paho's publish: that is some 60 Python calls (a message-info object with its lock,
         the property and topic checks, its queue) for a message that at QoS 0 has nothing
-        to track — measured, most of the node's CPU per DDATA (docs/decisions/0152). Only
-        when paho has nothing of its own waiting to be written (else its bytes and these
-        would interleave) and the packet fits one TCP segment (taken whole or not at all);
+        to track — measured, the largest part of a DDATA's cost (docs/decisions/0152).
+        Only when paho has nothing of its own waiting to be written (else its bytes and
+        these would interleave) and the packet fits one TCP segment (MAX_DIRECT_PACKET);
         else through paho. A full socket buffer (the broker stopped reading) drops it and
         counts it, as paho's full queue does. paho's keep-alive does not see these
         writes and pings every keepalive_s: a 2-byte packet, harmless."""
@@ -458,15 +459,13 @@ class SparkplugNode:
             return self._publish(self.topics["DDATA"], payload)
         try:
             sent = sock.send(packet)
-        except BlockingIOError:
-            self.counters.dropped += 1
-            return False
-        except OSError:  # the connection is going: paho's next read or write says so
+        except OSError:  # the buffer full (BlockingIOError), or the connection going (paho's next read says so)
             self.counters.dropped += 1
             return False
         if sent != len(packet):  # the buffer ran out inside it: the stream is cut, so start over
             log.error("MQTT: a %d-byte packet written only in part (%d); reconnecting", len(packet), sent)
-            sock.shutdown(socket.SHUT_RDWR)
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)  # paho's next read sees the end: reconnect, rebirth
         return True
 
     def _send_backlog(self) -> None:
