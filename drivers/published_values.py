@@ -173,7 +173,17 @@ class PublishedValues:
     @property
     def usable(self) -> bool:
         """True when a consumer may act on position/velocity (VALID and nothing against)."""
-        return bool(self.status & StatusBits.VALID) and not (self.status & NOT_USABLE_BITS)
+        return usable_status(self.status)
+
+
+_VALID = int(StatusBits.VALID)
+_NOT_USABLE = int(NOT_USABLE_BITS)
+
+
+def usable_status(status: int) -> bool:
+    """`PublishedValues.usable` of a status word: in plain ints, as the MQTT node reads it
+    for every DDATA (a flag operation on StatusBits is a Python call)."""
+    return status & _VALID != 0 and status & _NOT_USABLE == 0
 
 
 #: What publishers serve before the daemon's first update: nothing measured yet.

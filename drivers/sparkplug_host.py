@@ -8,6 +8,15 @@ counted. `FleetListener` is the MQTT side: it subscribes to ``spBv1.0/<group>/#`
 asks a node it hears from without having seen its birth for a rebirth (NCMD
 "Node Control/Rebirth"), as a primary host does. `adxlgw fleet` prints the view; the
 tests and the fleet benchmark read the edge nodes through it.
+
+With `primary_host_id` the listener is a Sparkplug 3.0 *primary host application*, the
+one whose STATE the edge nodes configured with that id wait for before their birth
+(docs/mqtt.md, "Primary host"): each connection's will is its STATE offline, retained,
+with the timestamp of that connection; once subscribed it publishes its STATE online,
+retained, with the same timestamp; an orderly exit publishes the offline STATE itself
+(the broker drops the will on a clean disconnect). An offline STATE of its own that it
+reads while connected (a late will of its previous connection, retained) is answered with
+its online STATE again, as the spec asks.
 """
 from __future__ import annotations
 
@@ -20,6 +29,8 @@ from typing import Any
 import paho.mqtt.client as mqtt
 
 from . import sparkplug_payload as spb
+
+STATE_FLUSH_S = 2.0  # an orderly exit waits this long for its offline STATE to be acknowledged
 
 
 @dataclass
@@ -166,7 +177,7 @@ class FleetListener:
 
     def __init__(self, host: str, port: int, *, group: str = "+", username: str | None = None,
                  password: str | None = None, tls_ca_file: str | None = None, client_id: str = "",
-                 persistent: bool = False, ask_rebirth: bool = True,
+                 persistent: bool = False, ask_rebirth: bool = True, primary_host_id: str | None = None,
                  on_message: Callable[[Message, float], None] | None = None):
         self.view = FleetView()
         self.lock = threading.Lock()
@@ -188,6 +199,11 @@ class FleetListener:
         self._client.reconnect_delay_set(1, 5)
         self._client.on_connect = self._connected
         self._client.on_message = self._message
+        self._state_topic = spb.state_topic(primary_host_id) if primary_host_id else None
+        self._state_ms = 0  # the timestamp of this connection's STATE (its will and its birth)
+        self._closing = False  # our own offline STATE said at exit is not put right
+        if self._state_topic is not None:
+            self._client.on_pre_connect = self._state_will
 
     def __enter__(self) -> FleetListener:
         self._client.connect_async(self._host, self._port, keepalive=10)
@@ -195,18 +211,41 @@ class FleetListener:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self._closing = True
+        if self._state_topic is not None and self._client.is_connected():
+            # an orderly end says the host's death itself: a clean disconnect drops the will
+            self._say_state(online=False).wait_for_publish(STATE_FLUSH_S)
         self._client.disconnect()
         self._client.loop_stop()
+
+    def _state_will(self, client, _userdata) -> None:
+        # each connection: a new timestamp, which the nodes use to tell this connection's
+        # death from a late one of an older connection
+        self._state_ms = int(time.time() * 1000)
+        client.will_set(self._state_topic, spb.encode_state(spb.HostState(False, self._state_ms)), qos=1,
+                        retain=True)
+
+    def _say_state(self, *, online: bool) -> mqtt.MQTTMessageInfo:
+        return self._client.publish(self._state_topic, spb.encode_state(spb.HostState(online, self._state_ms)),
+                                    qos=1, retain=True)
 
     def _connected(self, client, _userdata, flags, reason, _properties) -> None:
         if reason.is_failure:
             self.connect_error = str(reason)
             return
-        client.subscribe(f"{spb.NAMESPACE}/{self._group}/#", qos=1)
+        subscriptions = [(f"{spb.NAMESPACE}/{self._group}/#", 1)]
+        if self._state_topic is not None:
+            subscriptions.append((self._state_topic, 1))
+        client.subscribe(subscriptions)
+        if self._state_topic is not None:  # after the subscription: no birth the host could miss
+            self._say_state(online=True)
         self.connected.set()
 
     def _message(self, client, _userdata, message: mqtt.MQTTMessage) -> None:
         arrived = time.time()
+        if message.topic == self._state_topic:
+            self._own_state(message.payload)
+            return
         with self.lock:
             handled = self.view.handle(message.topic, message.payload, arrived)
             if handled is None:
@@ -220,6 +259,16 @@ class FleetListener:
                     client.publish(spb.node_topic(topic.group, "NCMD", topic.node), write_true(spb.REBIRTH), qos=0)
         if self._on_message is not None:
             self._on_message(handled, arrived)
+
+    def _own_state(self, data: bytes) -> None:
+        """Our own STATE as the broker has it: offline while we are connected (our will
+        from a connection the broker has not yet seen die, or someone else's) is put right."""
+        try:
+            state = spb.decode_state(data)
+        except ValueError:
+            state = None
+        if (state is None or not state.online) and not self._closing:
+            self._say_state(online=True)
 
     def rows(self) -> list[FleetRow]:
         with self.lock:

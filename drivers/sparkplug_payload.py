@@ -26,7 +26,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from .published_values import Command, PublishedValues, StatusBits, StatusExtBits
+from .published_values import Command, PublishedValues, StatusBits, StatusExtBits, usable_status
 from .sparkplug import sparkplug_b_pb2
 
 NAMESPACE = "spBv1.0"
@@ -139,10 +139,12 @@ _READABLE = tuple(m for m in DEVICE_METRICS if m.source is not None)
 # device_row's work, prepared once: it runs rate_hz times a second in the daemon's event
 # loop, cold each time, so it reads the snapshot with one C call and loops only over the
 # few metrics that need converting
-_READ_SOURCES = operator.attrgetter(*(m.source for m in _READABLE))
 _READABLE_NAMES = tuple(m.name for m in _READABLE)
 _DOUBLE_INDEXES = tuple(i for i, m in enumerate(_READABLE) if m.datatype is DataType.DOUBLE)
 _WORD_INDEXES = (_READABLE_NAMES.index("status"), _READABLE_NAMES.index("status_ext"))
+_USABLE_INDEX = _READABLE_NAMES.index("usable")
+# (`usable` read as the status word and made from it in ints: the property is flag operations)
+_READ_SOURCES = operator.attrgetter(*("status" if m.source == "usable" else m.source for m in _READABLE))
 
 
 # ------------------------------------------------------------------ topics --
@@ -166,6 +168,11 @@ class HostState:
 
 
 MAX_STATE_BYTES = 1024  # {"online": true, "timestamp": <ms>}: tens of bytes; more is not that
+
+
+def encode_state(state: HostState) -> bytes:
+    """A primary host's STATE payload (Sparkplug 3.0): JSON, UTF-8."""
+    return json.dumps({"online": state.online, "timestamp": state.timestamp_ms}).encode()
 
 
 def decode_state(data: bytes) -> HostState:
@@ -228,6 +235,7 @@ def device_reading(values: PublishedValues) -> Reading:
             read[i] = None
     i, j = _WORD_INDEXES
     read[i], read[j] = int(read[i]), int(read[j])
+    read[_USABLE_INDEX] = usable_status(read[i])
     return tuple(read)
 
 
@@ -311,20 +319,9 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
     """DDATA with the changed metrics; historical: values of a moment ago sent late (kept
     while the broker was away), flagged so that no host takes them as the current ones."""
     p = Payload(timestamp=timestamp_ms, seq=seq)
-    if historical:
-        for name, value in changed.items():
-            _add(p, name, value, birth=False, timestamp_ms=timestamp_ms, historical=True)
-        return p.SerializeToString()
-    add = p.metrics.add  # (the current data: _add written out, by alias only)
+    metric_timestamp_ms = timestamp_ms if historical else None  # (current data: the payload's timestamp says it)
     for name, value in changed.items():
-        alias, datatype, value_field = _ENCODING[name]
-        metric = add()
-        metric.alias = alias
-        metric.datatype = datatype
-        if value is None:
-            metric.is_null = True
-        else:
-            setattr(metric, value_field, value)
+        _add(p, name, value, birth=False, timestamp_ms=metric_timestamp_ms, historical=historical)
     return p.SerializeToString()
 
 

@@ -84,7 +84,7 @@ def _nonempty(v):
     return None if v.strip() else "must not be empty"
 
 
-def _sparkplug_id(v):
+def sparkplug_id_problem(v):
     # Sparkplug B: a topic level, so none of MQTT's separators or wildcards
     if not v.strip():
         return "must not be empty"
@@ -94,7 +94,7 @@ def _sparkplug_id(v):
 
 
 def _sparkplug_id_or_empty(v):
-    return None if v == "" else _sparkplug_id(v)
+    return None if v == "" else sparkplug_id_problem(v)
 
 
 SCHEMA: tuple[Key, ...] = (
@@ -184,10 +184,10 @@ SCHEMA: tuple[Key, ...] = (
     Key("mqtt", "port", 1883, int, "The broker's port (1883 plain, 8883 with TLS by convention).", _range(1, 65535)),
     Key("mqtt", "group_id", "adxl-gateway", str,
         "Sparkplug group: the plant's line or cell. Topic spBv1.0/<group_id>/<type>/<edge_node_id>[/<device_id>].",
-        _sparkplug_id),
+        sparkplug_id_problem),
     Key("mqtt", "edge_node_id", "", str,
         "Sparkplug edge node: this gateway, unique in its group. Empty: the host's name.", _sparkplug_id_or_empty),
-    Key("mqtt", "device_id", "axis", str, "Sparkplug device: the axis this gateway measures.", _sparkplug_id),
+    Key("mqtt", "device_id", "axis", str, "Sparkplug device: the axis this gateway measures.", sparkplug_id_problem),
     Key("mqtt", "qos", 0, int,
         "MQTT QoS of births and data: 0 as Sparkplug 3.0 says (a broker restart loses what was in flight), "
         "1 to have the broker acknowledge each message (the death is always QoS 1).", _one_of(0, 1)),

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import subprocess
+import sys
 
 import paho.mqtt.client as mqtt
 
@@ -115,3 +117,82 @@ def test_a_primary_host_id_must_be_a_sparkplug_id(tmp_path):
         assert "primary_host_id" in str(err)
     else:
         raise AssertionError("a primary_host_id with a / was taken")
+
+
+def test_the_fleet_view_as_primary_host_lets_the_node_be_born_and_its_exit_ends_the_session(tmp_path):
+    states: list[spb.HostState] = []
+
+    def watch_state(port: int) -> mqtt.Client:
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-state-watch")
+        client.on_message = lambda _c, _u, m: states.append(spb.decode_state(m.payload))
+        client.connect("127.0.0.1", port)
+        client.subscribe(spb.state_topic(HOST_ID), qos=1)
+        client.loop_start()
+        return client
+
+    def values() -> PublishedValues:
+        return PublishedValues(position_m=0.1, status=StatusBits.VALID)
+
+    with Broker(tmp_path) as broker, FleetListener("127.0.0.1", broker.port, group=GROUP,
+                                                   ask_rebirth=False) as observer:
+        watcher = watch_state(broker.port)
+
+        def node_view():
+            with observer.lock:
+                return observer.view.nodes.get((GROUP, "gw1"))
+
+        async def main() -> None:
+            node = SparkplugNode(SparkplugSettings(port=broker.port, group_id=GROUP, edge_node_id="gw1",
+                                                   primary_host_id=HOST_ID), values=values, drive_itself=True)
+            await node.start()
+            try:
+                await wait_for(lambda: node.connected, WAIT_S, what="the node connected")
+                await asyncio.sleep(1.0)
+                assert not node.publishing  # no primary host yet
+                with FleetListener("127.0.0.1", broker.port, group=GROUP, primary_host_id=HOST_ID) as host:
+                    assert host.connected.wait(WAIT_S)
+                    await wait_for(lambda: node_view() is not None and node_view().online, WAIT_S,
+                                   what="the birth the host's STATE allowed")
+                    with host.lock:
+                        assert host.view.nodes[(GROUP, "gw1")].online  # the host itself saw the birth
+                # the host's orderly exit: its offline STATE ends the node's session
+                await wait_for(lambda: not node_view().online, WAIT_S, what="the node's NDEATH")
+                assert node.counters.host_offline_ends == 1
+            finally:
+                await node.stop()
+
+        try:
+            asyncio.run(main())
+            # online, then offline with the same timestamp (the connection's), as Sparkplug 3.0 asks
+            assert [s.online for s in states] == [True, False]
+            assert states[0].timestamp_ms == states[1].timestamp_ms > 0
+        finally:
+            watcher.loop_stop()
+            watcher.disconnect()
+
+
+def test_adxlgw_fleet_as_primary_host_killed_leaves_its_will_the_offline_state(tmp_path):
+    """`adxlgw fleet --primary-host-id` says online; kill -9 of it: the broker publishes its
+    will, offline with the timestamp of the online."""
+    got: list[spb.HostState] = []
+    with Broker(tmp_path) as broker:
+        reader = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-will-reader")
+        reader.on_message = lambda _c, _u, m: got.append(spb.decode_state(m.payload))
+        reader.connect("127.0.0.1", broker.port)
+        reader.subscribe(spb.state_topic(HOST_ID), qos=1)
+        reader.loop_start()
+        fleet = subprocess.Popen([sys.executable, "-m", "gateway.cli", "fleet", "--broker", f"127.0.0.1:{broker.port}",
+                                  "--primary-host-id", HOST_ID, "--seconds", "120"],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            asyncio.run(wait_for(lambda: got and got[-1].online, WAIT_S, what="the host's STATE online"))
+            fleet.kill()
+            fleet.wait()
+            asyncio.run(wait_for(lambda: not got[-1].online, WAIT_S, what="its will: offline"))
+            assert got[-1].timestamp_ms == got[-2].timestamp_ms > 0
+        finally:
+            if fleet.poll() is None:
+                fleet.kill()
+                fleet.wait()
+            reader.loop_stop()
+            reader.disconnect()

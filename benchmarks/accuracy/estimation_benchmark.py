@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import csv
-import datetime
 import multiprocessing
 import os
 import sys
@@ -35,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from gateway.cli import main as adxlgw
 from gateway.commands.estimate import settings_for
 from gateway.core.drift_model import drift_g
@@ -428,10 +427,7 @@ def main() -> int:
     args = parser.parse_args()
     img = Path(args.img)
     img.mkdir(parents=True, exist_ok=True)
-    print(f"command: python -m benchmarks.accuracy.estimation_benchmark --seeds {args.seeds} "
-          f"--drift-hours {args.drift_hours:g}" + (" --robot-only" if args.robot_only else ""))
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {machine()}")
+    harness.stamp("benchmarks.accuracy.estimation_benchmark")
     print("\n".join(robot_data(img)))
     print()
     if args.robot_only:

@@ -16,8 +16,6 @@ standstill within 5 mm).
 from __future__ import annotations
 
 import argparse
-import datetime
-import logging
 import os
 import socket
 import subprocess
@@ -28,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
-from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register
+from benchmarks import harness
+from benchmarks.modbus_poll import InputPoller
 from drivers.published_values import StatusBits
 from gateway.core.scenarios import ScenarioSettings, build_profile
 from gateway.core.sensor_model import SensorParams
@@ -50,27 +48,15 @@ def free_port() -> int:
 
 
 def poll(port: int, seconds: float) -> list[tuple]:
-    from pymodbus.client import ModbusTcpClient
-
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    regs = {r.name: r for r in INPUT_REGISTERS if r.name in FIELDS}
-    client = ModbusTcpClient("127.0.0.1", port=port, timeout=0.3, retries=0)
+    poller = InputPoller(port, FIELDS)
     reads = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        try:
-            if not client.connected and not client.connect():
-                raise ConnectionError
-            rr = client.read_input_registers(0, count=INPUT_SIZE)
-            if rr.isError():
-                raise ConnectionError
-            w = rr.registers
-            reads.append(tuple(decode_register(regs[n], w[regs[n].address:regs[n].address + regs[n].words],
-                                               WordOrder.ABCD) for n in FIELDS))
-        except Exception:  # noqa: BLE001 — the daemon still starting: try again
-            client.close()
+        read = poller.read()  # None: the daemon still starting, try again
+        if read is not None:
+            reads.append(read)
         time.sleep(POLL_S)
-    client.close()
+    poller.close()
     return reads
 
 
@@ -82,10 +68,7 @@ def main() -> int:
                         help="appended to the config (to measure an alternative, e.g. "
                              "'[estimator]\\nstart_at_rest = false\\n')")
     args = parser.parse_args()
-    print(f"command: python -m benchmarks.accuracy.estimation_default_board --seconds {args.seconds:g} "
-          f"--seed {args.seed}" + (f" --extra-config {args.extra_config!r}" if args.extra_config else ""))
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {machine()}")
+    harness.stamp("benchmarks.accuracy.estimation_default_board")
     truth = simulate(build_profile(ScenarioSettings()), SensorParams(), seed=args.seed).ref_pos_m
     # A pty number is reused as soon as it is free; a process elsewhere on the host that
     # still holds a lock on an old pty of that number makes the daemon's exclusive open fail

@@ -15,7 +15,6 @@ the worst move's displacement error, per move between two of the robot's rests
 from __future__ import annotations
 
 import contextlib
-import datetime
 import io
 import sys
 import tempfile
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from gateway.cli import main as adxlgw
 from gateway.core.evaluation import move_errors
 from gateway.offline.recording import HINT_COLUMN, read_recording
@@ -66,7 +65,7 @@ def worst_move_percent(recording: Path, estimate: Path) -> tuple[float, list[str
 
 
 def main() -> int:
-    print(f"# {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; {machine()}")
+    harness.stamp("benchmarks.accuracy.retiming_benchmark")
     with tempfile.TemporaryDirectory() as tmp:
         for name, role, nominal in FILES:
             print(f"\n## {name} ({role})")

@@ -16,11 +16,10 @@ share of the time flagged not trustworthy (flag 256).
 from __future__ import annotations
 
 import argparse
-import datetime
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
 from gateway.core.estimator import estimate_series
 from gateway.core.estimator_settings import from_sensor_model
@@ -58,10 +57,7 @@ def main() -> None:
     ap.add_argument("--jerk-mps3", type=float, default=0.0,
                     help="drive the path jerk-limited at this jerk, m/s³ (e.g. 10: 0.1 s ramps); 0: steps (default)")
     args = ap.parse_args()
-    print(f"command: .venv/bin/python -m benchmarks.accuracy.robot_like_sweep --seeds {args.seeds}"
-          + (f" --jerk-mps3 {args.jerk_mps3:g}" if args.jerk_mps3 else ""))
-    print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
-    print(f"machine: {machine()}")
+    harness.stamp("benchmarks.accuracy.robot_like_sweep")
     print("medians over the seeds: worst move (%) / rest ends outside ±3σ / time flagged (flag 256); "
           "paper has no σ")
     names = ("paper", "realtime", "realtime+hint", "smoothed")

@@ -15,13 +15,12 @@ not over the period; the filter is never told which (its σ carries the differen
 from __future__ import annotations
 
 import argparse
-import datetime
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from gateway.core.conversion import AxisCalibration, acceleration_mps2, sample_times_s
 from gateway.core.estimator import estimate_series
 from gateway.core.estimator_settings import from_sensor_model
@@ -69,9 +68,7 @@ def main() -> None:
     ap.add_argument("--dcm-reading", choices=DCM_READINGS, default="mean",
                     help="where the simulated modulator reads the signal (default: the period's mean)")
     args = ap.parse_args()
-    print(f"command: .venv/bin/python -m benchmarks.accuracy.sigma_coverage --seeds {args.seeds} "
-          f"--dcm-reading {args.dcm_reading}")
-    print(f"date: {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}; machine: {machine()}")
+    harness.stamp("benchmarks.accuracy.sigma_coverage")
     rng = np.random.default_rng(20261126)
     errors = rng.uniform(-CALIBRATION_TOLERANCE_FRAC, CALIBRATION_TOLERANCE_FRAC, args.seeds)
     print(f"parts' sensitivity errors: {', '.join(f'{100 * e:+.2f} %' for e in errors)}")

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
-import datetime
 import resource
 import struct
 import subprocess
@@ -29,8 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks import harness
 from benchmarks.daemon.service_timing import first_answer, free_port
-from benchmarks.harness import machine
 from drivers.pty_port import PtyPort
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -110,9 +109,7 @@ def main() -> None:
     roots = args.root or [ROOT]
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))  # the attacker's own sockets
-    print("command: .venv/bin/python -m benchmarks.daemon.bad_peers_benchmark "
-          + " ".join(f"--root {r}" for r in args.root or []))
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
+    harness.stamp("benchmarks.daemon.bad_peers_benchmark")
     print(f"| daemon | attack | PLC reads answered within {ANSWER_WITHIN_S:g} s | slowest answer, s |")
     print("| --- | --- | --- | --- |")
     for root in roots:

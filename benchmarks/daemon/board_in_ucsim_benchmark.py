@@ -14,7 +14,6 @@ the same on any host; only part 2's wall time depends on the machine.
 from __future__ import annotations
 
 import argparse
-import datetime
 import subprocess
 import sys
 import tempfile
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from gateway.board_in_ucsim import (
     BoardRunSettings,
     budget_lines,
@@ -95,7 +94,7 @@ def main() -> None:
     p.add_argument("--t2-error-frac", type=lambda v: None if v == "default" else float(v), nargs="*",
                    default=[None], help="part 2 once per value: the part's T2 error, or 'default' (the simulator's)")
     args = p.parse_args()
-    print(f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; {machine()}")
+    harness.stamp("benchmarks.daemon.board_in_ucsim_benchmark")
     for seed in args.seeds:
         firmware_on_paper(seed)
     if args.pty_seconds > 0:

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import datetime
 import json
 import multiprocessing as mp
 import os
@@ -53,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import harness
 from drivers.board_protocol import encode_hello, encode_sample_records, encode_status
 from drivers.modbus_map import INPUT_SIZE, REGISTERS
 from drivers.pty_port import PtyPort
@@ -371,10 +371,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="with --cpu-only: runs, then median and range")
     args = ap.parse_args()
     if args.cpu_only:
-        print(f"command: .venv/bin/python -m benchmarks.daemon.daemon_benchmark --cpu-only "
-              f"--seconds {args.seconds:g} --repeat {args.repeat}")
-        print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
-        print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
+        harness.stamp("benchmarks.daemon.daemon_benchmark")
+        print(f"platform: {platform.platform()}")
         runs, floors = [], []
         for _ in range(args.repeat):  # interleaved: the machine's load drifts between runs
             runs.append(one_run(args.seconds, -1, instrumented=False, poll=False)["cpu_pct"])
@@ -388,10 +386,8 @@ def main() -> None:
                   f"over {len(runs)} runs")
         return
     clients = [int(c) for c in args.clients.split(",")]
-    print(f"command: .venv/bin/python -m benchmarks.daemon.daemon_benchmark --seconds {args.seconds:g} "
-          f"--clients {args.clients}")
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}")
-    print(f"machine: {platform.platform()}, {os.cpu_count()} cores, CPython {platform.python_version()}")
+    harness.stamp("benchmarks.daemon.daemon_benchmark")
+    print(f"platform: {platform.platform()}")
     print()
     print("latency from the last byte of a SAMPLE on the pty (500 samples/s):")
     print(f"{'path':58} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'n':>7}")

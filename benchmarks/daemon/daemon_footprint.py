@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import datetime
 import os
 import shutil
 import socket
@@ -36,8 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks import harness
 from benchmarks.daemon.service_timing import first_answer, free_port
-from benchmarks.harness import machine
 from drivers.pty_port import PtyPort
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -129,10 +128,8 @@ def main() -> None:
             for name, venv in venvs.items():
                 times[name].append(one_start(venv, tmp))
         load_after = os.getloadavg()
-        print("command: .venv/bin/python -m benchmarks.daemon.daemon_footprint "
-              + " ".join(f"--venv {v}" for v in args.venv) + f" --runs {args.runs}")
-        print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
-              f"machine: {machine()}; load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
+        harness.stamp("benchmarks.daemon.daemon_footprint")
+        print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f}")
         print("| venv | install, MB | spawn → first Modbus answer, s (median, range) | daemon CPU by then, s (median) "
               "| spawn → READY, s (median, range) |")
         print("| --- | --- | --- | --- | --- |")

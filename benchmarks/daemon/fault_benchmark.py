@@ -46,7 +46,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import logging
 import multiprocessing as mp
 import signal
 import subprocess
@@ -60,7 +59,7 @@ import numpy as np
 
 from benchmarks.daemon.daemon_benchmark import free_port, writer
 from benchmarks.harness import machine
-from drivers.modbus_map import INPUT_REGISTERS, INPUT_SIZE, WordOrder, decode_register
+from benchmarks.modbus_poll import InputPoller
 from drivers.pty_port import PtyPort
 from drivers.published_values import StatusBits
 from testing.fault_cases import (
@@ -119,29 +118,16 @@ FIELDS = ("SAMPLE_COUNTER", "POSITION", "POSITION_STD", "STATUS", "STATUS_EXT")
 
 def poller(port: int, until_ns: int, conn) -> None:
     """All input registers every POLL_S: (answer time ns, *FIELDS); reconnects while the daemon is away."""
-    from pymodbus.client import ModbusTcpClient
-
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
-    regs = {r.name: r for r in INPUT_REGISTERS if r.name in FIELDS}
-    client = ModbusTcpClient("127.0.0.1", port=port, timeout=0.3, retries=0)
+    poller = InputPoller(port, FIELDS)
     reads = []
     next_ns = time.monotonic_ns()
     while time.monotonic_ns() < until_ns:
         next_ns += int(POLL_S * 1e9)
-        try:
-            if not client.connected and not client.connect():
-                raise ConnectionError
-            rr = client.read_input_registers(0, count=INPUT_SIZE)
-            if rr.isError():
-                raise ConnectionError
-            t = time.monotonic_ns()
-            words = rr.registers
-            reads.append((t, *(decode_register(regs[n], words[regs[n].address:regs[n].address + regs[n].words],
-                                               WordOrder.ABCD) for n in FIELDS)))
-        except Exception:  # the daemon is being killed or restarted: try again next period
-            client.close()
+        read = poller.read()  # None: the daemon is being killed or restarted, try again next period
+        if read is not None:
+            reads.append((time.monotonic_ns(), *read))
         time.sleep(max(0.0, (next_ns - time.monotonic_ns()) / 1e9))
-    client.close()
+    poller.close()
     conn.send(reads)
 
 

@@ -42,7 +42,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import atexit
-import datetime
 import json
 import multiprocessing as mp
 import os
@@ -55,8 +54,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import harness
 from benchmarks.daemon.daemon_benchmark import board_frames, cpu_seconds, pct, writer
-from benchmarks.harness import machine
 from drivers.pty_port import PtyPort
 from drivers.published_values import PublishedValues, StatusBits
 from drivers.sparkplug_host import FleetListener
@@ -284,7 +283,7 @@ def cpu_round(broker_port: int, seconds: float, mqtt_first: bool, qos: int) -> d
     daemons = {role: real_daemon(tmp, broker_port if role == "on" else 0, f"cpu-{role}", 20.0,
                                  board=str(ptys[role].link), qos=qos) for role in roles}
     for role, pty in ptys.items():
-        if not pty.wait_for_reader(60):
+        if not pty.wait_for_reader(180):  # a daemon starting on a loaded 2-core machine: tens of seconds
             raise SystemExit(f"daemon {role} never opened its board port")
     frames = board_frames(seconds)
     start_ns = time.monotonic_ns() + int(3e9)
@@ -412,9 +411,8 @@ def main() -> None:
     ap.add_argument("--skip-cpu", action="store_true")
     ap.add_argument("--json", default=None, help="also write the results here")
     args = ap.parse_args()
-    print(f"command: nice .venv/bin/python -m benchmarks.daemon.fleet_benchmark {' '.join(sys.argv[1:])}")
-    print(f"date: {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; machine: {machine()}; "
-          f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
+    harness.stamp("benchmarks.daemon.fleet_benchmark")
+    print(f"mosquitto: {subprocess.run(['mosquitto', '-h'], capture_output=True, text=True).stdout.splitlines()[0]}; "
           f"load average (1, 5, 15 min): {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     results = {}
     if not args.skip_fleet:

@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import datetime
 import json
 import math
 import os
@@ -67,7 +66,7 @@ import threading
 import time
 from pathlib import Path
 
-from benchmarks.harness import machine
+from benchmarks import harness
 from drivers.modbus_map import BY_NAME, WordOrder, decode_register
 from drivers.published_values import StatusBits
 from testing import hostile_files as hostile
@@ -653,8 +652,8 @@ def main() -> int:
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
     args = parser.parse_args()
     polls = max(10, round(args.hold_s / POLL_PERIOD_S))
-    print(f"# {datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC; {machine()}; "
-          f"load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    harness.stamp("benchmarks.daemon.robustness_benchmark")
+    print(f"# load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     print(f"# daemon open-file limit {args.fd_limit}; flood {args.flood}; PLC polls every "
           f"{POLL_PERIOD_S * 1000:.0f} ms for {args.hold_s:g} s per case")
     rows = []

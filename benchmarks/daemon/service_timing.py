@@ -20,7 +20,6 @@ Numbers move with the host's load (printed before and after): compare runs made 
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import signal
 import socket
@@ -31,7 +30,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.harness import machine
+from benchmarks import harness
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -134,9 +133,7 @@ def main() -> None:
     one_run(tmp)  # warm-up: the numba cache and the page cache, not counted
     runs = [one_run(tmp) for _ in range(args.runs)]
     load_after = os.getloadavg()
-    print(f"command: .venv/bin/python -m benchmarks.daemon.service_timing --runs {args.runs}")
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; "
-          f"machine: {machine()}")
+    harness.stamp("benchmarks.daemon.service_timing")
     print(f"load average before {load_before[0]:.2f}, after {load_after[0]:.2f}; {args.runs} runs after a warm-up")
     labels = {
         "answer_s": "spawn -> first Modbus answer",

@@ -30,7 +30,6 @@ machine's cores beside the floor.
 from __future__ import annotations
 
 import argparse
-import datetime
 import multiprocessing as mp
 import signal
 import subprocess
@@ -41,8 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import harness
 from benchmarks.daemon.daemon_benchmark import FLOOR_READER, board_frames, cpu_seconds, writer
-from benchmarks.harness import machine
 from drivers.pty_port import PtyPort
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -184,10 +183,7 @@ def main() -> None:
         other_root = str(Path(other).resolve())
         variants[f"gateway @ {other}, default config"] = (  # root bound now, not at the loop's end
             lambda link, root=other_root: GATEWAY.format(root=root, link=link, can=True, batch=5))
-    print(f"command: .venv/bin/python -m benchmarks.daemon.wakeup_cost --seconds {args.seconds:g} "
-          f"--repeat {args.repeat}" + (" --gateways-only" if args.gateways_only else "")
-          + "".join(f" --compare {other}" for other in args.compare))
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
+    harness.stamp("benchmarks.daemon.wakeup_cost")
     names = list(variants)
     cpu = {name: [] for name in names}
     woken = {name: [] for name in names}

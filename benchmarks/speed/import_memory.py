@@ -13,7 +13,6 @@ memory (the child's maximum RSS from wait4) and CPU time. The goal (issue 31): a
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import shutil
 import subprocess
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.harness import machine
+from benchmarks import harness
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -64,10 +63,8 @@ def main() -> None:
     roots = {"this": ROOT, **{n: Path(p) for n, p in (r.split("=", 1) for r in args.root)}}
     work = Path(tempfile.mkdtemp(prefix="adxlgw-import-memory-"))
     try:
-        print("command: .venv/bin/python -m benchmarks.speed.import_memory --mb " + args.mb
-              + "".join(f" --root {r}" for r in args.root))
-        print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}; "
-              f"load average {os.getloadavg()[0]:.2f}")
+        harness.stamp("benchmarks.speed.import_memory")
+        print(f"load average {os.getloadavg()[0]:.2f}")
         print("| checkout | file, MB | rows | peak RSS, MB | CPU, s | exit |")
         print("| --- | --- | --- | --- | --- | --- |")
         for mb in (float(m) for m in args.mb.split(",")):

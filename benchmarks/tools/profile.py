@@ -32,7 +32,6 @@ import argparse
 import asyncio
 import collections
 import contextlib
-import datetime
 import multiprocessing as mp
 import os
 import subprocess
@@ -41,8 +40,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks import harness
 from benchmarks.daemon.daemon_benchmark import board_frames, writer
-from benchmarks.harness import machine
 from drivers.board_protocol import encode_hello
 from drivers.can_frames import CyclicEncoder
 from drivers.pty_port import PtyPort
@@ -178,9 +177,7 @@ def print_calls(args: argparse.Namespace) -> None:
     counter = CallCounter()
     samples = with_board(COUNT_S + 8.0, 10.0,
                          lambda _frames, pty, start_ns: asyncio.run(calls_in_flow(pty, start_ns, counter)))
-    print(f"command: .venv/bin/python -m benchmarks.tools.profile --calls --top {args.top}"
-          + (f" --checkout {args.checkout}" if args.checkout else ""))
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
+    harness.stamp("benchmarks.tools.profile")
     per_batch = BATCH / max(samples, 1)
     print(f"{samples} samples in {COUNT_S:g} s; calls per batch of {BATCH} samples: "
           f"{sum(counter.counts.values()) * per_batch:.0f}")
@@ -198,10 +195,8 @@ def print_times(args: argparse.Namespace) -> None:
     # the gateway starts (numba cache) and opens the pty first
     (hot_sample_us, hot_batched_us, hot_cycle_us), (flow_cpu_us, samples) = with_board(args.seconds + 4.0, 15.0,
                                                                                         measure)
-    print(f"command: .venv/bin/python -m benchmarks.tools.profile --seconds {args.seconds:g}"
-          + (f" --checkout {args.checkout}" if args.checkout else "")
-          + " (ADXLGW_NO_JIT=1 in front: the same code as plain Python)")
-    print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
+    harness.stamp("benchmarks.tools.profile")
+    print("(ADXLGW_NO_JIT=1 in front of the command: the same code as plain Python)")
     print(f"hot:         SamplePipeline.feed {hot_sample_us:.1f} µs per sample one by one, {hot_batched_us:.1f} µs "
           f"in fives; snapshot + CAN frames encoded {hot_cycle_us:.1f} µs per cycle")
     print(f"in the flow: main-thread CPU {flow_cpu_us:.0f} µs per sample ({samples} samples at 500/s; "

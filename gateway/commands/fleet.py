@@ -40,11 +40,16 @@ def add_parser(sub) -> None:
     p.add_argument("--json", action="store_true", help="print the rows as JSON (after --seconds, default 3)")
     p.add_argument("--credentials", default=None, metavar="FILE", help="a file whose first line is user:password")
     p.add_argument("--tls-ca", default=None, metavar="FILE", help="connect with TLS, trusting this CA file")
+    p.add_argument("--primary-host-id", default=None, metavar="ID",
+                   help="be the Sparkplug 3.0 primary host ID: publish spBv1.0/STATE/ID (retained, online now, "
+                        "offline as the will and at exit), which gateways with mqtt.primary_host_id = ID "
+                        "wait for before their birth")
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from drivers.sparkplug_host import FleetListener
+    from gateway.config import sparkplug_id_problem
     from gateway.daemon.settings import read_credentials
 
     host, port = args.broker
@@ -53,8 +58,12 @@ def run(args: argparse.Namespace) -> int:
     username = password = None
     if args.credentials:
         username, password = read_credentials(args.credentials, f"--credentials {args.credentials}")
+    if args.primary_host_id is not None:
+        problem = sparkplug_id_problem(args.primary_host_id)
+        if problem:
+            raise InputError(f"--primary-host-id {args.primary_host_id!r}: {problem}")
     listener = FleetListener(host, port, group=args.group, username=username, password=password,
-                             tls_ca_file=args.tls_ca)
+                             tls_ca_file=args.tls_ca, primary_host_id=args.primary_host_id)
     with listener:
         if not listener.connected.wait(CONNECT_WAIT_S):
             why = listener.connect_error or f"no answer within {CONNECT_WAIT_S:g} s"
