@@ -124,6 +124,11 @@ SCHEMA: tuple[Key, ...] = (
     Key("calibration", "sensitivity_x", 0.125, float, "X axis duty cycle per g (S).", _range(0.0, 1.0, lo_open=True)),
     Key("calibration", "zero_g_duty_y", 0.5, float, "Y axis duty cycle at 0 g (D0).", _range(0.0, 1.0, lo_open=True)),
     Key("calibration", "sensitivity_y", 0.125, float, "Y axis duty cycle per g (S).", _range(0.0, 1.0, lo_open=True)),
+    Key("calibration", "model", "", str,
+        "Extended sensor model from 'adxlgw diagnose --model-out' (JSON): its scale, temperature and "
+        "motion-offset terms correct every sample before the estimator, its filter terms add to the "
+        "estimator's sensor lag; a tilt or cross-talk term is refused (not causal: docs/diagnosis.md). "
+        "Empty: none."),
     # --- Modbus ------------------------------------------------------------
     Key("modbus", "tcp_enabled", True, bool, "Serve Modbus TCP."),
     Key("modbus", "host", "127.0.0.1", str, "Address to listen on (0.0.0.0 for every interface).", _nonempty),

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 
 import numpy as np
 
-from gateway.core.model_compensation import SampleContext, compensated_estimate, extra_sensor_lag_s
+from gateway.core.model_compensation import SampleContext, compensated_estimate, settings_with_model_lag
 from gateway.core.sensor_model import SensorParams
 from gateway.sensor_model_file import load_sensor_model
 
@@ -25,9 +24,7 @@ def estimate_with_model(path: str, series, settings, form: str, run):
     notes = []
     if settings is not None:
         nominal = SensorParams().bandwidth_hz if form == "raw" else None
-        lag = extra_sensor_lag_s(model, nominal)
-        if lag:
-            settings = replace(settings, sensor_lag_s=settings.sensor_lag_s + lag)
+        settings = settings_with_model_lag(settings, model, nominal)
     rest = series.standstill_hint > 0.5 if series.standstill_hint is not None else None
     ctx = SampleContext(series.t_s, series.other_axis_mps2, series.temp_c, rest=rest)
     track, _, passes = compensated_estimate(model, np.asarray(series.acc_mps2, float), ctx,

@@ -2,8 +2,8 @@
 
 `adxlgw diagnose --model-out M.json` writes the effects it accepted, with their
 parameters in SI units; `adxlgw estimate --model M.json` and the daemon
-(`[model] file = M.json`) read it here and correct the measured acceleration before the
-estimator sees it. The diagnosis measures its own distance gain with the same functions
+(`[calibration] model = "M.json"`) read it here and correct the measured acceleration
+before the estimator sees it. The diagnosis measures its own distance gain with the same functions
 (gateway/core/diagnosis/signal_effects.py calls `compensate_term`), so what is measured
 there is what a user gets.
 
@@ -23,12 +23,22 @@ re-estimated until it settles (`compensated_estimate`): the estimate without the
 correction can be metres off, and one pass from there overshoots. Terms with no
 correction (a ringing that integrates to nothing, clipped samples, a reference delay)
 are kept in the file for the record and listed as `not_compensated`.
+
+The daemon corrects one sample at a time, as it arrives (`sample_terms` +
+`term_correction`, called by gateway/daemon/sample_pipeline.py's compiled loop): only
+terms whose correction needs nothing from the future. Scale, temperature (the board's
+latest report) and the motion offset (the filter's own standstill flag of the previous
+sample) qualify; `term_correction` is the one formula for both paths. The tilt needs
+the position along the path from the recording's origin (the daemon's origin moves with
+every tare and start-over) and the cross-talk the other axis's level over all the
+recording's rests: neither is known causally, and a model with them is refused
+(`sample_path_refusal`).
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -99,20 +109,41 @@ def _temperature_term(temp: np.ndarray, ref_c: float) -> np.ndarray:
     return np.nan_to_num(t - ref_c, nan=0.0)
 
 
+# the terms a sample can be corrected for as it arrives (the daemon's compiled loop):
+# codes in a float array [code, p0, p1] per term
+TERM_SCALE = 1.0
+TERM_MOTION_OFFSET = 2.0
+TERM_TEMPERATURE = 3.0
+
+
+def term_correction(code: float, p0: float, acc, moving, temp_dev_c):
+    """The reading less one causal term, elementwise: one sample (the daemon, compiled)
+    or whole arrays (offline). moving: 1.0 where the axis moves; temp_dev_c: the
+    temperature less the term's reference (0 where unknown)."""
+    if code == TERM_SCALE:
+        return acc / (1.0 + p0)
+    if code == TERM_MOTION_OFFSET:
+        return acc - p0 * moving
+    if code == TERM_TEMPERATURE:
+        return acc - p0 * temp_dev_c
+    return acc
+
+
 def compensate_term(name: str, params: dict[str, float], acc: np.ndarray, ctx: SampleContext) -> np.ndarray:
     """acc with one term's reading removed (acc unchanged for a term with no correction)."""
     if name == "scale_factor":
-        return acc / (1.0 + params["scale_error_frac"])
+        return term_correction(TERM_SCALE, params["scale_error_frac"], acc, 0.0, 0.0)
     if name == "tilt":
         pos = ctx.pos_m if ctx.pos_m is not None else np.zeros_like(acc)
         return acc - params["tilt_gradient_rad_per_m"] * G * pos
     if name == "motion_offset":
         moving = ctx.moving if ctx.moving is not None else np.zeros(acc.size, dtype=bool)
-        return acc - params["offset_mps2"] * moving.astype(float)
+        return term_correction(TERM_MOTION_OFFSET, params["offset_mps2"], acc, moving.astype(float), 0.0)
     if name == "temperature_offset":
         if ctx.temp_c is None:
             raise ModelError("temperature_offset: the recording has no temperature (temp_c) to correct with")
-        return acc - params["offset_mps2_per_c"] * _temperature_term(ctx.temp_c, params.get("reference_c", 0.0))
+        return term_correction(TERM_TEMPERATURE, params["offset_mps2_per_c"], acc, 0.0,
+                               _temperature_term(ctx.temp_c, params.get("reference_c", 0.0)))
     if name == "cross_talk":
         if ctx.other_mps2 is None:
             raise ModelError("cross_talk: the recording has no other axis to correct with")
@@ -184,10 +215,90 @@ def model_from_dict(doc: dict, where: str) -> SensorModel:
     return SensorModel(tuple(terms), str(doc.get("source", "")), tuple(doc.get("notes", ())))
 
 
+def physical_ranges() -> dict[str, tuple[str, float, float, str]]:
+    """{effect: (parameter, lowest, highest, source)}: what a part, mount or machine can
+    have — the diagnosis's own ranges (gateway/core/diagnosis/judgement.py, imported here
+    when a file is checked: the diagnosis imports this module)."""
+    from gateway.core.diagnosis import judgement as J
+
+    inf = math.inf
+    return {
+        "scale_factor": ("scale_error_frac", -J.MAX_SCALE_ERROR_FRAC, J.MAX_SCALE_ERROR_FRAC,
+                         "data sheet: sensitivity 10-15 %/g"),
+        "nonlinearity": ("quadratic_per_g", -J.MAX_QUADRATIC_PER_G, J.MAX_QUADRATIC_PER_G,
+                         "data sheet: ~0.2 % of full scale"),
+        "tilt": ("tilt_gradient_rad_per_m", -J.MAX_TILT_RAD_PER_M, J.MAX_TILT_RAD_PER_M,
+                 "a rail or arm turning the sensor"),
+        "temperature_offset": ("offset_mps2_per_c", -J.MAX_OFFSET_MG_PER_C * 1e-3 * G,
+                               J.MAX_OFFSET_MG_PER_C * 1e-3 * G, "data sheet: order of 1 mg/°C"),
+        "motion_offset": ("offset_mps2", -G * math.sin(math.radians(J.MAX_TILT_IN_MOTION_DEG)),
+                          G * math.sin(math.radians(J.MAX_TILT_IN_MOTION_DEG)), "a tool tilting ≤ 5° under its drive"),
+        "cross_talk": ("gain", -J.MAX_CROSS_GAIN, J.MAX_CROSS_GAIN, "±2 % cross-axis + a few degrees of misalignment"),
+        "bandwidth": ("cutoff_hz", J.MIN_BANDWIDTH_HZ, inf, "a lower pole swallows the motion itself"),
+        "output_filter": ("bandwidth_hz", J.MIN_BANDWIDTH_HZ, inf, "a lower pole swallows the motion itself"),
+        "reference_delay": ("delay_s", -J.MAX_DELAY_S, J.MAX_DELAY_S, "beyond: a clock problem, not a lag"),
+        "vibration": ("damping_ratio", 0.0, J.MAX_DAMPING_RATIO, "above it does not ring"),
+        "reading_instant": ("edge_fraction", 0.0, 1.0, "within the sample's own period"),
+        "clipping": ("upper_mps2", 0.0, inf, "a saturation limit above zero"),
+    }
+
+
 def check_terms(model: SensorModel, where: str) -> None:
-    """Every term's parameters present (checked once, when the file is read)."""
-    for t in model.terms:
+    """Every term known, its parameters present and within its physical range (checked
+    once, when the file is read); ModelError naming the file, the term and the key."""
+    ranges = physical_ranges()
+    for i, t in enumerate(model.terms):
+        if t.name not in ranges:
+            raise ModelError(f"{where}: effects[{i}]: unknown effect {t.name!r} "
+                             f"(known: {', '.join(ranges)})")
+        key, lo, hi, source = ranges[t.name]
+        if key not in t.params:
+            raise ModelError(f"{where}: effects[{i}] ({t.name}): parameter {key} is missing")
+        if not lo <= t.params[key] <= hi:
+            raise ModelError(f"{where}: effects[{i}] ({t.name}): {key} = {t.params[key]:g} is outside its "
+                             f"physical range [{lo:g}, {hi:g}] ({source})")
         try:
             compensate_term(t.name, t.params, np.zeros(2), SampleContext(np.zeros(2), np.zeros(2), np.zeros(2)))
         except KeyError as err:
-            raise ModelError(f"{where}: {t.name}: parameter {err.args[0]} is missing") from err
+            raise ModelError(f"{where}: effects[{i}] ({t.name}): parameter {err.args[0]} is missing") from err
+
+
+# why a term cannot be applied one sample at a time, as it arrives (module docstring)
+NOT_CAUSAL = {
+    "tilt": "its correction needs the position along the path from the recording's origin, and the "
+            "daemon's position origin moves with every tare and start-over",
+    "cross_talk": "its correction needs the other axis's level over all the recording's rests, which a "
+                  "sample path does not know when the sample arrives",
+}
+
+
+def sample_path_refusal(model: SensorModel, where: str) -> str | None:
+    """Why the daemon cannot apply this model (None: it can): a term it would have to
+    correct with what it does not know yet. Terms with no correction are kept for the
+    record, as offline."""
+    for t in model.terms:
+        if t.name in NOT_CAUSAL:
+            return (f"{where}: {t.name}: cannot be applied as samples arrive: {NOT_CAUSAL[t.name]} "
+                    "(apply it offline: adxlgw estimate --model)")
+    return None
+
+
+def sample_terms(model: SensorModel) -> np.ndarray:
+    """The causal terms as rows [code, p0, p1] in the file's order, for the compiled
+    sample loop (term_correction); call sample_path_refusal first."""
+    rows = []
+    for t in model.terms:
+        if t.name == "scale_factor":
+            rows.append((TERM_SCALE, t.params["scale_error_frac"], 0.0))
+        elif t.name == "motion_offset":
+            rows.append((TERM_MOTION_OFFSET, t.params["offset_mps2"], 0.0))
+        elif t.name == "temperature_offset":
+            rows.append((TERM_TEMPERATURE, t.params["offset_mps2_per_c"], t.params.get("reference_c", 0.0)))
+    return np.array(rows, dtype=float).reshape(-1, 3)
+
+
+def settings_with_model_lag(settings, model: SensorModel, nominal_bandwidth_hz: float | None):
+    """The estimator's settings with the model's filter terms' lag added (estimate
+    --model and the daemon alike)."""
+    lag = extra_sensor_lag_s(model, nominal_bandwidth_hz)
+    return replace(settings, sensor_lag_s=settings.sensor_lag_s + lag) if lag else settings

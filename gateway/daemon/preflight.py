@@ -1,7 +1,7 @@
 """What `adxlgw run` checks before it starts, and `adxlgw config --check` reports.
 
 The schema (gateway/config.py) decides what a value may be; these checks ask the
-machine: is the board's port set and there, does the drift-model file load, does the
+machine: is the board's port set and there, do the drift-model and sensor-model files load, does the
 Modbus host resolve, does the CAN interface exist. Each finding names its key.
 
 One function, `findings`, for both callers: `config --check` fails on exactly what
@@ -32,7 +32,7 @@ from drivers.link_checks import check_can_link, check_serial_port
 from drivers.modbus_ports import tcp_listen_check
 from drivers.sparkplug_node import tls_ca_problem
 from gateway.config import Config
-from gateway.daemon.settings import read_credentials
+from gateway.daemon.settings import load_sample_path_model, read_credentials
 from gateway.errors import ConfigError, DeviceError, InputError
 
 EMULATED = "emulated"
@@ -84,6 +84,13 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
             load_drift_model(cfg.estimator.drift_model)
         except InputError as err:
             found.append(Finding("estimator.drift_model", "error", str(err)))
+    if cfg.calibration.model and (changed("calibration", "model") or running is not None):
+        # read again at every reload even when its name is unchanged: the file may have been
+        # rewritten, and a reload applies what it says now
+        try:
+            load_sample_path_model(cfg.calibration.model)
+        except InputError as err:
+            found.append(Finding("calibration.model", "error", str(err)))
     if cfg.modbus.tcp_enabled and changed("modbus", "tcp_enabled", "host", "port"):
         found += _modbus_listen(cfg.modbus.host, cfg.modbus.port)
     if cfg.modbus.rtu_enabled and changed("modbus", "rtu_enabled", "rtu_port"):

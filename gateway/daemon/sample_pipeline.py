@@ -44,6 +44,7 @@ from gateway.core.conversion import Calibration, advance_sample_time, duty_to_mp
 from gateway.core.estimator import Estimate, RealtimeEstimator
 from gateway.core.estimator_settings import EstimatorSettings
 from gateway.core.jit import JIT_ENABLED, jit
+from gateway.core.model_compensation import term_correction
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 
 # A reading within 2 % of the ±2 g range is treated as clipped (the ADXL202 saturates
@@ -69,7 +70,8 @@ R_SATURATED = 14
 R_NO_TICK = 15  # SAMPLEs before any tick rate: time unknown, not estimated
 R_ENTRY = 16  # 1: some step began a standstill
 R_FAULT = 17  # 1: some step left the estimator's state not finite or diverged
-N_SLOTS = 18
+S_TEMP_C = 18  # the board's temperature from its latest report (°C); NaN: none yet
+N_SLOTS = 19
 
 _CLIPPED_FLAGS = FLAG_X_TIMED_OUT | FLAG_Y_TIMED_OUT | FLAG_TIMER_OVERFLOW
 _X_INVALID = FLAG_X_TIMED_OUT | FLAG_TIMER_OVERFLOW | FLAGS_RESERVED
@@ -82,12 +84,27 @@ _F_STANDSTILL = K.F_STANDSTILL
 _O_FLAGS = K.O_FLAGS
 _compiled_sample_at = jit(sample_at)
 _compiled_seq_step = jit(seq_step)
+_compiled_term_correction = jit(term_correction)
+NO_MODEL_TERMS = np.zeros((0, 3))  # model_compensation.sample_terms of a pipeline without a model
 
 
 @jit
-def run_samples(buf, pos, last_seq, st, prm, x, P, misc, ring_z, ring_ok, snap, gain, out):
+def corrected_sample(acc, terms, moving, temp_c):
+    """One sample less the sensor model's causal terms, in the file's order
+    (model_compensation.term_correction: the formula offline corrections use too)."""
+    for i in range(terms.shape[0]):
+        temp_dev_c = temp_c - terms[i, 2] if math.isfinite(temp_c) else 0.0
+        acc = _compiled_term_correction(terms[i, 0], terms[i, 1], acc, moving, temp_dev_c)
+    return acc
+
+
+@jit
+def run_samples(buf, pos, last_seq, st, terms, prm, x, P, misc, ring_z, ring_ok, snap, gain, out):
     """The run of whole, CRC-valid SAMPLE frames from `buf[pos]` on, each through
-    decoding, continuity, timing, conversion and one estimator step.
+    decoding, continuity, timing, conversion, the sensor model's correction (`terms`:
+    model_compensation.sample_terms; the motion flag is the filter's standstill verdict
+    of the sample before, the temperature the board's latest report) and one estimator
+    step.
 
     The estimator's `KernelState` comes as its eight arrays (`*state`, in its field
     order) and is put together here: numba's dispatcher types plain arrays in C from a
@@ -108,6 +125,7 @@ def run_samples(buf, pos, last_seq, st, prm, x, P, misc, ring_z, ring_ok, snap, 
     invalid_mask = int(st[S_INVALID_MASK])
     use_y = st[S_AXIS_Y] > 0.0
     stop_by_hint = st[S_STOP_BY_HINT] > 0.0
+    temp_c = st[S_TEMP_C]
     n = 0
     lost_total = 0
     gaps = 0
@@ -147,6 +165,9 @@ def run_samples(buf, pos, last_seq, st, prm, x, P, misc, ring_z, ring_ok, snap, 
             invalid += 1
         elif (flags & _CLIPPED_FLAGS) != 0 or abs(acc) >= sat_limit:
             saturated_n += 1
+        if ok and terms.shape[0] > 0:  # clipping is judged on the raw reading, above
+            moving = 0.0 if int(kstate.out[_O_FLAGS]) & _F_STANDSTILL else 1.0
+            acc = corrected_sample(acc, terms, moving, temp_c)
         K.step(kstate, prm, t_s, acc if ok else 0.0, ok, lost)
         step_flags = int(kstate.out[_O_FLAGS])
         if step_flags & _F_ENTRY:
@@ -226,7 +247,7 @@ class SamplePipeline:
 
     def __init__(self, calibration: Calibration, settings: EstimatorSettings, axis: str = "x",
                  range_g: float = 2.0, start_position_m: float = 0.0, start_at_rest: bool = False,
-                 travel_m: tuple[float, float] | None = None):
+                 travel_m: tuple[float, float] | None = None, model_terms: np.ndarray = NO_MODEL_TERMS):
         self.estimator = RealtimeEstimator(settings)
         #: the axis's travel, [lowest, highest] published position (estimator.travel_m):
         #: bounds the published σ (see _build_latest); None: no bound
@@ -244,6 +265,10 @@ class SamplePipeline:
         self._buf: bytes | None = None  # the decoder's buffer and its numpy view (see take_samples)
         self._array: np.ndarray | None = None
         self._st = np.zeros(N_SLOTS)
+        self._st[S_TEMP_C] = math.nan
+        #: the sensor model's causal terms (model_compensation.sample_terms), applied to
+        #: every sample before the estimator sees it
+        self.model_terms = np.ascontiguousarray(model_terms, dtype=float).reshape(-1, 3)
         self._range_g = range_g
         self.set_calibration(calibration, axis)
         # published = estimator position − offset; a start position (e.g. the last one
@@ -266,8 +291,8 @@ class SamplePipeline:
         # first sample of the board
         probe = RealtimeEstimator(settings)
         # (a read-only array: what np.frombuffer gives take_samples; another type compiles anew)
-        run_samples(np.frombuffer(b"", np.uint8) if JIT_ENABLED else b"", 0, -1, np.zeros(N_SLOTS), probe.params,
-                    *probe.state)
+        run_samples(np.frombuffer(b"", np.uint8) if JIT_ENABLED else b"", 0, -1, np.zeros(N_SLOTS),
+                    self.model_terms, probe.params, *probe.state)
 
     # ---------------------------------------------------------------- input --
     def feed(self, data: bytes | bytearray | memoryview) -> ChunkResult:
@@ -287,9 +312,9 @@ class SamplePipeline:
             buf = self._array
         st = self._st
         end, taken, last_seq, lost_total, gaps, repeats, backwards = run_samples(
-            buf, pos, last_seq, st, self.estimator.params, *self.estimator.state)
+            buf, pos, last_seq, st, self.model_terms, self.estimator.params, *self.estimator.state)
         self._latest = None
-        (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:N_SLOTS].tolist()
+        (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:R_FAULT + 1].tolist()
         c = self.counters
         r = self._result
         samples = int(samples)
@@ -355,6 +380,11 @@ class SamplePipeline:
         tick_hz = frame.tick_hz if frame.tick_hz > 0 else self.board.tick_hz
         self.board = BoardInfo(tick_hz, frame.temp_c, frame.uptime_s, (frame.fw_major, frame.fw_minor))
         self._st[S_TICK_HZ] = float(tick_hz or 0)
+        self._st[S_TEMP_C] = math.nan if frame.temp_c is None else frame.temp_c
+
+    def set_model_terms(self, model_terms: np.ndarray) -> None:
+        """The sensor model's causal terms from now on (a reload of calibration.model)."""
+        self.model_terms = np.ascontiguousarray(model_terms, dtype=float).reshape(-1, 3)
 
     # ------------------------------------------------------------- commands --
     def tare(self) -> bool:

@@ -110,6 +110,40 @@ def serial_settings_from(cfg: Config, port: str) -> SerialSettings:
                           wake_min_bytes=batch_frames_for(cfg) * SAMPLE_FRAME_LENGTH)
 
 
+def load_sample_path_model(path: str):
+    """The extended sensor model at `path`, checked for the sample path: InputError
+    naming the file when it cannot be read, is not a model, has an unknown term, one
+    outside its physical range, or one the sample path cannot apply as samples arrive."""
+    from gateway.core.model_compensation import sample_path_refusal  # numpy (see the module's doc)
+    from gateway.sensor_model_file import load_sensor_model
+
+    model = load_sensor_model(path)
+    refusal = sample_path_refusal(model, path)
+    if refusal:
+        raise InputError(refusal)
+    return model
+
+
+def sensor_model_from(cfg: Config):
+    """The model calibration.model names (None: none); ConfigError naming the config,
+    the key and the file."""
+    if not cfg.calibration.model:
+        return None
+    try:
+        return load_sample_path_model(cfg.calibration.model)
+    except InputError as err:
+        raise ConfigError(f"{cfg.source}: calibration.model: {err}") from err
+
+
+def model_terms_from(cfg: Config):
+    """The per-sample correction rows of calibration.model (model_compensation.sample_terms)."""
+    from gateway.core.model_compensation import sample_terms
+    from gateway.daemon.sample_pipeline import NO_MODEL_TERMS
+
+    model = sensor_model_from(cfg)
+    return NO_MODEL_TERMS if model is None else sample_terms(model)
+
+
 def estimator_settings_from(cfg: Config) -> EstimatorSettings:
     """The estimator's settings from the sensor model, with the fitted drift model if one is configured."""
     from gateway.core.estimator_settings import from_sensor_model  # numba (see the module's doc)
@@ -122,4 +156,10 @@ def estimator_settings_from(cfg: Config) -> EstimatorSettings:
             drift = load_drift_model(cfg.estimator.drift_model)
         except InputError as err:
             raise ConfigError(f"{cfg.source}: estimator.drift_model: {err}") from err
-    return from_sensor_model(SensorParams(), drift_fit=drift, axis=cfg.calibration.axis)
+    settings = from_sensor_model(SensorParams(), drift_fit=drift, axis=cfg.calibration.axis)
+    model = sensor_model_from(cfg)
+    if model is not None:  # the board's raw counts: the nominal part's pole is the reference
+        from gateway.core.model_compensation import settings_with_model_lag
+
+        settings = settings_with_model_lag(settings, model, SensorParams().bandwidth_hz)
+    return settings

@@ -45,7 +45,7 @@ from gateway.config import Config
 from gateway.daemon.board_port import BoardPort
 from gateway.daemon.preflight import refuse_reload
 from gateway.daemon.sd_notify import SystemdNotifier
-from gateway.daemon.settings import calibration_from, estimator_settings_from, serial_settings_from
+from gateway.daemon.settings import calibration_from, estimator_settings_from, model_terms_from, serial_settings_from
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
 from gateway.daemon.status_flags import GatewayCondition, LinkHealth, status_bits
 from gateway.daemon.wires import WireContext, WireSet
@@ -139,6 +139,7 @@ class Gateway:
         self.pipeline: SamplePipeline | None = None
         self.intake: BoardIntake | None = None
         self._board_side_built = asyncio.Event()
+        self._sensor_lag_s = math.nan  # the estimator's sensor lag as built (_build_board_side)
         # the restored position's σ is set at the first estimate: the axis was unwatched
         # until then (a board that comes late included), not only while the gateway was down
         # (a first start — no state file — has nothing to restore: its position starts at 0
@@ -215,9 +216,12 @@ class Gateway:
         from gateway.daemon.board_intake import BoardIntake
         from gateway.daemon.sample_pipeline import SamplePipeline
 
-        pipeline = SamplePipeline(calibration_from(cfg), estimator_settings_from(cfg), cfg.calibration.axis,
+        settings = estimator_settings_from(cfg)
+        # the lag the model's filter terms gave the estimator: fixed while it runs (reload)
+        self._sensor_lag_s = settings.sensor_lag_s
+        pipeline = SamplePipeline(calibration_from(cfg), settings, cfg.calibration.axis,
                                   start_position_m=self._start_position_m, start_at_rest=self.starts_at_rest,
-                                  travel_m=tuple(cfg.estimator.travel_m))
+                                  travel_m=tuple(cfg.estimator.travel_m), model_terms=model_terms_from(cfg))
         return pipeline, BoardIntake(pipeline)
 
     def _starting_values(self) -> PublishedValues:
@@ -559,6 +563,17 @@ class Gateway:
             log.error("reload failed: %s", err)
             self.notifier.ready()
 
+    def _model_terms_for_reload(self, new: Config):
+        """The new config's sensor-model corrections (read again: the file may have been
+        rewritten under the same name); ConfigError when its filter terms would change
+        the estimator's sensor lag, which is set when the estimator is built."""
+        terms = model_terms_from(new)
+        if estimator_settings_from(new).sensor_lag_s != self._sensor_lag_s:
+            raise ConfigError(f"{new.source}: calibration.model: {new.calibration.model or '(none)'}: its filter "
+                              "terms change the estimator's sensor lag, set when the estimator is built: restart "
+                              "the gateway to apply it")
+        return terms
+
     async def reload(self) -> None:
         if self._reload is None:
             log.warning("SIGHUP: no config file to reload")
@@ -569,6 +584,7 @@ class Gateway:
         try:
             new = self._reload()
             refuse_reload(self.cfg, new)  # all or nothing: a changed wire that cannot work refuses it
+            model_terms = self._model_terms_for_reload(new)
         except ConfigError as err:
             self.counters.config_reload_errors += 1
             log.error("reload refused, keeping the running config: %s", err)
@@ -591,6 +607,7 @@ class Gateway:
         self._publish(self._reloaded_at)
         logging.getLogger().setLevel(new.service.log_level.upper())
         self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
+        self.pipeline.set_model_terms(model_terms)
         # the travel bounds the published σ, and the saved position read at the next start
         self.pipeline.set_travel(tuple(new.estimator.travel_m))
         self.state_store.travel_m = tuple(new.estimator.travel_m)

@@ -13,6 +13,21 @@ over c at most the threshold one parameter reaches with probability α
 (criterion.CvGain.threshold) — and c's fit is physically possible, c is not separable
 from e here.
 
+An effect the backward pass found redundant once the others were in is tried in a named
+effect's place like any other candidate: what made it redundant may be a named effect
+that explains the same residual.
+
+A low-pass and the reference's own dynamics: linear filters commute, so a pole in the
+sensor (or its mount) and the same pole between the reference and the axis (a servo
+following its command, a filtered encoder) read the motion identically — no criterion
+on the motion can place it. Where the reference is shown to have dynamics of its own (a
+delay named: a late or leading reference), one cause — the reference reaching the
+motion through a loop, which at the frequencies the motion holds is a lag and a
+low-pass at once — explains what two (a sensor pole and a late reference) would: the
+one cause is named, the low-pass listed as not separable from it
+(`one_cause_for_the_reference_path`). The noise at rest separates them (a sensor's pole
+shapes it, a reference's loop does not), or a reference measured at the axis.
+
 Temperature against drift: the temperature's variance outside offset + drift, times the
 largest coefficient a part has (judgement.MAX_OFFSET_MG_PER_C), whitened like the
 residual, is what even the strongest temperature effect could show beyond the drift;
@@ -33,7 +48,30 @@ WHAT_SEPARATES = {
     frozenset({"tilt", "motion_offset"}): "a return stroke (it reverses the travel, not the motion)",
     frozenset({"tilt", "scale_factor"}): "moves of other lengths",
     frozenset({"temperature_offset", "drift"}): "a temperature swing (heat or cool the board and back)",
+    frozenset({"reference_delay", "bandwidth"}): "the noise at rest (the sensor's own pole shapes it, a "
+                                                 "reference's loop does not) or a reference measured at the axis",
 }
+
+# the reference path's own dynamics, and the filters that read the motion the same
+# whether they sit in the sensor or in that path (module docstring)
+REFERENCE_PATH_EFFECT = "reference_delay"
+COMMUTING_FILTERS = ("bandwidth",)
+
+
+def one_cause_for_the_reference_path(effects: list) -> list[str]:
+    """Fold a named low-pass into a named reference delay (module docstring): the
+    filter's result leaves `effects` and is listed in the delay's not_separable_from.
+    Returns the names folded."""
+    by_name = {e.name: e for e in effects}
+    path = by_name.get(REFERENCE_PATH_EFFECT)
+    if path is None:
+        return []
+    folded = [n for n in COMMUTING_FILTERS if n in by_name]
+    for n in folded:
+        effects.remove(by_name[n])
+        if n not in path.not_separable_from:
+            path.not_separable_from.append(n)
+    return folded
 
 
 def what_separates(a: str, b: str) -> str:

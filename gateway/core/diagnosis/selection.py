@@ -31,7 +31,13 @@ from gateway.core.diagnosis.context import (
 )
 from gateway.core.diagnosis.criterion import ALPHA
 from gateway.core.diagnosis.gain import EstimatePlan, distance_gain
-from gateway.core.diagnosis.identifiability import alternatives, temperature_in_line_with_drift
+from gateway.core.diagnosis.identifiability import (
+    REFERENCE_PATH_EFFECT,
+    alternatives,
+    one_cause_for_the_reference_path,
+    temperature_in_line_with_drift,
+    what_separates,
+)
 from gateway.core.diagnosis.judgement import (
     distance_interval,
     matters,
@@ -274,6 +280,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
 
     # backward: each accepted effect must still pay for itself once the others are in
     changed = True
+    redundant: list[SignalEffect] = []  # dropped by the backward pass: tried again for identifiability
     while changed and len(accepted) > 1:
         changed = False
         for e in list(accepted):
@@ -286,6 +293,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 candidates[e.name] = Candidate(e.name, "rejected", current.bic - without.bic, float("nan"),
                                                f"not needed once the others are in (backward pass: {cv.text()})")
                 accepted = rest
+                redundant.append(e)
                 current = without
                 for x in accepted:
                     start[x.name] = current.effect_theta(x)[0]
@@ -294,7 +302,7 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
 
     progress("identifiability: what else explains the same residual")
     twins = _isolated("identifiability", failures,
-                      lambda: alternatives(prep, current, accepted, start, usable, ALPHA), {})
+                      lambda: alternatives(prep, current, accepted, start, usable + redundant, ALPHA), {})
     slow = _isolated("temperature against drift", failures, lambda: temperature_in_line_with_drift(prep, ALPHA), None)
     if slow and "temperature_offset" in candidates and candidates["temperature_offset"].status != "accepted":
         candidates["temperature_offset"].not_separable_from = ["drift"]
@@ -342,6 +350,16 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                               candidates[e.name].delta_bic, gain, not_separable_from=twins.get(e.name, []))
         candidates[e.name].not_separable_from = list(result.not_separable_from)
         in_setup = setup_range(e.name, prep, theta, std)
+        # the range is checked on the parameters named, the final model's: a value
+        # physical when the effect was accepted may have moved out once later effects
+        # and the refitted noise model came in (a damping ratio drifting past 0.5)
+        why = None if in_setup else (getattr(e, "implausible", lambda p, t: None)(prep, theta)
+                                     or physical(e.name, prep, theta))
+        if why:
+            candidates[e.name].status, candidates[e.name].reason = "not physical", f"in the final model: {why}"
+            not_physical.append({"shape": e.name, "why": why, "delta_bic": candidates[e.name].delta_bic,
+                                 "params": result.params})
+            continue
         if _classify(result, in_setup, effects, setup, negligible, candidates, leftover) or in_setup:
             model_terms.append({"name": e.name, "params": e.model_params(prep, theta)})
 
@@ -397,6 +415,14 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
                 continue
             if _classify(result, in_setup, effects, setup, negligible, candidates, leftover) and step_plan is not None:
                 before_plan = step_plan
+
+    for name in one_cause_for_the_reference_path(effects):
+        path = next(e for e in effects if e.name == REFERENCE_PATH_EFFECT)
+        candidates[path.name].not_separable_from = list(path.not_separable_from)
+        candidates[name].status = "not separable"
+        candidates[name].reason = (f"named as part of {path.name}: a low-pass reads the motion the same in the "
+                                   "sensor and in the reference's path, and the reference has dynamics of its own "
+                                   f"({what_separates(path.name, name)} would place it)")
 
     regs = candidate_regressors(prep, prep.reading_mps2, data.ref_pos_m)
     screening = {

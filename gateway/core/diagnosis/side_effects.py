@@ -237,6 +237,9 @@ class Timing(SideEffect):
         excess0 = delay - delay.min() - mu_base
         excess1 = x1 - x1.min() - (hold / 2 + mu)
         position_mm = host_time_position_mm(x1, np.abs(d.ref_vel_mps[ok][keep]))
+        # the delays' scatter beyond the baseline link's (judgement: the setup's range, and
+        # whether it matters, in sample periods)
+        scatter_s = math.sqrt(max(float(np.var(x1)) - BASELINE_LATENCY_MEAN_S**2, 0.0))
         return SideTest(
             params={"clock_rate_error_ppm": (rate * 1e6, float("nan")),
                     "hold_back_ms": (hold * 1e3, float("nan")),
@@ -249,10 +252,10 @@ class Timing(SideEffect):
             detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
                     f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
             # the delays' scatter beyond the baseline link's, in sample periods (judgement.matters)
-            values={"host_time": True, "host_scatter_periods": math.sqrt(max(
-                float(np.var(x1)) - BASELINE_LATENCY_MEAN_S**2, 0.0)) / d.period_s},
+            values={"host_time": True, "host_scatter_periods": scatter_s / d.period_s},
             position_mm=position_mm,
-            theta=np.array([hold, rate]),  # the hold-back (s), the clock's rate error (fraction)
+            # the hold-back (s), the clock's rate error (fraction), the delays' scatter (s)
+            theta=np.array([hold, rate, scatter_s]),
             cv=cv,
         )
 
