@@ -299,7 +299,7 @@ class CyclicEncoder:
     """The encoder of the two cyclic frames (ADXL_Position, ADXL_Velocity): everything
     that depends only on the frame table is worked out once, since it runs 100 times a
     second per frame pair. The one encoder of these frames (the publisher sends its
-    bytes); tests/test_can_frames.py checks it against cantools decoding the DBC that
+    bytes); tests/can/test_can_frames.py checks it against cantools decoding the DBC that
     `dbc_text()` writes from the same table — an independent decoder.
 
     Scaled signals: value / factor rounded to the nearest raw step; beyond the signed

@@ -1,5 +1,5 @@
 """The Modbus register map as text: the JSON `adxlgw regmap --json` prints and the Markdown
-table docs/modbus-registers.md embeds (tests/test_modbus_map.py keeps it equal), both made
+table docs/modbus-registers.md embeds (tests/modbus/test_modbus_map.py keeps it equal), both made
 from drivers/modbus_map.REGISTERS."""
 
 from __future__ import annotations

@@ -5,7 +5,7 @@
  * x = i ^ (i >> 4), (x << 12) ^ (x << 5) ^ x (the polynomial's three terms). The table is
  * split into high and low bytes so that the 8051 updates the CRC with 8-bit moves only:
  *   i = crc_hi ^ byte;  crc_hi = crc_lo ^ CRC_HI[i];  crc_lo = CRC_LO[i];
- * tests/test_firmware.py checks every frame's CRC with the project's decoder (binascii).
+ * tests/board/test_firmware.py checks every frame's CRC with the project's decoder (binascii).
  */
 #ifndef CRC16_TABLE_H
 #define CRC16_TABLE_H

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Regenerates drivers/sparkplug/sparkplug_b_pb2.py from drivers/sparkplug/sparkplug_b.proto.
-# Run it only when the .proto changes (tests/test_mqtt_payload.py fails when the two differ).
+# Run it only when the .proto changes (tests/mqtt/test_mqtt_payload.py fails when the two differ).
 # The generated module is committed (docs/decisions/0060-sparkplug-generated-code.md): the
 # gateway then needs only the protobuf runtime, not a compiler. The compiler is grpcio-tools'
 # bundled protoc, pinned here; its protobuf version must not be newer than the runtime's

@@ -1,6 +1,6 @@
 """Measured-like recordings with hidden effects, for the diagnosis tests and benchmark.
 
-One place builds every case, so the tests (tests/test_diagnosis.py) and the benchmark
+One place builds every case, so the tests (tests/diagnosis/test_diagnosis.py) and the benchmark
 (benchmarks/accuracy/diagnosis_benchmark.py) judge the diagnosis the same way:
 
     terms, data = make_case(("scale_factor",), seed)   # the effect is chosen here...

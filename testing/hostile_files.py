@@ -1,5 +1,5 @@
 """The hostile files of issue 16, built in one place for the tests
-(tests/test_recording_hostile.py) and the robustness benchmark
+(tests/offline/test_recording_hostile.py) and the robustness benchmark
 (benchmarks/daemon/robustness_benchmark.py), so both attack the commands with the same bytes.
 
 Each builder writes one file and returns its path; the randomness is seeded. Recordings

@@ -44,7 +44,7 @@ def test_dependencies_are_ranges_and_constraints_pin_each_inside_its_range():
         assert req.specifier.contains(pins[req.name]), f"constraints.txt {req.name}=={pins[req.name]} outside {req}"
     assert {r.name for r in test} >= TEST_ONLY
     assert not {r.name for r in runtime + offline} & TEST_ONLY
-    # the daemon's install carries none of the offline tools' libraries (tests/test_chi2.py:
+    # the daemon's install carries none of the offline tools' libraries (tests/core/test_chi2.py:
     # the daemon imports none of them)
     assert not {r.name for r in runtime} & {"scipy", "matplotlib", "pyarrow", "polars", "tqdm", "rich"}
 
@@ -160,7 +160,7 @@ def test_the_daemon_imports_only_what_the_slim_install_brings():
         if module in sys.stdlib_module_names or module in ("gateway", "drivers") or module.startswith("_"):
             continue
         if module == "scipy":  # numba imports the bare package where it is installed, to read its
-            continue  # version; none of its parts (tests/test_chi2.py checks that)
+            continue  # version; none of its parts (tests/core/test_chi2.py checks that)
         dists = {canonicalize_name(d) for d in owners.get(module, [])}
         if dists and not dists & allowed:
             outside.append(f"{module} (from {', '.join(sorted(dists))})")

@@ -3,7 +3,7 @@
     .venv/bin/python -m benchmarks.daemon.service_timing [--runs 5]
 
 What systemd and a PLC see of the daemon's lifetime, on this machine's real CPU (the
-qemu VM of tests/test_systemd_vm.py runs the same under emulation, slower). Each run
+qemu VM of tests/daemon/test_systemd_vm.py runs the same under emulation, slower). Each run
 starts `adxlgw run` (the built-in emulated board, CAN on the virtual bus, Modbus TCP on a
 free port, a fresh state file) in its own session, as systemd would: NOTIFY_SOCKET is a
 datagram socket this script reads (sd_notify(3)), WATCHDOG_USEC 10 s. Measured per run:

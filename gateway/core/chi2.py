@@ -6,7 +6,7 @@ estimator_settings) and scipy.special's import alone was ~0.6 s of the start and
 function by its power series where x < a + 1 and by its continued fraction (modified
 Lentz) beyond, and the quantile by Newton's method on the upper tail from the
 Wilson–Hilferty start. Agreement with scipy.stats.chi2 to ~1e-13 relative:
-tests/test_chi2.py.
+tests/core/test_chi2.py.
 """
 from __future__ import annotations
 

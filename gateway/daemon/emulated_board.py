@@ -52,7 +52,7 @@ class EmulatedBoard:
         # No time limit of its own: a child that dies ends the wait (EOF), a stop cancels
         # it, and under systemd TimeoutStartSec bounds it. A fixed 30 s was too short on
         # an emulated CPU (qemu without KVM: ~10x slower imports), and the daemon then
-        # went on without a board (tests/test_systemd_vm.py found it).
+        # went on without a board (tests/daemon/test_systemd_vm.py found it).
         line = await self.proc.stdout.readline()
         if not line:
             await self.stop()

@@ -15,7 +15,7 @@ it (`seq_step`), times it (`conversion.advance_sample_time`), converts its duty 
 samples/s, on a VM that wakes the daemon cold each time, Python per sample was most of
 the daemon's CPU: docs/daemon.md); with ADXLGW_NO_JIT=1, or without numba, the very same
 function runs as plain Python — one implementation under two runners
-(tests/test_sample_pipeline.py compares them).
+(tests/daemon/test_sample_pipeline.py compares them).
 """
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ version (the design was frozen, then run once on new seeds: docs/diagnosis.md §
 
 The raw recording goes through gateway.offline.recording.to_acceleration exactly as a file
 would. This package never imports gateway.core.simulator, sensor_effects or
-motion_profiles, nor the diagnosis's candidates (tests/test_diagnosis_independent.py).
+motion_profiles, nor the diagnosis's candidates (tests/diagnosis/test_diagnosis_independent.py).
 """
 from __future__ import annotations
 

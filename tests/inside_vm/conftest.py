@@ -2,7 +2,7 @@
 
 On the host there is no vcan0, so the host's pytest run must not collect
 them: an outer test in tests/ boots the VM and runs them there instead
-(see tests/test_socketcan_vm.py). The harness sets ADXLGW_IN_VM=1.
+(see tests/can/test_socketcan_vm.py). The harness sets ADXLGW_IN_VM=1.
 """
 
 import os

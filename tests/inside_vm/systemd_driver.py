@@ -1,7 +1,7 @@
 """Runs as a service under the real systemd of tests/inside_vm/systemd_job.sh and drives
 the shipped unit the way an operator does: systemctl start, reload, stop; a Modbus
 client on one TCP connection; journalctl -p err; a board that falls silent. Writes what
-it saw as JSON (argv[1]); judges nothing itself: tests/test_systemd_vm.py does, on the host.
+it saw as JSON (argv[1]); judges nothing itself: tests/daemon/test_systemd_vm.py does, on the host.
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 #!/bin/sh
-# Run by tests/test_systemd_vm.py (docs/daemon.md, "Under a real systemd"), which boots
+# Run by tests/daemon/test_systemd_vm.py (docs/daemon.md, "Under a real systemd"), which boots
 # the qemu VM and judges the report this writes; by hand, the same way:
-#   .venv/bin/python -m pytest -q -s tests/test_systemd_vm.py
+#   .venv/bin/python -m pytest -q -s tests/daemon/test_systemd_vm.py
 # Inside the SocketCAN VM: a real systemd as PID 1 of a new
 # PID namespace (the way container managers run it) runs the shipped unit, as
 # `adxlgw install-files` installs it, and a driver service that exercises it
@@ -80,7 +80,7 @@ esac
 # The venv (and the package, installed editable) live in this checkout. Under /root or
 # /home ProtectHome hides it: shown read-only, like the Python tree above. (Under /tmp or
 # /var/tmp nothing can show it: DynamicUser implies a private /tmp, and a bind mount from
-# there fails with 226/NAMESPACE — tests/test_systemd_vm.py refuses such a checkout.)
+# there fails with 226/NAMESPACE — tests/daemon/test_systemd_vm.py refuses such a checkout.)
 case "$repo" in
     /root/*|/home/*)
         cat >/etc/systemd/system/adxl-gateway.service.d/checkout-in-home.conf <<UNIT

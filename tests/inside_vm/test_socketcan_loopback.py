@@ -1,4 +1,4 @@
-"""Real SocketCAN on vcan0, run inside the qemu VM by tests/test_socketcan_vm.py.
+"""Real SocketCAN on vcan0, run inside the qemu VM by tests/can/test_socketcan_vm.py.
 
 These exercise the kernel's CAN stack (can, can-raw, vcan), not python-can's
 virtual bus: a frame written by one raw socket must come back, unchanged, on
