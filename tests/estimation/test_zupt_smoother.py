@@ -35,7 +35,7 @@ def synthetic(seed: int, bias_mps2: float):
 def settings_for(z):
     """The settings a rest gives (from_rest), with the noise the record was made with: these
     tests judge the smoother given its settings (from_rest's estimate of N from 1.5 s wanders
-    by ±50 %: tests/test_estimation_*)."""
+    by ±50 %: tests/estimation/)."""
     return replace(from_rest(z[:150], PERIOD_S), sample_noise_std_mps2=NOISE_MPS2,
                    accel_white_density_mps2_per_rthz=NOISE_MPS2 * np.sqrt(2.0 * PERIOD_S))
 

@@ -27,7 +27,7 @@ port = "emulated"
 [modbus]
 # the emulated CPU may leave a request unread in the socket for longer than the 60 s idle
 # timeout while the plain-Python daemon works through queued board bytes: the sweep would
-# close the driver's connection, which is not what this test is about (tests/test_modbus*
+# close the driver's connection, which is not what this test is about (tests/modbus/
 # cover the idle sweep)
 idle_timeout_s = 0
 [can]
