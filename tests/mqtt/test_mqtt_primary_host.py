@@ -153,8 +153,13 @@ def test_the_fleet_view_as_primary_host_lets_the_node_be_born_and_its_exit_ends_
                     assert host.connected.wait(WAIT_S)
                     await wait_for(lambda: node_view() is not None and node_view().online, WAIT_S,
                                    what="the birth the host's STATE allowed")
-                    with host.lock:
-                        assert host.view.nodes[(GROUP, "gw1")].online  # the host itself saw the birth
+
+                    def host_saw_the_birth() -> bool:  # a second subscriber: its copy may come later
+                        with host.lock:
+                            seen = host.view.nodes.get((GROUP, "gw1"))
+                            return seen is not None and seen.online
+
+                    await wait_for(host_saw_the_birth, WAIT_S, what="the host itself saw the birth")
                 # the host's orderly exit: its offline STATE ends the node's session
                 await wait_for(lambda: not node_view().online, WAIT_S, what="the node's NDEATH")
                 assert node.counters.host_offline_ends == 1
