@@ -21,7 +21,8 @@ from pathlib import Path
 import pytest
 import serial
 
-from drivers.board_protocol import Sample, StreamDecoder, encode
+from drivers.board_decoder import StreamDecoder
+from drivers.board_protocol import Sample, encode
 from drivers.errors import DriverError, SerialPortError
 from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
 
