@@ -13,7 +13,8 @@ simulated ones) drives itself with `drive_itself=True`.
   the metrics that changed (report by exception) and writes it to the non-blocking
   socket; what the kernel does not take now stays in paho's queue for the next poll.
   Only the TCP connect, which can take seconds, runs in a worker thread.
-- While the broker is away the DDATA wait in a bounded backlog (BACKLOG_S of them);
+- While the broker is away the DDATA wait in a bounded backlog (BACKLOG_S of them,
+  drivers/sparkplug_settings.py);
   when it is full the oldest is dropped and counted (`counters.dropped`, the Modbus
   register MQTT_DROPPED, the metric mqtt/dropped). After the rebirth they go out
   flagged `is_historical`, so that no host takes them for current values.
@@ -44,21 +45,19 @@ import socket
 import ssl
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import paho.mqtt.client as mqtt
 
 from . import sparkplug_payload as spb
+from .mqtt_packet import MAX_DIRECT_PACKET, qos0_publish_packet, topic_field
 from .published_values import Command, CommandCallback, ValuesSource, current
+from .sparkplug_settings import NodeCounters, SparkplugError, SparkplugSettings, tls_ca_problem
 
 log = logging.getLogger("adxlgw.mqtt")
 
 RECONNECT_MIN_S = 1  # paho takes whole seconds
 RECONNECT_MAX_S = 30
-#: How long the backlog holds DDATA while the broker is away: a broker restart (seconds)
-#: fits many times over; a longer outage keeps the newest minute and counts the rest.
-BACKLOG_S = 60.0
 #: paho's own queue of QoS 1 messages not yet acknowledged (bounded: a broker that
 #: accepts the connection but stops acknowledging must not grow it without end)
 MAX_PAHO_QUEUE = 1000
@@ -69,86 +68,6 @@ DEATH_FLUSH_S = 1.0  # an orderly stop waits this long for its NDEATH to leave
 #: in batches (paho keeps up to 20 messages in flight).
 READ_EVERY_S = 0.25
 REFUSAL_LOG_EVERY_S = 10.0  # refused commands: one log line per this interval at most
-#: The largest QoS 0 PUBLISH written straight to the socket (a DDATA is 30–120 bytes): one
-#: TCP segment on any link (the IPv6 minimum MTU 1280 less the IPv6 and TCP headers with
-#: options), which a non-blocking send takes whole or refuses whole but for a buffer that
-#: runs out in the middle of it; a larger packet goes through paho, which resumes writes.
-MAX_DIRECT_PACKET = 1280 - 40 - 60
-
-
-def mqtt_varint(n: int) -> bytes:
-    """MQTT's remaining length (and protobuf's varint): 7 bits a byte, low first."""
-    out = bytearray()
-    while n > 0x7F:
-        out.append((n & 0x7F) | 0x80)
-        n >>= 7
-    out.append(n)
-    return bytes(out)
-
-
-def qos0_publish_packet(topic_field: bytes, payload: bytes) -> bytes:
-    """An MQTT 3.1.1 PUBLISH at QoS 0, not retained (section 3.3): fixed header 0x30, the
-    remaining length, the topic as a length-prefixed string (`topic_field`, made once per
-    topic by `topic_field()`), the payload. No packet identifier at QoS 0."""
-    return b"\x30" + mqtt_varint(len(topic_field) + len(payload)) + topic_field + payload
-
-
-def topic_field(topic: str) -> bytes:
-    encoded = topic.encode()
-    return len(encoded).to_bytes(2, "big") + encoded
-
-
-class SparkplugError(Exception):
-    """The edge node cannot be set up (a TLS file that cannot be read)."""
-
-
-def tls_ca_problem(path: str) -> str | None:
-    """Why the TLS CA file `path` cannot be used (missing, unreadable, no PEM certificate
-    in it), or None: loaded as the node loads it, into a client TLS context."""
-    try:
-        ssl.create_default_context(cafile=path)
-    except ssl.SSLError as err:  # read, but not a certificate the TLS library can load
-        return f"holds no CA certificate TLS can load ({err.reason or err})"
-    except OSError as err:
-        return f"cannot be read ({err.strerror or err})"
-    return None
-
-
-@dataclass(frozen=True, slots=True)
-class SparkplugSettings:
-    """Settings; the names match the [mqtt] section of the daemon's config."""
-
-    host: str = "127.0.0.1"
-    port: int = 1883
-    group_id: str = "adxl-gateway"
-    edge_node_id: str = "gateway"
-    device_id: str = "axis"
-    qos: int = 0
-    rate_hz: float = 20.0
-    keepalive_s: int = 10
-    username: str | None = None
-    password: str | None = field(default=None, repr=False)
-    tls_ca_file: str | None = None
-    commands_enabled: bool = False
-    #: Sparkplug 3.0 primary host application: wait for its STATE online before birth
-    primary_host_id: str | None = None
-
-    @property
-    def backlog_len(self) -> int:
-        return max(1, round(BACKLOG_S * self.rate_hz))
-
-
-@dataclass(slots=True)
-class NodeCounters:
-    connects: int = 0
-    births: int = 0
-    ddata_made: int = 0  # the metric mqtt/ddata_count
-    ddata_sent: int = 0  # handed to the MQTT client
-    dropped: int = 0  # backlog overflow and a full client queue
-    commands_done: int = 0
-    commands_refused: int = 0  # commands disabled, or the daemon declined
-    bad_payloads: int = 0
-    host_offline_ends: int = 0  # sessions ended because the primary host said it is offline
 
 
 class SparkplugNode:

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.board_protocol import DecoderCounters, Sample, StreamDecoder
+from drivers.board_decoder import DecoderCounters, StreamDecoder
+from drivers.board_protocol import Sample
 from drivers.pty_port import PtyPort
 from drivers.ucsim_board import BoardSimulatorError, S51Board, S51Result, build_firmware, relay_paced
 from gateway.commands.common import add_scenario_options, positive_float, scenario_from_args

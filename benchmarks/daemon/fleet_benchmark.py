@@ -108,7 +108,8 @@ def estimate_snapshots(rate_hz: float) -> list[PublishedValues]:
 def simulated_nodes(port: int, first: int, count: int, rate_hz: float, snaps, conn) -> None:
     """`count` SparkplugNodes in this process, each replaying the snapshots from its own
     offset, until told to stop through `conn` (then their counts go back through it)."""
-    from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
+    from drivers.sparkplug_node import SparkplugNode
+    from drivers.sparkplug_settings import SparkplugSettings
 
     async def main():
         nodes = []
@@ -332,7 +333,8 @@ def probe_process(port: int, poll: bool, qos: int, seconds: float, conn) -> None
     calling the node's poll() at each wakeup or not; its CPU over `seconds`."""
     import resource
 
-    from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
+    from drivers.sparkplug_node import SparkplugNode
+    from drivers.sparkplug_settings import SparkplugSettings
 
     snaps = estimate_snapshots(20.0)
 

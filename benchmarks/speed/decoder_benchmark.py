@@ -15,9 +15,9 @@ import time
 import numpy as np
 
 from benchmarks import harness
+from drivers.board_decoder import StreamDecoder
 from drivers.board_protocol import (
     SAMPLE_FRAME_LENGTH,
-    StreamDecoder,
     encode_sample_records,
     encode_status,
 )

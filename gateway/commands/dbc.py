@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from drivers.can_frames import dbc_text, frame_table
+from drivers.can_frames import frame_table
+from drivers.can_frames_text import dbc_text
 
 
 def add_parser(sub) -> None:

@@ -7,9 +7,11 @@ import sys
 import time
 from pathlib import Path
 
-from drivers.board_protocol import Hello, Sample, Status, StreamDecoder
+from drivers.board_decoder import StreamDecoder
+from drivers.board_protocol import Hello, Sample, Status
 from drivers.errors import SerialPortError
-from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
+from drivers.serial_port import SerialSettings, reconnect_delays_s
+from drivers.serial_source import SerialSource
 from gateway.commands.common import StopOnSignal, positive_float
 from gateway.errors import DeviceError
 from gateway.offline.recording import RecordingWriter

@@ -13,7 +13,8 @@ import logging
 from collections.abc import Callable
 
 from drivers.errors import SerialPortError
-from drivers.serial_source import SerialSource, reconnect_delays_s
+from drivers.serial_port import reconnect_delays_s
+from drivers.serial_source import SerialSource
 from gateway.config import Config
 from gateway.daemon.emulated_board import EmulatedBoard
 from gateway.daemon.settings import serial_settings_from

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 from drivers.link_checks import check_can_link, check_serial_port
 from drivers.modbus_ports import tcp_listen_check
-from drivers.sparkplug_node import tls_ca_problem
+from drivers.sparkplug_settings import tls_ca_problem
 from gateway.config import Config
 from gateway.daemon.settings import load_sample_path_model, read_credentials
 from gateway.errors import ConfigError, DeviceError, InputError

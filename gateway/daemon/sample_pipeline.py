@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from drivers.board_decoder import DecoderCounters, StreamDecoder
 from drivers.board_protocol import (
     FLAG_TIMER_OVERFLOW,
     FLAG_X_TIMED_OUT,
@@ -32,10 +33,8 @@ from drivers.board_protocol import (
     SAMPLE_FRAME_LENGTH,
     SEQ_BACKWARDS,
     SEQ_REPEAT,
-    DecoderCounters,
     Hello,
     Status,
-    StreamDecoder,
     sample_at,
     seq_step,
 )

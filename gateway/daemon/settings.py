@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING
 from drivers.can_frames import frame_table
 from drivers.can_publisher import CanPublisherConfig
 from drivers.modbus_server import ModbusServerConfig
-from drivers.serial_source import SerialSettings
-from drivers.sparkplug_node import SparkplugSettings
+from drivers.serial_port import SerialSettings
+from drivers.sparkplug_settings import SparkplugSettings
 from gateway.config import Config, read_bounded
 from gateway.errors import ConfigError, InputError
 

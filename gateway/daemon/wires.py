@@ -29,7 +29,8 @@ import can
 from drivers.can_publisher import BusFactory, CanPublisher, CanPublisherConfig, CanPublisherError
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import CommandCallback, ValuesSource
-from drivers.sparkplug_node import SparkplugError, SparkplugNode, SparkplugSettings
+from drivers.sparkplug_node import SparkplugNode
+from drivers.sparkplug_settings import SparkplugError, SparkplugSettings
 from gateway.config import Config
 from gateway.daemon.settings import can_config_from, modbus_config_from, mqtt_settings_from
 from gateway.errors import DeviceError

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
+from drivers.board_decoder import DecoderCounters, StreamDecoder, decode_frames
 from drivers.board_protocol import (
     HELLO_SEQ,
     MAX_FRAME_LENGTH,
@@ -22,14 +23,11 @@ from drivers.board_protocol import (
     SEQ_BACKWARDS,
     SEQ_IN_ORDER,
     STATUS_FRAME_LENGTH,
-    DecoderCounters,
     Frame,
     Hello,
     Sample,
     Status,
-    StreamDecoder,
     crc16_ccitt_false,
-    decode_frames,
     encode,
     encode_frame,
     encode_hello,

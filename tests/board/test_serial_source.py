@@ -21,9 +21,11 @@ from pathlib import Path
 import pytest
 import serial
 
-from drivers.board_protocol import Sample, StreamDecoder, encode
+from drivers.board_decoder import StreamDecoder
+from drivers.board_protocol import Sample, encode
 from drivers.errors import DriverError, SerialPortError
-from drivers.serial_source import SerialSettings, SerialSource, reconnect_delays_s
+from drivers.serial_port import SerialSettings, reconnect_delays_s
+from drivers.serial_source import SerialSource
 
 DEADLINE_S = 10.0  # only a broken source needs this long
 
@@ -563,7 +565,7 @@ class RecordingOpener:
         self.ports: list[serial.SerialBase] = []
 
     def __call__(self, settings: SerialSettings) -> serial.SerialBase:
-        from drivers.serial_source import open_with_pyserial
+        from drivers.serial_port import open_with_pyserial
 
         self.ports.append(open_with_pyserial(settings))
         return self.ports[-1]

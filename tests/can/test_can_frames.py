@@ -25,10 +25,10 @@ from drivers.can_frames import (
     CyclicEncoder,
     check_command,
     crc8,
-    dbc_text,
     e2e_p01_crc,
     encode_command,
 )
+from drivers.can_frames_text import dbc_text, frames_markdown
 from drivers.published_values import Command, PublishedValues, StatusBits
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -125,7 +125,7 @@ def test_command_check_outcomes() -> None:
 # --------------------------------------------------------------------------- #
 def test_committed_dbc_is_the_generated_text() -> None:
     assert DBC_PATH.read_text(encoding="utf-8") == dbc_text(), (
-        "config/adxl-gateway.dbc is out of date: write drivers.can_frames.dbc_text() to it"
+        "config/adxl-gateway.dbc is out of date: write drivers.can_frames_text.dbc_text() to it"
     )
 
 
@@ -257,7 +257,7 @@ DOCS = ROOT / "docs" / "can-frames.md"
 
 
 def test_docs_embed_the_generated_frame_tables() -> None:
-    assert cf.frames_markdown() in DOCS.read_text(encoding="utf-8"), (
+    assert frames_markdown() in DOCS.read_text(encoding="utf-8"), (
         "docs/can-frames.md is out of date: paste frames_markdown() into it"
     )
 

@@ -638,7 +638,8 @@ def test_declined_or_failing_callback_is_acknowledged_and_survived(channel: str,
 def test_two_gateways_share_one_bus_on_their_own_identifiers(channel: str) -> None:
     """can.base_id moves every frame: two publishers on one bus, each decoded with the DBC
     written for its identifiers, and a command to one is answered by that one only."""
-    from drivers.can_frames import dbc_text, frame_table
+    from drivers.can_frames import frame_table
+    from drivers.can_frames_text import dbc_text
 
     tables = (frame_table(0x120), frame_table(0x200))
     received: list = [[], []]

@@ -11,7 +11,7 @@ import cantools
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.can_frames import dbc_text
+from drivers.can_frames_text import dbc_text
 from drivers.modbus_map import MAP_VERSION, CommandResult
 from drivers.published_values import StatusBits
 from tests.daemon_helpers import CLI, Emulator, gateway_config, read_inputs, running_gateway, wait_for

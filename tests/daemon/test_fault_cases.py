@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.board_protocol import Hello, Sample, decode_frames
+from drivers.board_decoder import decode_frames
+from drivers.board_protocol import Hello, Sample
 from testing.fault_cases import SLOT_S, Case, board_script
 
 

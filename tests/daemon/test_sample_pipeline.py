@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.board_decoder import decode_frames
 from drivers.board_protocol import (
     SAMPLE_FRAME_LENGTH,
     Sample,
-    decode_frames,
     encode_hello,
     encode_sample,
     encode_status,

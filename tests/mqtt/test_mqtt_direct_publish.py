@@ -10,8 +10,10 @@ import paho.mqtt.client as mqtt
 import pytest
 
 from drivers import sparkplug_payload as spb
+from drivers.mqtt_packet import mqtt_varint, qos0_publish_packet, topic_field
 from drivers.published_values import PublishedValues, StatusBits
-from drivers.sparkplug_node import SparkplugNode, SparkplugSettings, mqtt_varint, qos0_publish_packet, topic_field
+from drivers.sparkplug_node import SparkplugNode
+from drivers.sparkplug_settings import SparkplugSettings
 from testing.mqtt_helpers import Broker
 from tests.daemon_helpers import wait_for
 

@@ -15,7 +15,8 @@ import paho.mqtt.client as mqtt
 from drivers import sparkplug_payload as spb
 from drivers.published_values import PublishedValues, StatusBits
 from drivers.sparkplug_host import FleetListener
-from drivers.sparkplug_node import SparkplugNode, SparkplugSettings
+from drivers.sparkplug_node import SparkplugNode
+from drivers.sparkplug_settings import SparkplugSettings
 from testing.mqtt_helpers import Broker
 from tests.daemon_helpers import wait_for
 
