@@ -3,7 +3,7 @@
 numba invalidates a cached function only when *its own* source file changes (numba's
 "Notes on Caching"), and ours inline code of other files: `estimator_kernel.step` inlines
 standstill.py's tests, `smoother.run_backward` the kernel's `unpack_cov` and layout, the
-daemon's `sample_pipeline` the kernel's step and drivers/board_protocol's constants. After
+daemon's `sample_loop` the kernel's step and drivers/board_protocol's constants. After
 an edit or an upgrade of one file a cache kept from before could run stale code of
 another (a full local test run once failed 7 estimator tests that way). So NUMBA_CACHE_DIR
 is set to `<base>/numba-<digest of every .py under gateway/ and drivers/>`: any change

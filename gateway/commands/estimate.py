@@ -37,7 +37,7 @@ from gateway.offline.recording import (
 # series, the forward pass's states kept for the backward pass (~90), the output columns
 # and what writing them takes. Measured: 266 (peak RSS 5.75 GB for 21.6 M samples,
 # benchmarks/speed/offline_scale.py, docs/estimation.md), rounded up; plus ~42 when the stops
-# are decided from both ends (estimator.stops_seen_from_the_end: the one-pass answer
+# are decided from both ends (estimator_passes.stops_seen_from_the_end: the one-pass answer
 # kept beside the second pass, the derived hint) — not measured at 12 h, counted; plus
 # up to 48 (an index and 5 floats) for the soft hinted velocity updates' records
 # (kernel_update.soft_update_bound: at most one per hinted sample, reached only by a

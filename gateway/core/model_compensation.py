@@ -25,7 +25,7 @@ correction (a ringing that integrates to nothing, clipped samples, a reference d
 are kept in the file for the record and listed as `not_compensated`.
 
 The daemon corrects one sample at a time, as it arrives (`sample_terms` +
-`term_correction`, called by gateway/daemon/sample_pipeline.py's compiled loop): only
+`term_correction`, called by gateway/daemon/sample_loop.py's compiled loop): only
 terms whose correction needs nothing from the future. Scale, temperature (the board's
 latest report) and the motion offset (the filter's own standstill flag of the previous
 sample) qualify; `term_correction` is the one formula for both paths. The tilt needs

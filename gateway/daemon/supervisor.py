@@ -21,6 +21,9 @@ wakeups (drivers/can_publisher.py). Nothing else wakes the process while samples
 the publishing tick is a timer that the batches keep pushing back, and fires only once
 the board has been quiet for PUBLISH_TICK_S to 3 × PUBLISH_TICK_S (then every
 PUBLISH_TICK_S).
+
+`Gateway` inherits the SIGHUP reload (gateway/daemon/config_reload.py) and the background
+tasks with the state they save (gateway/daemon/service_tasks.py).
 """
 from __future__ import annotations
 
@@ -43,13 +46,14 @@ from drivers.published_values import Command, PublishedValues, StatusBits, Statu
 from drivers.sparkplug_node import SparkplugNode
 from gateway.config import Config
 from gateway.daemon.board_port import BoardPort
-from gateway.daemon.preflight import refuse_reload
+from gateway.daemon.config_reload import ConfigReload
 from gateway.daemon.sd_notify import SystemdNotifier
-from gateway.daemon.settings import calibration_from, estimator_settings_from, model_terms_from, serial_settings_from
+from gateway.daemon.service_tasks import ServiceTasks
+from gateway.daemon.settings import calibration_from, estimator_settings_from, model_terms_from
 from gateway.daemon.state_store import PersistentState, StateStore, restored_position_std_m
 from gateway.daemon.status_flags import GatewayCondition, LinkHealth, status_bits
 from gateway.daemon.wires import WireContext, WireSet
-from gateway.errors import ConfigError, DeviceError
+from gateway.errors import DeviceError
 
 if TYPE_CHECKING:
     # rich, behind the view, is an offline tool's library (pyproject's [offline]); the board
@@ -69,8 +73,6 @@ MAX_DEFER_CHUNKS = 64
 QUIET_AFTER_TICKS = 3
 # the machine's standstill hints: the value each command sets
 _HINTS = {Command.HINT_AT_REST: True, Command.HINT_MOVING: False, Command.HINT_UNKNOWN: None}
-HOUSEKEEPING_S = 0.25  # terminal view, state save when something changed
-STATE_SAVE_EVERY_S = 60.0
 
 
 @dataclass
@@ -86,19 +88,7 @@ def _terminal_view() -> TerminalView:
     return TerminalView()
 
 
-def board_alive_for_watchdog(now_s: float, last_sample_s: float | None, check_every_s: float,
-                             lost_after_s: float) -> bool:
-    """Feed systemd's watchdog at this check? The watchdog asks "is the service making
-    progress?", so yes when a sample arrived since the previous check (one check per
-    WatchdogSec/2): a hung board or a blocked loop gives no ping for a whole WatchdogSec and
-    systemd restarts the unit. lost_after_s (serial.lost_after_ms) judges the freshness of
-    the published values (STALE), not liveness: a board whose bytes come in bursts further
-    apart than it (a starved CPU: 2.6-3.6 s gaps seen under qemu) is slow, not hung; it
-    still counts when it is the longer of the two."""
-    return last_sample_s is not None and now_s - last_sample_s < max(check_every_s, lost_after_s)
-
-
-class Gateway:
+class Gateway(ServiceTasks, ConfigReload):
     """The supervisor. Use as an async context manager (`async with Gateway(cfg) as gw:`
     starts it, leaving the block stops it), or `await gw.run()` as the command does
     (signals: SIGTERM/SIGINT stop, SIGHUP reloads). `stop()` is idempotent."""
@@ -481,141 +471,3 @@ class Gateway:
         finally:
             if self._tick_handle is None and not self._stopped:
                 self._arm_tick(now, self.publish_tick_s)
-
-    # ---------------------------------------------------------------- state --
-    def _state_to_save(self, stopping: bool = False) -> PersistentState:
-        if self.pipeline is None:  # stopped while starting: nothing seen, the file stays as it was
-            return self._state_while_running
-        values = self.fresh_values()
-        est = self.pipeline.latest()
-        now = time.time()
-        # at rest on evidence: a standstill the estimator trusts, the board's data fresh
-        at_rest = bool(est is not None and est.standstill and not est.untrusted
-                       and not values.status & (StatusBits.STALE | StatusBits.BOARD_LOST))
-        return PersistentState(
-            tare_offset_m=self.pipeline.reference_offset_m,
-            bias_estimate_mps2=None if est is None or not math.isfinite(est.bias_mps2) else est.bias_mps2,
-            last_position_m=values.position_m if math.isfinite(values.position_m) else None,
-            saved_at_unix_s=now,
-            stopped_at_rest_unix_s=now if stopping and at_rest else None,
-        )
-
-    async def _save_state(self) -> None:
-        # fsyncs take milliseconds to seconds on a busy disk: not on the event loop
-        state = self._state_to_save()
-        self._state_dirty = False
-        self._last_saved_s = self.clock()
-        await asyncio.to_thread(self.state_store.save, state)
-
-    # ---------------------------------------------------------------- tasks --
-    def _receive_from_port(self, batched: bool, data: bytes) -> None:
-        self._kernel_batches = batched  # per open port: a reopened one may not batch
-        self.receive(data)
-
-    async def _board_supervisor(self) -> None:
-        """Open the port (READY then), read it, reopen it when a reload asks."""
-        await self.board.open()
-        self._tasks.append(asyncio.create_task(self._watchdog_task(), name="watchdog"))
-        self.notifier.ready(f"board {self.board.path}; modbus {self.cfg.modbus.host}:{self.modbus.tcp_port}")
-        self._ready.set()
-        log.info("ready: board %s, Modbus TCP %s:%s, CAN %s, MQTT %s", self.board.path, self.cfg.modbus.host,
-                 self.modbus.tcp_port, f"{self.cfg.can.interface}:{self.cfg.can.channel}" if self.can else "off",
-                 self.mqtt.where if self.mqtt else "off")
-        await self.board.serve(self._receive_from_port)
-
-    async def _housekeeping_task(self) -> None:
-        while True:
-            await asyncio.sleep(HOUSEKEEPING_S)
-            now = self.clock()
-            if self.view:
-                self.view.draw(self.fresh_values(), self._view_extra())
-            if self._state_dirty or now - self._last_saved_s >= STATE_SAVE_EVERY_S:
-                await self._save_state()
-
-    def _view_extra(self) -> str:
-        parts = [f"board {self.board.path or 'not open yet'}"]
-        if self.modbus and self.modbus.tcp_port:
-            parts.append(f"modbus tcp {self.cfg.modbus.host}:{self.modbus.tcp_port}")
-        if self.can:
-            parts.append(f"can {self.cfg.can.interface}:{self.cfg.can.channel} "
-                         f"({self.can.counters.frames_sent} frames)")
-        if self.mqtt:
-            parts.append(f"mqtt {self.mqtt.where} ({'connected' if self.mqtt.connected else 'not connected'})")
-        return "  ".join(parts)
-
-    async def _watchdog_task(self) -> None:
-        interval = self.notifier.watchdog_interval_s
-        if not interval:
-            return
-        check_every_s = interval / 2
-        while True:
-            await asyncio.sleep(check_every_s)
-            if board_alive_for_watchdog(self.clock(), self.intake.events.last_sample_s, check_every_s,
-                                        self.cfg.serial.lost_after_ms / 1000):
-                self.notifier.watchdog()
-                self.counters.watchdog_pings += 1
-
-    async def _reload_logged(self) -> None:
-        """A reload from a signal: nobody awaits it, so a failure is said here."""
-        try:
-            await self.reload()
-        except Exception as err:  # a bug or a device that would not start: say it, keep running
-            log.error("reload failed: %s", err)
-            self.notifier.ready()
-
-    def _model_terms_for_reload(self, new: Config):
-        """The new config's sensor-model corrections (read again: the file may have been
-        rewritten under the same name); ConfigError when its filter terms would change
-        the estimator's sensor lag, which is set when the estimator is built."""
-        terms = model_terms_from(new)
-        if estimator_settings_from(new).sensor_lag_s != self._sensor_lag_s:
-            raise ConfigError(f"{new.source}: calibration.model: {new.calibration.model or '(none)'}: its filter "
-                              "terms change the estimator's sensor lag, set when the estimator is built: restart "
-                              "the gateway to apply it")
-        return terms
-
-    async def reload(self) -> None:
-        if self._reload is None:
-            log.warning("SIGHUP: no config file to reload")
-            return
-        await self._board_side_built.wait()  # a SIGHUP while starting: once the start is done
-        self.notifier.reloading()
-        self._drain(self.clock())  # the bytes received so far, under the config they came with
-        try:
-            new = self._reload()
-            refuse_reload(self.cfg, new)  # all or nothing: a changed wire that cannot work refuses it
-            model_terms = self._model_terms_for_reload(new)
-        except ConfigError as err:
-            self.counters.config_reload_errors += 1
-            log.error("reload refused, keeping the running config: %s", err)
-            self.notifier.ready()
-            return
-        old = self.cfg
-        try:
-            await self.wires.apply(old, new)
-        except DeviceError as err:
-            self.counters.config_reload_errors += 1
-            log.error("reload refused, keeping the running config: %s", err)
-            self.notifier.ready()
-            return
-        self.cfg = new
-        self.counters.config_reloads += 1
-        self._reloaded_at = self.clock()
-        # the reload is news on every wire (CONFIG_RELOADED) now, not at the next sample: a
-        # wire whose settings did not change is not touched by apply, and its image would
-        # show the values from before the reload until the board speaks again
-        self._publish(self._reloaded_at)
-        logging.getLogger().setLevel(new.service.log_level.upper())
-        self.pipeline.set_calibration(calibration_from(new), new.calibration.axis)
-        self.pipeline.set_model_terms(model_terms)
-        # the travel bounds the published σ, and the saved position read at the next start
-        self.pipeline.set_travel(tuple(new.estimator.travel_m))
-        self.state_store.travel_m = tuple(new.estimator.travel_m)
-        port_changed = (old.serial.port != new.serial.port
-                        or serial_settings_from(old, "port") != serial_settings_from(new, "port"))
-        # while the port is still being opened, the opener takes the new settings itself
-        if port_changed and self.ready:
-            log.info("reload: reopening the board port")
-            self.board.reopen()
-        log.info("config reloaded from %s", new.source)
-        self.notifier.ready()

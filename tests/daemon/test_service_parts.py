@@ -80,7 +80,7 @@ def test_the_board_port_batches_unless_can_sends_per_sample(tmp_path):
 
 
 def test_watchdog_is_fed_by_progress_since_the_last_check_not_by_staleness():
-    from gateway.daemon.supervisor import board_alive_for_watchdog
+    from gateway.daemon.service_tasks import board_alive_for_watchdog
 
     check_every_s, lost_after_s = 15.0, 1.0  # WatchdogSec=30 s, serial.lost_after_ms = 1000
     assert not board_alive_for_watchdog(100.0, None, check_every_s, lost_after_s)  # no sample yet

@@ -4,13 +4,14 @@ After an offset step in a long cruise the forward filter no longer knows its vel
 and cannot call the next stops stops (flag 256); the smoothed estimate used to inherit
 that (metres off). The same filter run backward from the final rest, with the bias
 measured there, recognises them, and the forward pass takes them as a rest hint
-(estimator.stops_seen_from_the_end). All on the simulator's robot-like path.
+(estimator_passes.stops_seen_from_the_end). All on the simulator's robot-like path.
 """
 import numpy as np
 import pytest
 
 from gateway.core import estimator_kernel as K
-from gateway.core.estimator import estimate_series, lost_before_reversed, lost_from_times
+from gateway.core.estimator import estimate_series, lost_from_times
+from gateway.core.estimator_passes import lost_before_reversed
 from testing.robot_like_cases import robot_case, worst_move_and_inside
 
 
