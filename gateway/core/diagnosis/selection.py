@@ -51,7 +51,8 @@ from gateway.core.diagnosis.screening import (
     spectrum_peaks,
 )
 from gateway.core.diagnosis.side_effects import SIDE_EFFECTS
-from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS, SignalEffect
+from gateway.core.diagnosis.signal_effects import SIGNAL_EFFECTS
+from gateway.core.diagnosis.signal_interface import SignalEffect
 from gateway.core.diagnosis.timestamps import check_host_clock, check_sample_clock
 from gateway.core.estimator_settings import EstimatorSettings
 
