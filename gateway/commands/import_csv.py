@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -152,14 +153,25 @@ def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
     return out
 
 
+@dataclass
+class Imported:
+    """What an import wrote, for its report."""
+
+    rows: int
+    last_t_s: float
+    skipped_rows: int  # rows without a time or an acceleration
+    notes: list[str]  # the re-timing's account, the check against a time column
+
+
 def run(args: argparse.Namespace) -> int:
+    """parse (the arguments, the output path) → do (the import) → report."""
     _check_args(args)
     check_output(args.out)  # before the work
-    if args.arrival_col or args.ref_delay_s != 0:
-        # the re-timing fits the whole file's arrivals, a delayed reference is resampled
-        # across rows: both need every row at once
-        return _run_whole(args)
-    return _run_streamed(args)
+    # the re-timing fits the whole file's arrivals, a delayed reference is resampled
+    # across rows: both need every row at once; otherwise the file is streamed
+    whole = args.arrival_col or args.ref_delay_s != 0
+    imported = _run_whole(args) if whole else _run_streamed(args)
+    return _wrote(args, imported)
 
 
 def _check_increasing(args, t_in: np.ndarray, lines: np.ndarray, before_s: float = -math.inf) -> None:
@@ -222,16 +234,18 @@ def _columns(args, values: dict[str, np.ndarray], t_s: np.ndarray, t_host_s: np.
     return columns
 
 
-def _wrote(args, rows: int, last_t_s: float, skipped: int, notes: list[str]) -> int:
+def _wrote(args, imported: Imported) -> int:
+    rows, last_t_s = imported.rows, imported.last_t_s
     rate = (rows - 1) / last_t_s
     print(f"wrote {args.out}: {rows} samples, {last_t_s:.3f} s, {rate:.1f} samples/s; "
-          f"skipped {skipped} rows without {args.arrival_col or args.time_col!r}/{args.acc_col!r}", file=sys.stderr)
-    for note in notes:
+          f"skipped {imported.skipped_rows} rows without {args.arrival_col or args.time_col!r}/{args.acc_col!r}",
+          file=sys.stderr)
+    for note in imported.notes:
         print(note, file=sys.stderr)
     return 0
 
 
-def _run_streamed(args: argparse.Namespace) -> int:
+def _run_streamed(args: argparse.Namespace) -> Imported:
     """A trusted time column: block by block from the file to the recording, so memory
     follows the block (BLOCK_ROWS rows), not the file. The rate is judged on the first
     block (a time column in the wrong unit is wrong on every row alike)."""
@@ -259,10 +273,10 @@ def _run_streamed(args: argparse.Namespace) -> int:
         if writer is not None:
             writer.abort()
         raise
-    return _wrote(args, rows, last_t_s, skipped.rows, [])
+    return Imported(rows, last_t_s, skipped.rows, [])
 
 
-def _run_whole(args: argparse.Namespace) -> int:
+def _run_whole(args: argparse.Namespace) -> Imported:
     values, lines, skipped = read_foreign(args)
     time_col = args.arrival_col or args.time_col
     need = RetimingSettings().min_rows if args.arrival_col else 2
@@ -310,4 +324,4 @@ def _run_whole(args: argparse.Namespace) -> int:
         t_s, t_host_s = t_in, None
     resample = args.ref_clock == "arrival" or args.ref_delay_s != 0
     write_recording(args.out, metadata, _columns(args, values, t_s, t_host_s, resample))
-    return _wrote(args, t_s.size, float(t_s[-1]), skipped, notes)
+    return Imported(t_s.size, float(t_s[-1]), skipped, notes)
