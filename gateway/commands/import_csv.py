@@ -3,33 +3,28 @@
 Sample times come either from a trusted column (`--time-col`, the sensor's own clock) or
 are recovered from the PC's arrival times (`--arrival-col`, gateway/core/retiming.py).
 Reference columns and the machine's standstill hint are carried through row by row, so
-a logger file with a reference becomes a scored recording in one command.
+a logger file with a reference becomes a scored recording in one command. Reading the
+file's rows: foreign_csv.py.
 """
 from __future__ import annotations
 
 import argparse
-import csv
 import math
-import os
 import sys
-from array import array
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
 from gateway.commands.common import positive_float
+from gateway.commands.foreign_csv import _Skipped, _wanted, foreign_blocks, read_foreign
 from gateway.core.retiming import Retiming, RetimingError, RetimingSettings, on_sample_clock, retime, timing_error
 from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.errors import RecordingError
-from gateway.offline.progress import progress_bar
 from gateway.offline.recording import (
     FORMAT_ID,
     HINT_COLUMN,
-    MAX_LINE_BYTES,
     ColumnWriter,
-    cell_text,
     check_output,
-    line_blocks,
     write_recording,
 )
 
@@ -102,63 +97,6 @@ def add_parser(sub) -> None:
     p.set_defaults(run=run)
 
 
-def _number(cell: str, path: str, line: int, column: str):
-    """Integers stay exact (nanosecond timestamps exceed float precision); others are floats."""
-    try:
-        return int(cell)
-    except ValueError:
-        pass
-    try:
-        value = float(cell)
-    except ValueError:
-        raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(cell)} is not a number") from None
-    if not math.isfinite(value):
-        raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(cell)} is not finite")
-    return value
-
-
-def _float(value, path: str, line: int, column: str, minus=0) -> float:
-    """value − minus as a float: exact first when both are integers."""
-    try:
-        return float(value - minus)
-    except OverflowError:  # an integer of hundreds of digits
-        raise RecordingError(f"{path}:{line}: column {column!r}: {cell_text(str(value))} is not finite") from None
-
-
-def _text_lines(path: str, bar, end: dict):
-    """The file's lines as text (without their line ends), read a block at a time: the line
-    length limit of recordings (MAX_LINE_BYTES), UTF-8 checked, named by its byte offset.
-    end["cut"]: whether the last line has no line end (a file cut short?)."""
-    for block, first_line, offset in line_blocks(path, path):
-        end["cut"] = not block.endswith(b"\n")
-        try:
-            text = block.decode("utf-8")
-        except UnicodeDecodeError as err:
-            line = first_line + block.count(b"\n", 0, err.start)
-            raise RecordingError(f"{path}:{line}: not UTF-8 text ({err.reason} at byte offset "
-                                 f"{offset + err.start})") from None
-        if offset == 0:
-            text = text.removeprefix("\ufeff")  # a spreadsheet's byte-order mark is not part of the header
-        lines = text.split("\n")
-        if text.endswith("\n"):
-            lines.pop()
-        for line in lines:
-            yield line[:-1] if line.endswith("\r") else line
-        bar.update(len(block))
-
-
-def _hint(cell: str, args, path: str, line: int) -> float:
-    if cell == "":
-        return float("nan")
-    if cell == args.hint_rest_value:
-        return 1.0
-    if cell == args.hint_moving_value:
-        return 0.0
-    raise RecordingError(f"{path}:{line}: column {args.hint_col!r}: {cell!r} is neither the rest value "
-                         f"{args.hint_rest_value!r} nor the moving value {args.hint_moving_value!r} "
-                         "(empty = unknown)")
-
-
 def _check_args(args) -> None:
     for name in ("acc_scale", "ref_scale"):
         value = getattr(args, name)
@@ -174,166 +112,6 @@ def _check_args(args) -> None:
         raise RecordingError("--nominal-rate-hz needs --arrival-col (it guides the re-timing)")
     if args.hint_rest_value == args.hint_moving_value:
         raise RecordingError("--hint-rest-value and --hint-moving-value must differ")
-
-
-def _wanted(args) -> dict[str, str]:
-    wanted = {"time": args.arrival_col or args.time_col, "acc": args.acc_col}
-    optional = {"acc_y": args.acc_y_col, "temp": args.temp_col, "ref_pos": args.ref_pos_col,
-                "ref_vel": args.ref_vel_col, "ref_acc": args.ref_acc_col, "hint": args.hint_col,
-                "check": args.check_time_col}
-    wanted.update({role: name for role, name in optional.items() if name})
-    return wanted
-
-
-class _Column:
-    """One wanted column's numbers as compact doubles (8 bytes a row, not a Python object).
-    A time column keeps each cell minus the first, computed exactly when both are integers
-    (nanoseconds since 1970 exceed a double's precision), so it is seconds since the first
-    row once scaled by its unit."""
-
-    def __init__(self, relative: bool):
-        self.values = array("d")
-        self.relative = relative
-        self.first = None  # the first cell of a relative column, as read (int or float)
-
-    def numbers(self) -> np.ndarray:
-        return np.frombuffer(self.values, dtype=float) if self.values else np.zeros(0)
-
-
-#: Rows per block of the streamed import: the memory a block takes (a few MB), not the file's.
-BLOCK_ROWS = 1 << 16
-
-
-class _Skipped:
-    rows = 0  # rows without a time or an acceleration, so far
-
-
-def foreign_blocks(args, skipped: _Skipped, block_rows: int | None = None):
-    """The wanted columns' numbers for rows with a time and an acceleration, and their line
-    numbers, a block of `block_rows` (BLOCK_ROWS) rows at a time; the file streamed, with a
-    progress bar."""
-    block_rows = block_rows or BLOCK_ROWS
-    path = args.foreign
-    try:
-        size = os.path.getsize(path)
-    except OSError as err:
-        raise RecordingError(f"{path}: cannot read: {err.strerror or err}") from err
-    end = {"cut": False}
-    # a quoted field running over many lines stops at the line limit too
-    limit = csv.field_size_limit(MAX_LINE_BYTES)
-    try:
-        with progress_bar(size, f"reading {Path(path).name}") as bar:
-            reader = csv.reader(_text_lines(path, bar, end), delimiter=args.delimiter)
-            yield from _row_blocks(args, reader, end, skipped, block_rows)
-    finally:
-        csv.field_size_limit(limit)  # the process's setting, as it was
-
-
-def read_foreign(args) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
-    """The whole file's numbers (foreign_blocks put together): what the re-timing needs."""
-    skipped = _Skipped()
-    blocks = list(foreign_blocks(args, skipped, block_rows=1 << 62))
-    values, lines = blocks[0] if blocks else ({}, np.zeros(0, dtype=np.int64))
-    return values, lines, skipped.rows
-
-
-def _csv_error(path: str, reader, err: csv.Error) -> RecordingError:
-    if "new-line character" in str(err):
-        # lines end at \n: a lone \r (classic Mac line ends) is taken for a break inside a row
-        return RecordingError(f"{path}:{reader.line_num}: a line break (\\r) inside a row; lines must end with "
-                              "\\n or \\r\\n (a file with classic Mac line ends? convert them)")
-    return RecordingError(f"{path}:{reader.line_num}: cannot be read as CSV: {err}")
-
-
-def _row_blocks(args, reader, end: dict, skipped: _Skipped, block_rows: int):
-    """The rows with a time and an acceleration, as blocks of `block_rows` (see _block)."""
-    path = args.foreign
-    header, index = _header_index(args, reader)
-    wanted = _wanted(args)
-    columns = {role: _Column(relative=role in ("time", "check")) for role in wanted}
-    lines = array("q")
-    last_cells = len(header)
-    for row, line in _rows(reader, path):
-        last_cells = len(row)
-        cells = {role: (row[i].strip() if i < len(row) else "") for role, i in index.items()}
-        if not cells["time"] or not cells["acc"]:
-            skipped.rows += 1
-            continue
-        _append_cells(args, columns, cells, wanted, line)
-        lines.append(line)
-        if len(lines) >= block_rows:
-            yield _block(columns, lines)
-            lines = array("q")
-    if end["cut"] and last_cells < len(header):
-        # a logger killed mid-row (rows of fewer cells are fine elsewhere: other kinds of row)
-        raise RecordingError(f"{path}:{reader.line_num}: has {last_cells} cells, the header has {len(header)} "
-                             "(the last line is cut short: a truncated file?)")
-    if lines:
-        yield _block(columns, lines)
-
-
-def _header_index(args, reader) -> tuple[list[str], dict[str, int]]:
-    """The header row, and where each wanted column is in it; the missing ones named all at
-    once, with the columns there are (and a hint at the delimiter)."""
-    path = args.foreign
-    try:
-        header = [h.strip() for h in next(reader)]
-    except StopIteration:
-        raise RecordingError(f"{path}:1: empty file, no header row") from None
-    except csv.Error as err:
-        raise _csv_error(path, reader, err) from None
-    wanted = _wanted(args)
-    missing = [name for name in wanted.values() if name not in header]
-    if missing:
-        shown = ", ".join(repr(h) for h in header[:20]) + (f", … ({len(header)} in all)" if len(header) > 20 else "")
-        hint = ("; one column only, with ';' in it: a ';'-separated file? give --delimiter ';'"
-                if len(header) == 1 and ";" in header[0] and args.delimiter != ";" else "")
-        raise RecordingError(f"{path}:1: no column {', '.join(map(repr, missing))} in the header; "
-                             f"its columns: {shown}{hint}")
-    return header, {role: header.index(name) for role, name in wanted.items()}
-
-
-def _rows(reader, path: str):
-    """(cells, line number) of each non-empty row after the header; a CSV error names its line."""
-    rows = iter(reader)
-    while True:
-        try:
-            row = next(rows)
-        except StopIteration:
-            return
-        except csv.Error as err:
-            raise _csv_error(path, reader, err) from None
-        if row:
-            yield row, reader.line_num
-
-
-def _append_cells(args, columns: dict[str, _Column], cells: dict[str, str], wanted: dict[str, str],
-                  line: int) -> None:
-    """One row's wanted cells onto their columns: the hint as 1/0/NaN, an empty cell as NaN,
-    a time relative to the column's first cell, the rest as numbers."""
-    path = args.foreign
-    for role, cell in cells.items():
-        column = columns[role]
-        if role == "hint":
-            column.values.append(_hint(cell, args, path, line))
-        elif not cell:
-            column.values.append(math.nan)
-        elif column.relative:
-            number = _number(cell, path, line, wanted[role])
-            if column.first is None:
-                column.first = number
-            column.values.append(_float(number, path, line, wanted[role], minus=column.first))
-        else:
-            column.values.append(_float(_number(cell, path, line, wanted[role]), path, line, wanted[role]))
-
-
-def _block(columns: dict[str, _Column], lines: array) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """The rows gathered so far as arrays; the columns start the next block empty (a relative
-    column keeps its first cell)."""
-    values = {role: column.numbers() for role, column in columns.items()}
-    for column in columns.values():
-        column.values = array("d")
-    return values, np.frombuffer(lines, dtype=np.int64)
 
 
 def _retime(args, arrival_s: np.ndarray, lines: list[int]) -> Retiming:
@@ -375,14 +153,25 @@ def _report_retiming(r: Retiming, lines: list[int]) -> list[str]:
     return out
 
 
+@dataclass
+class Imported:
+    """What an import wrote, for its report."""
+
+    rows: int
+    last_t_s: float
+    skipped_rows: int  # rows without a time or an acceleration
+    notes: list[str]  # the re-timing's account, the check against a time column
+
+
 def run(args: argparse.Namespace) -> int:
+    """parse (the arguments, the output path) → do (the import) → report."""
     _check_args(args)
     check_output(args.out)  # before the work
-    if args.arrival_col or args.ref_delay_s != 0:
-        # the re-timing fits the whole file's arrivals, a delayed reference is resampled
-        # across rows: both need every row at once
-        return _run_whole(args)
-    return _run_streamed(args)
+    # the re-timing fits the whole file's arrivals, a delayed reference is resampled
+    # across rows: both need every row at once; otherwise the file is streamed
+    whole = args.arrival_col or args.ref_delay_s != 0
+    imported = _run_whole(args) if whole else _run_streamed(args)
+    return _wrote(args, imported)
 
 
 def _check_increasing(args, t_in: np.ndarray, lines: np.ndarray, before_s: float = -math.inf) -> None:
@@ -445,16 +234,18 @@ def _columns(args, values: dict[str, np.ndarray], t_s: np.ndarray, t_host_s: np.
     return columns
 
 
-def _wrote(args, rows: int, last_t_s: float, skipped: int, notes: list[str]) -> int:
+def _wrote(args, imported: Imported) -> int:
+    rows, last_t_s = imported.rows, imported.last_t_s
     rate = (rows - 1) / last_t_s
     print(f"wrote {args.out}: {rows} samples, {last_t_s:.3f} s, {rate:.1f} samples/s; "
-          f"skipped {skipped} rows without {args.arrival_col or args.time_col!r}/{args.acc_col!r}", file=sys.stderr)
-    for note in notes:
+          f"skipped {imported.skipped_rows} rows without {args.arrival_col or args.time_col!r}/{args.acc_col!r}",
+          file=sys.stderr)
+    for note in imported.notes:
         print(note, file=sys.stderr)
     return 0
 
 
-def _run_streamed(args: argparse.Namespace) -> int:
+def _run_streamed(args: argparse.Namespace) -> Imported:
     """A trusted time column: block by block from the file to the recording, so memory
     follows the block (BLOCK_ROWS rows), not the file. The rate is judged on the first
     block (a time column in the wrong unit is wrong on every row alike)."""
@@ -482,10 +273,10 @@ def _run_streamed(args: argparse.Namespace) -> int:
         if writer is not None:
             writer.abort()
         raise
-    return _wrote(args, rows, last_t_s, skipped.rows, [])
+    return Imported(rows, last_t_s, skipped.rows, [])
 
 
-def _run_whole(args: argparse.Namespace) -> int:
+def _run_whole(args: argparse.Namespace) -> Imported:
     values, lines, skipped = read_foreign(args)
     time_col = args.arrival_col or args.time_col
     need = RetimingSettings().min_rows if args.arrival_col else 2
@@ -533,4 +324,4 @@ def _run_whole(args: argparse.Namespace) -> int:
         t_s, t_host_s = t_in, None
     resample = args.ref_clock == "arrival" or args.ref_delay_s != 0
     write_recording(args.out, metadata, _columns(args, values, t_s, t_host_s, resample))
-    return _wrote(args, t_s.size, float(t_s[-1]), skipped, notes)
+    return Imported(t_s.size, float(t_s[-1]), skipped, notes)

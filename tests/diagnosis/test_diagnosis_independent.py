@@ -28,7 +28,7 @@ GENERATOR_FILES = sorted((ROOT / "testing" / "independent_generator").glob("*.py
 # the own simulator, and the diagnosis's candidate models: the generator makes each cause
 # the way it works, not in the form a candidate fits
 FORBIDDEN = ("gateway.core.simulator", "gateway.core.sensor_effects", "gateway.core.motion_profiles",
-             "gateway.core.filters", "gateway.core.diagnosis.signal_effects",
+             "gateway.core.filters", "gateway.core.diagnosis.signal_effects", "gateway.core.diagnosis.signal_interface",
              "gateway.core.diagnosis.side_effects", "gateway.core.model_compensation")
 
 

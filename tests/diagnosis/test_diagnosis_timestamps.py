@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-import gateway.core.diagnosis.selection as selection
+import gateway.core.diagnosis.placement as placement
 from gateway.cli import main
 from gateway.core.diagnosis.timestamps import TimestampError, check_host_clock, check_sample_clock
 from gateway.offline.recording import write_recording
@@ -86,7 +86,7 @@ def test_one_failing_gain_does_not_lose_the_report(monkeypatch):
     def broken(*args, **kwargs):
         raise ZeroDivisionError("float division by zero")
 
-    monkeypatch.setattr(selection, "distance_gain", broken)
+    monkeypatch.setattr(placement, "distance_gain", broken)
     result = run_diagnosis(data)
     assert [e.name for e in result.effects] == ["scale_factor"]  # judged without its distance
     dist = result.effects[0].gain["distance"]

@@ -321,7 +321,7 @@ def test_the_streamed_import_writes_what_the_whole_file_gives(tmp_path, capsys, 
     """A trusted time column goes block by block from the file to the recording (memory
     follows the block, not the file): cut into blocks of 7 rows, the very same recording as
     in one block; a time going back across a block's edge and a one-row file are named as before."""
-    import gateway.commands.import_csv as import_csv
+    import gateway.commands.foreign_csv as foreign_csv
 
     body = "".join(f"{1000 + 2 * i},{0.01 * (i % 5)},{i * 1e-3},{'' if i % 9 else 'rest'},{i}\n"
                    for i in range(100) if i != 40) + "1300,,1,,\n"  # a row without acceleration
@@ -330,14 +330,14 @@ def test_the_streamed_import_writes_what_the_whole_file_gives(tmp_path, capsys, 
             "--ref-pos-col", "pos", "--hint-col", "state", "--hint-rest-value", "rest", "--hint-moving-value", "run"]
     outputs = {}
     for block_rows in (7, 1 << 16):
-        monkeypatch.setattr(import_csv, "BLOCK_ROWS", block_rows)
+        monkeypatch.setattr(foreign_csv, "BLOCK_ROWS", block_rows)
         out = tmp_path / f"o{block_rows}.csv"
         assert cli_main([*args, "--out", str(out)]) == 0, capsys.readouterr().err
         assert "99 samples" in capsys.readouterr().err
         outputs[block_rows] = out.read_text()
     assert outputs[7] == outputs[1 << 16]
 
-    monkeypatch.setattr(import_csv, "BLOCK_ROWS", 7)
+    monkeypatch.setattr(foreign_csv, "BLOCK_ROWS", 7)
     back = _write(tmp_path, "t,acc\n" + rows(7) + "0.01,0\n" + rows(5, t=lambda i: 1 + i), name="back.csv")
     assert cli_main(["import", str(back), "--time-col", "t", "--acc-col", "acc", "--out", str(tmp_path / "b.csv")]) == 2
     assert "back.csv:9: column 't': time does not increase" in capsys.readouterr().err

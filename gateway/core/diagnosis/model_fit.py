@@ -16,7 +16,7 @@ from scipy.optimize import least_squares
 from gateway.core.diagnosis.context import Prepared
 from gateway.core.diagnosis.criterion import CvGain, block_ids, block_predictive_loglik, cv_gain
 from gateway.core.diagnosis.reading import gaussian_loglik
-from gateway.core.diagnosis.signal_effects import Signal, SignalEffect
+from gateway.core.diagnosis.signal_interface import Signal, SignalEffect
 
 BASELINE_PARAMS = ("offset_mps2", "drift_mps2")
 

@@ -33,7 +33,7 @@ from scipy.stats import chi2
 from gateway.core.diagnosis.context import USABLE_COLUMN_FRACTION, G, Prepared
 from gateway.core.diagnosis.criterion import MIN_CV_BLOCKS, CvGain, block_ids, block_predictive_loglik, cv_gain
 from gateway.core.diagnosis.reading import fit_noise_model, gaussian_loglik
-from gateway.core.diagnosis.signal_effects import Compensation
+from gateway.core.diagnosis.signal_interface import Compensation
 
 # The baseline host link (sensor_model.HostLinkParams): exponential latency, mean 0.2 ms.
 BASELINE_LATENCY_MEAN_S = 0.2e-3

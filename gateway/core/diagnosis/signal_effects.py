@@ -13,110 +13,21 @@ Each effect gives starting values from the current residual (a grid or a linear 
 the joint non-linear fit then only polishes them), bounds, and how the estimator can
 use it (`compensate`): the measured acceleration corrected, or a setting changed.
 Parameters are fitted in SI units; `report` turns them into the units people quote.
+The interface they implement and the model state they change: signal_interface.py.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from gateway.core.diagnosis.context import MIN_TEMPERATURE_STD_C, USABLE_COLUMN_FRACTION, G, Prepared
+from gateway.core.diagnosis.context import MIN_TEMPERATURE_STD_C, USABLE_COLUMN_FRACTION, G
 from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC
 from gateway.core.diagnosis.reading import shifted
+from gateway.core.diagnosis.signal_interface import Compensation, SignalEffect, _grid_best, _ls_coefficient
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
-from gateway.core.model_compensation import SampleContext, compensate_term, other_axis_motion
+from gateway.core.model_compensation import compensate_term, other_axis_motion
 from gateway.core.sensor_model import edge_reading_excess_mps2
-
-
-@dataclass
-class Signal:
-    """The model's state between stages."""
-
-    # the baseline sensor's reading of the motion (m/s²) on the full sample grid: lost
-    # samples included, so the filters of stage 1 run through gaps as the sensor did
-    full: np.ndarray
-    where: np.ndarray  # the received samples' places in it
-    pos_m: np.ndarray | None
-    out: np.ndarray | None = None  # the predicted measurement (received samples), from stage 2 on
-
-    @property
-    def reading(self) -> np.ndarray:
-        return self.full[self.where]
-
-    def copy(self) -> Signal:
-        return Signal(self.full.copy(), self.where, None if self.pos_m is None else self.pos_m.copy())
-
-
-@dataclass
-class Compensation:
-    """What the estimator does differently when it knows the effect."""
-
-    acc_mps2: np.ndarray | None = None  # corrected measurement
-    invalid: np.ndarray | None = None  # samples to treat as missing
-    settings: dict = field(default_factory=dict)  # EstimatorSettings overrides
-    ref_shift_s: float = 0.0  # the reference is read this much later
-    note: str = ""
-
-
-class SignalEffect:
-    name = ""
-    summary = ""
-    stage = 2
-    param_names: tuple[str, ...] = ()
-    # a property every setup has (fitted inside its range, reported as measured, never named)
-    setup_only = False
-
-    def unusable(self, prep: Prepared) -> str | None:
-        """Why this effect cannot be looked for in this recording (None: it can)."""
-        return None if prep.data.reference == "recorded" else "needs the recorded reference motion"
-
-    def initial(self, prep: Prepared, residual: np.ndarray, sig: Signal) -> np.ndarray:
-        raise NotImplementedError
-
-    def bounds(self, prep: Prepared) -> tuple[list[float], list[float]]:
-        n = len(self.param_names)
-        return [-np.inf] * n, [np.inf] * n
-
-    def apply(self, prep: Prepared, theta: np.ndarray, sig: Signal) -> None:
-        raise NotImplementedError
-
-    def report(self, theta: np.ndarray, std: np.ndarray) -> dict[str, tuple[float, float]]:
-        return {n: (float(v), float(s)) for n, v, s in zip(self.param_names, theta, std, strict=False)}
-
-    def compensate(self, prep: Prepared, theta: np.ndarray, acc: np.ndarray, est: SampleContext) -> Compensation | None:
-        return None
-
-    def model_params(self, prep: Prepared, theta: np.ndarray) -> dict[str, float]:
-        """The parameters as the model file keeps them (SI units; model_compensation reads them)."""
-        return {n: float(v) for n, v in zip(self.param_names, theta, strict=False)}
-
-    def full_scale_gain(self, theta: np.ndarray) -> float:
-        """How this effect changes where the part's saturation reads (1: not at all)."""
-        return 1.0
-
-
-def _ls_coefficient(residual: np.ndarray, regressor: np.ndarray, mask: np.ndarray) -> float:
-    x = regressor[mask] - regressor[mask].mean()
-    y = residual[mask] - residual[mask].mean()
-    den = float(np.dot(x, x))
-    return float(np.dot(x, y)) / den if den > 0 else 0.0
-
-
-def _grid_best(prep: Prepared, residual, sig: Signal, effect, grid):
-    """The grid point whose model change best explains the residual (with a free scale)."""
-    best, best_cost = grid[0], np.inf
-    m = prep.fit_mask
-    for theta in grid:
-        trial = sig.copy()
-        effect.apply(prep, np.asarray(theta, dtype=float), trial)
-        delta = trial.reading - sig.reading
-        r = residual - delta
-        r = r[m] - r[m].mean()
-        cost = float(np.dot(r, r))
-        if cost < best_cost:
-            best, best_cost = theta, cost
-    return np.asarray(best, dtype=float)
 
 
 class ScaleFactor(SignalEffect):
