@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from gateway.daemon.status_flags import EVENT_HOLD_S
 from tests.vmcan.harness import REPO_ROOT, VmResult, VmSettings, default_guest_env, run_in_can_vm
 
 pytestmark = [pytest.mark.vm, pytest.mark.slow]
@@ -80,9 +81,15 @@ def security_line(report: dict) -> str | None:
 
 
 def test_driver_ran_to_the_end(report):
-    # what the daemon logged last says why the driver stopped (a closed connection, a timeout)
-    journal_tail = "\n".join(report.get("journal", "").splitlines()[-30:])
-    assert "driver_error" not in report, f"{report['driver_error']}\nthe unit's journal, last lines:\n{journal_tail}"
+    # what the daemon logged last says why the driver stopped (a closed connection, a timeout);
+    # systemd's own lines about the unit (a watchdog timeout, an exit, a restart) and the
+    # daemon's errors say whether the gateway was restarted under the driver
+    lines = report.get("journal", "").splitlines()
+    journal_tail = "\n".join(lines[-30:])
+    unit_events = "\n".join([line for line in lines if "systemd[" in line or " ERROR " in line
+                             or "Traceback" in line][-20:])
+    assert "driver_error" not in report, (f"{report['driver_error']}\nsystemd's lines and the daemon's errors:\n"
+                                          f"{unit_events}\nthe unit's journal, last lines:\n{journal_tail}")
 
 
 def start_failure(report: dict, vm_run: VmResult) -> str:
@@ -123,7 +130,15 @@ def test_reload_keeps_the_modbus_connection(report):
     seen = {k: reload.get(k) for k in ("same_connection", "config_reloaded_bit", "status_after",
                                        "bit_seen_after_s", "logged_after_s", "reads", "slowest_read_s",
                                        "dropped_watchers")}
-    assert reload["same_connection"] and reload["config_reloaded_bit"], seen
+    assert reload["same_connection"], seen
+    # CONFIG_RELOADED is an event held EVENT_HOLD_S after the reload (the native reload tests
+    # check it read for read). Polled here under emulation it is seen unless the reads
+    # themselves took longer than the hold (a read that waits out the hold cannot see it):
+    # then the VM cannot tell, and the report says so.
+    assert reload["config_reloaded_bit"] or reload["slowest_read_s"] >= EVENT_HOLD_S, seen
+    if not reload["config_reloaded_bit"]:
+        print(f"\nCONFIG_RELOADED not observable under emulation: a read took {reload['slowest_read_s']} s "
+              f"(hold {EVENT_HOLD_S} s)")
     assert reload["restarts"] == 0 and reload["main_pid"] == int(report["start"]["MainPID"]), reload
 
 
