@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.harness import stamp
 from gateway.cli import main as adxlgw
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
 from gateway.offline.recording import write_recording
@@ -118,6 +119,7 @@ def main() -> int:
                    help="also print what the simulation assumes, measured on the file (noise, vibration, timing, "
                         "reference)")
     args = p.parse_args()
+    stamp("benchmarks.accuracy.diagnosis_real_data")
     src = Path(args.leiria_csv)
     if args.facts:
         print("\n".join(facts(src)), flush=True)
