@@ -40,13 +40,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from gateway.core.chi2 import chi2_isf
+from gateway.core.reference_point import MAD_TO_SIGMA
 
-# The largest latency searched (either way): a PLC cycle, a fieldbus and a servo's
-# settling are tens to a hundred ms; 0.3 s is three times the longest lead measured on
-# the robot recordings (issue 29: 50–120 ms) and shorter than any stop worth a ZUPT.
+# The largest latency searched (either way), a physical bound: a PLC cycle (1–20 ms), a
+# fieldbus (1–10 ms) and a servo's settling into its in-position window (tens of ms, up to
+# ~100 ms) add to at most ~0.1 s; searched to three times that, so a true latency is never
+# at the edge of the search.
 MAX_LATENCY_S = 0.3
-# MAD → σ for normal noise
-MAD_TO_SIGMA = 1.4826
 # The fewest edges whose median is a latency: with three, one edge whose neighbourhood
 # holds other motion (the other axes moving, a tool turning) cannot move the median.
 MIN_EDGES = 3
