@@ -104,6 +104,11 @@ SCHEMA: tuple[Key, ...] = (
         "(socket://host:port, loop://), or \"emulated\" for the built-in virtual board (simulated "
         "values, flagged on every wire). No default: adxlgw run refuses to start until it is set.",
         _nonempty, example="/dev/ttyUSB0"),
+    Key("serial", "emulated_rset_kohm", 250.0, float,
+        "RSET of the built-in emulated board's ADXL202 (port = \"emulated\" only), kΩ: it sets the "
+        "sensor period, T2 = RSET / 125 MΩ (data sheet: T2 0.5–10 ms). 250: the board's 2 ms, 500 "
+        "samples/s; 1250: 10 ms, 100 samples/s. Read when the emulated board starts.",
+        _range(62.5, 1250)),
     Key("serial", "baudrate", 115200, int, "Line speed of the board (8N1).", _range(1200, 4_000_000)),
     Key("serial", "reconnect_min_s", 0.2, float, "First wait before reopening a lost port, s.", _range(0.01, 60)),
     Key("serial", "reconnect_max_s", 5.0, float, "Longest wait between reopen attempts, s.", _range(0.01, 600)),

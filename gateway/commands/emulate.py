@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import signal
@@ -12,7 +13,14 @@ import time
 import serial
 
 from drivers.pty_port import PtyPort
-from gateway.commands.common import StopOnSignal, add_scenario_options, non_negative_float, scenario_from_args
+from gateway.commands.common import (
+    StopOnSignal,
+    add_scenario_options,
+    non_negative_float,
+    positive_float,
+    scenario_from_args,
+)
+from gateway.core.sensor_model import BOARD_SENSOR
 from gateway.emulator import EmulatorSettings, FaultSettings, Pacer, board_schedule
 from gateway.errors import DeviceError
 
@@ -39,6 +47,9 @@ def add_parser(sub) -> None:
     p.add_argument("--exit-with-stdin", action="store_true",
                    help="stop when standard input reaches its end: a parent that holds the other end of a "
                         "pipe takes the board with it when it dies, even by SIGKILL")
+    p.add_argument("--rset-kohm", type=rset_kohm, default=BOARD_SENSOR.rset_ohm / 1e3,
+                   help="the ADXL202's RSET, kΩ: it sets the sensor period, T2 = RSET / 125 MΩ (data sheet: "
+                        "0.5–10 ms, so 62.5–1250 kΩ); default: the board's 250 kΩ, 2 ms, 500 samples/s")
     p.add_argument("--linger", type=non_negative_float, default=1.0,
                    help="keep the port open this long after the last frame, s (default: 1)")
     f = p.add_argument_group("faults (each: period in seconds of board time; 0 = off)")
@@ -80,9 +91,18 @@ def _stop_at_end_of_stdin() -> None:
     os.kill(os.getpid(), signal.SIGTERM)
 
 
+def rset_kohm(text: str) -> float:
+    """--rset-kohm: within the data sheet's T2 range (0.5–10 ms at 125 MΩ per second)."""
+    value = positive_float(text)
+    if not 62.5 <= value <= 1250:
+        raise argparse.ArgumentTypeError(f"{text}: RSET must be within 62.5–1250 kΩ (T2 0.5–10 ms, ADXL202 data sheet)")
+    return value
+
+
 def _settings(args: argparse.Namespace) -> EmulatorSettings:
     return EmulatorSettings(
         scenario=scenario_from_args(args),
+        sensor=dataclasses.replace(BOARD_SENSOR, rset_ohm=args.rset_kohm * 1e3),
         seed=args.seed,
         loop=args.loop,
         faults=FaultSettings(

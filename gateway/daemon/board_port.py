@@ -47,7 +47,8 @@ class BoardPort:
         imports and first frames take seconds — the demo showed "board None" that long),
         while the daemon loads its estimator."""
         if self._config().serial.port == "emulated" and self._emulated_start is None:
-            self._emulated = EmulatedBoard()
+            rset_kohm = self._config().serial.emulated_rset_kohm
+            self._emulated = EmulatedBoard(extra_args=("--rset-kohm", f"{rset_kohm:g}"))
             self._emulated_start = asyncio.create_task(self._emulated.start(), name="emulated-board")
 
     async def _board_path(self) -> str:

@@ -74,6 +74,9 @@ def findings(cfg: Config, running: Config | None = None) -> list[Finding]:
             found.append(Finding("serial.port", "note", "the built-in emulated board: every value is simulated"))
     else:
         found += _link("serial.port", check_serial_port(port))
+    if port == EMULATED and running is not None and changed("serial", "emulated_rset_kohm"):
+        found.append(Finding("serial.emulated_rset_kohm", "error",
+                             "read when the emulated board starts: restart the gateway to apply it"))
     if cfg.service.view and importlib.util.find_spec("rich") is None:
         found.append(Finding("service.view", "error", "the live view needs the offline tools: "
                              "pip install 'adxl-gateway[offline]'"))

@@ -13,6 +13,7 @@ from gateway.core.simulator import simulate
 from gateway.offline.recording import read_recording, to_acceleration
 
 CLI = [sys.executable, "-m", "gateway.cli"]
+LINGER_FOR_A_SLOW_READER_S = 5
 
 
 def start_emulator(*args):
@@ -61,13 +62,15 @@ def test_record_once_on_a_missing_port_exits_3_with_a_clear_message(tmp_path):
 
 def test_record_without_once_keeps_retrying_until_the_port_appears(tmp_path):
     link = tmp_path / "board"
-    rec = subprocess.Popen([*CLI, "record", "--port", link, "--out", tmp_path / "r.csv", "--duration", "6"],
+    # no --duration: a fixed one ran out before a slow machine had the emulator up; the
+    # recorder is stopped by SIGTERM (an orderly stop, exit 0) once the board is done
+    rec = subprocess.Popen([*CLI, "record", "--port", link, "--out", tmp_path / "r.csv"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(1.0)  # the recorder is retrying: the port does not exist yet
-    emu, path = start_emulator("--strokes", 1, "--link", link, "--linger", "0", "--rest-s", "0.5")
+    emu, path = start_emulator("--strokes", 1, "--link", link, "--linger", "2", "--rest-s", "0.5")
+    emu.wait(timeout=120)
+    rec.terminate()
     out, err = rec.communicate(timeout=60)
-    emu.kill()
-    emu.wait()
     assert rec.returncode == 0, err
     assert "retrying" in err
     recording = read_recording(tmp_path / "r.csv")
@@ -75,8 +78,11 @@ def test_record_without_once_keeps_retrying_until_the_port_appears(tmp_path):
 
 
 def test_emulator_faults_reach_the_decoder_and_are_counted(tmp_path):
+    # --fast writes as fast as the recorder reads; the last bytes still sit in the pty when
+    # the board is done, and closing it then drops them: --linger gives a recorder slowed by a
+    # loaded machine time to read them (0.5 s failed once beside a VM test)
     emu, path = start_emulator("--strokes", 2, "--fast", "--garbage-every", "0.5", "--drop-every", "0.7",
-                               "--reset-every", "3", "--linger", "0.5")
+                               "--reset-every", "3", "--linger", LINGER_FOR_A_SLOW_READER_S)
     out = tmp_path / "rec.csv"
     rec = subprocess.run([*CLI, "record", "--port", path, "--out", out, "--once"],
                          capture_output=True, text=True, timeout=120)
@@ -91,3 +97,25 @@ def test_emulator_faults_reach_the_decoder_and_are_counted(tmp_path):
     assert second.columns["seq"][0] == 0
     series = to_acceleration(second)
     assert np.all(np.diff(series.t_s) > 0)
+
+
+def test_the_emulated_boards_rset_sets_its_sensor_period(tmp_path):
+    """--rset-kohm 1250: T2 = RSET / 125 MΩ = 10 ms (the part's +0.5 % T2 error on top), so
+    100 samples per second of board time, each carrying that period in ticks."""
+    emu, path = start_emulator("--scenario", "standstill", "--duration", 2, "--rset-kohm", 1250, "--fast",
+                               "--linger", LINGER_FOR_A_SLOW_READER_S)
+    out = tmp_path / "rec.csv"
+    rec = subprocess.run([*CLI, "record", "--port", path, "--out", out, "--once"],
+                         capture_output=True, text=True, timeout=120)
+    emu.wait(timeout=30)
+    assert rec.returncode == 3, rec.stderr
+    c = read_recording(out).columns
+    t2_s = c["t2"] / 921600
+    assert np.median(t2_s) == pytest.approx(0.010 * 1.005, rel=2e-3)
+    assert len(c["t2"]) == pytest.approx(2 / 0.01005, abs=2)
+
+
+def test_an_rset_outside_the_data_sheets_range_is_refused():
+    r = subprocess.run([*CLI, "emulate", "--rset-kohm", "5000"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert "RSET must be within 62.5–1250 kΩ" in r.stderr

@@ -49,6 +49,8 @@ def test_the_board_port_has_no_default_and_can_defaults_to_socketcan():
         ("[calibration]\nsensitivity_x = 0.0\n", "calibration.sensitivity_x = 0.0 must be > 0.0"),
         ("[serial]\nreconnect_min_s = 9.0\nreconnect_max_s = 1.0\n", "must not exceed serial.reconnect_max_s"),
         ("[serial]\nbatch_frames = 18\n", "serial.batch_frames = 18 must be ≤ 17"),
+        # the ADXL202 data sheet's T2 range, 0.5-10 ms, at T2 = RSET / 125 MOhm
+        ("[serial]\nemulated_rset_kohm = 2000.0\n", "serial.emulated_rset_kohm = 2000.0 must be ≤ 1250"),
         ("[serial\n", "not valid TOML"),
         ("[serial]\nport = \"\"\n", "serial.port = '' must not be empty"),
         ("[serial]\nstale_after_ms = 3000\nlost_after_ms = 2000\n",

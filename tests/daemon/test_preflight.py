@@ -90,6 +90,17 @@ def test_a_reload_is_checked_only_on_what_it_changes_and_refused_whole(tmp_path)
         refuse_reload(board, board.replace({"serial.port": "/dev/ttyNOSUCH7"}))
 
 
+def test_a_reload_that_changes_the_emulated_boards_rset_is_refused(tmp_path):
+    """The emulated board's RSET sets its sensor period when the board starts: a reload
+    cannot change it, so it is refused whole (not applied halfway, not ignored)."""
+    from gateway.daemon.preflight import refuse_reload
+
+    running = config(tmp_path, serial={"port": "emulated"})
+    refuse_reload(running, running.replace({"can.period_ms": 20}))
+    with pytest.raises(ConfigError, match="serial.emulated_rset_kohm: read when the emulated board starts"):
+        refuse_reload(running, running.replace({"serial.emulated_rset_kohm": 1250.0}))
+
+
 def test_config_check_and_run_give_the_same_verdict(tmp_path):
     """One function for both: a file `config --check` passes, run starts with; one it fails, run refuses."""
     path = tmp_path / "gw.toml"
