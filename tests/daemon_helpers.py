@@ -76,3 +76,11 @@ async def read_inputs(client: AsyncModbusTcpClient, word_order: WordOrder = Word
     assert not rr.isError(), rr
     regs = rr.registers
     return {r.name: decode_register(r, regs[r.address:r.address + r.words], word_order) for r in INPUT_REGISTERS}
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(") ")[1][0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False

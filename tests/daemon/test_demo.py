@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.daemon_helpers import alive
+
 pytestmark = pytest.mark.slow
 CLI = [sys.executable, "-m", "gateway.cli"]
 
@@ -23,14 +25,6 @@ def free_port() -> int:
 def children(pid: int) -> list[int]:
     with open(f"/proc/{pid}/task/{pid}/children") as fh:
         return [int(p) for p in fh.read().split()]
-
-
-def alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().split(") ")[1][0] != "Z"  # a zombie has ended
-    except FileNotFoundError:
-        return False
 
 
 class Demo:

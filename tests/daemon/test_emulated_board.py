@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-from tests.daemon.test_demo import alive
+from tests.daemon_helpers import alive
 
 PARENT = """
 import asyncio, sys, time

@@ -17,7 +17,7 @@ import pytest
 from drivers.modbus_map import WordOrder
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import StatusBits
-from tests.modbus.test_modbus_server import (
+from tests.modbus_helpers import (
     decode,
     read_table,
     rtu_client,

@@ -1,23 +1,17 @@
-"""The Modbus server against real clients: pymodbus, raw sockets, mbpoll, and RTU over a pty pair."""
+"""The Modbus server against real clients: pymodbus and raw sockets (RTU and mbpoll: their own files)."""
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 import random
-import shutil
 import socket
 import struct
-import subprocess
 import time
-from collections.abc import AsyncIterator, Callable
-from pathlib import Path
 
 import numpy as np
 import pytest
-from pymodbus.client import AsyncModbusSerialClient, AsyncModbusTcpClient
-from pymodbus.exceptions import ModbusException
+from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.modbus_map import (
     BY_NAME,
@@ -26,103 +20,24 @@ from drivers.modbus_map import (
     INPUT_SIZE,
     MAP_VERSION,
     VALUE_ROWS,
-    RegType,
     WordOrder,
     encode_input_registers,
 )
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import Command, PublishedValues, StatusBits
-
-DT = AsyncModbusTcpClient.DATATYPE
-PYMODBUS_ORDER = {WordOrder.ABCD: "big", WordOrder.CDAB: "little"}
-CLIENT_TYPE = {
-    RegType.FLOAT32: DT.FLOAT32,
-    RegType.INT32: DT.INT32,
-    RegType.UINT32: DT.UINT32,
-    RegType.UINT16: DT.UINT16,
-    RegType.INT16: DT.INT16,
-    RegType.BITFIELD: DT.UINT16,
-}
-
-SAMPLE = PublishedValues(
-    position_m=0.123456,
-    velocity_mps=-0.75,
-    acceleration_mps2=9.80665,
-    status=StatusBits.VALID | StatusBits.STANDSTILL | StatusBits.NOT_REFERENCED,
-    heartbeat=70000,  # wraps to 4464 on the wire
-    sample_counter=123456789,
-    last_sample_age_ms=3.4,
-    bias_estimate_mps2=-0.0123,
-    position_std_m=0.0015,
-    board_temp_c=31.27,
-    lost_samples=5,
-    crc_errors=2,
-    board_resets=1,
-    can_send_errors=9,
+from tests.modbus_helpers import (
+    SAMPLE,
+    Recorder,
+    decode,
+    expected_raw,
+    mbap,
+    raw_exchange,
+    read_table,
+    run,
+    serving,
+    tcp_client,
+    tcp_config,
 )
-
-
-def run(coro, timeout_s: float = 30.0):
-    return asyncio.run(asyncio.wait_for(coro, timeout_s))
-
-
-def tcp_config(**overrides) -> ModbusServerConfig:
-    return ModbusServerConfig(**{"host": "127.0.0.1", "port": 0, **overrides})
-
-
-@contextlib.asynccontextmanager
-async def serving(
-    config: ModbusServerConfig, on_command: Callable | None = None, values: PublishedValues = SAMPLE
-) -> AsyncIterator[ModbusServer]:
-    server = ModbusServer(config, on_command)
-    await server.start()
-    server.update(values)
-    try:
-        yield server
-    finally:
-        await server.stop()
-
-
-@contextlib.asynccontextmanager
-async def tcp_client(port: int, source_ip: str | None = None) -> AsyncIterator[AsyncModbusTcpClient]:
-    client = AsyncModbusTcpClient(
-        "127.0.0.1",
-        port=port,
-        source_address=(source_ip, 0) if source_ip else None,
-        timeout=2,
-        retries=0,
-        reconnect_delay=0,
-    )
-    assert await client.connect()
-    try:
-        yield client
-    finally:
-        client.close()
-
-
-def expected_raw(name: str, values: PublishedValues) -> float | int:
-    """What a client must read, from the published values and the table's scale."""
-    row = BY_NAME[name]
-    value = {"MAP_VERSION": MAP_VERSION, "STATUS": int(values.status)}.get(name)
-    if value is None:
-        value = getattr(values, row.source)
-    if row.type is RegType.FLOAT32:
-        return float(np.float32(value))
-    if row.wraps:
-        return int(value) % 2 ** (16 * row.words)
-    return round(value / row.scale)
-
-
-async def read_table(client: AsyncModbusTcpClient | AsyncModbusSerialClient, device_id: int = 1) -> list[int]:
-    response = await client.read_input_registers(0, count=INPUT_SIZE, device_id=device_id)
-    assert not response.isError(), response
-    return list(response.registers)
-
-
-def decode(client, words: list[int], name: str, order: WordOrder) -> float | int:
-    row = BY_NAME[name]
-    regs = words[row.address : row.address + row.words]
-    return client.convert_from_registers(regs, CLIENT_TYPE[row.type], word_order=PYMODBUS_ORDER[order])
 
 
 # --------------------------------------------------------------------------- #
@@ -268,16 +183,6 @@ def test_a_register_pair_never_mixes_two_snapshots() -> None:
 # --------------------------------------------------------------------------- #
 # Commands
 # --------------------------------------------------------------------------- #
-class Recorder:
-    def __init__(self, answer: bool | Exception = True) -> None:
-        self.calls: list[tuple[Command, str]] = []
-        self.answer = answer
-
-    def __call__(self, command: Command, source: str) -> bool:
-        self.calls.append((command, source))
-        if isinstance(self.answer, Exception):
-            raise self.answer
-        return self.answer
 
 
 def test_tare_is_executed_echoed_and_auto_cleared() -> None:
@@ -432,21 +337,8 @@ def test_illegal_values_addresses_and_functions() -> None:
 # --------------------------------------------------------------------------- #
 # Robustness
 # --------------------------------------------------------------------------- #
-def mbap(transaction: int, pdu: bytes, unit: int = 1, protocol: int = 0) -> bytes:
-    return struct.pack(">HHHB", transaction, protocol, len(pdu) + 1, unit) + pdu
 
 
-async def raw_exchange(port: int, data: bytes, wait_s: float = 0.3) -> bytes:
-    reader, writer = await asyncio.open_connection("127.0.0.1", port)
-    try:
-        writer.write(data)
-        await writer.drain()
-        try:
-            return await asyncio.wait_for(reader.read(1024), wait_s)
-        except TimeoutError:
-            return b""
-    finally:
-        writer.close()
 
 
 def test_malformed_requests_do_not_disturb_other_clients() -> None:
@@ -572,155 +464,3 @@ def test_start_on_a_busy_port_raises_modbus_server_error() -> None:
 def test_config_validation(overrides: dict) -> None:
     with pytest.raises(ModbusServerError):
         ModbusServerConfig(**overrides)
-
-
-# --------------------------------------------------------------------------- #
-# mbpoll, a Modbus master written by other people
-# --------------------------------------------------------------------------- #
-MBPOLL = shutil.which("mbpoll")
-
-
-async def mbpoll(port: int, *args: str) -> dict[int, str]:
-    process = await asyncio.create_subprocess_exec(
-        MBPOLL, "-m", "tcp", "-a", "1", "-1", "-o", "2", "-p", str(port), *args, "127.0.0.1",
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-    )
-    out, err = await asyncio.wait_for(process.communicate(), 15)
-    assert process.returncode == 0, err.decode()
-    values = {}
-    for line in out.decode().splitlines():
-        if line.startswith("[") and "]:" in line:
-            ref, value = line.split("]:", 1)
-            values[int(ref.strip("["))] = value.strip()
-    return values
-
-
-@pytest.mark.skipif(MBPOLL is None, reason="mbpoll not installed (Debian package mbpoll)")
-def test_mbpoll_reads_the_documented_plc_references() -> None:
-    async def scenario() -> None:
-        async with serving(tcp_config()) as server:
-            port = server.tcp_port
-            # -r is 1-based: reference 1 is address 0 (MAP_VERSION), i.e. PLC 30001
-            head = await mbpoll(port, "-r", "1", "-c", "3", "-t", "3")
-            assert head == {1: str(MAP_VERSION), 2: str(int(SAMPLE.status)), 3: str(SAMPLE.heartbeat % 65536)}
-            position_ref = BY_NAME["POSITION"].plc_reference - 30000
-            floats = await mbpoll(port, "-r", str(position_ref), "-c", "1", "-t", "3:float", "-B")
-            assert float(floats[position_ref]) == pytest.approx(SAMPLE.position_m, rel=1e-6)
-            um_ref = BY_NAME["POSITION_UM"].plc_reference - 30000
-            ints = await mbpoll(port, "-r", str(um_ref), "-c", "1", "-t", "3:int", "-B")
-            assert int(ints[um_ref]) == round(SAMPLE.position_m * 1e6)
-            temp_ref = BY_NAME["BOARD_TEMPERATURE"].plc_reference - 30000
-            temp = await mbpoll(port, "-r", str(temp_ref), "-c", "1", "-t", "3")
-            assert int(temp[temp_ref]) == round(SAMPLE.board_temp_c * 100)
-
-        # mbpoll's default 32-bit order is low word first: our CDAB
-        async with serving(tcp_config(word_order=WordOrder.CDAB)) as server:
-            position_ref = BY_NAME["VELOCITY"].plc_reference - 30000
-            floats = await mbpoll(server.tcp_port, "-r", str(position_ref), "-c", "1", "-t", "3:float")
-            assert float(floats[position_ref]) == SAMPLE.velocity_mps
-
-    run(scenario())
-
-
-# --------------------------------------------------------------------------- #
-# RTU over a pty pair made by socat
-# --------------------------------------------------------------------------- #
-SOCAT = shutil.which("socat")
-
-
-@pytest.fixture
-def pty_pair(tmp_path: Path):
-    if SOCAT is None:
-        pytest.skip("socat not installed (Debian package socat)")
-    server_end, client_end = tmp_path / "server", tmp_path / "client"
-    process = subprocess.Popen(
-        [SOCAT, "-d", "-d", f"pty,raw,echo=0,link={server_end}", f"pty,raw,echo=0,link={client_end}"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-    )
-    deadline = time.monotonic() + 5
-    while not (server_end.exists() and client_end.exists()):
-        assert process.poll() is None, process.stderr.read().decode()
-        assert time.monotonic() < deadline, "socat did not create the pty pair"
-        time.sleep(0.01)
-    try:
-        yield str(server_end), str(client_end)
-    finally:
-        process.terminate()
-        process.wait(5)
-        process.stderr.close()
-
-
-def rtu_config(port: str, **overrides) -> ModbusServerConfig:
-    return ModbusServerConfig(
-        # a pty rejects parity settings (EINVAL); real RS-485 lines use the E default
-        **{"tcp_enabled": False, "rtu_enabled": True, "rtu_port": port, "unit_id": 7, "rtu_parity": "N", **overrides}
-    )
-
-
-@contextlib.asynccontextmanager
-async def rtu_client(port: str, timeout_s: float = 1.0) -> AsyncIterator[AsyncModbusSerialClient]:
-    client = AsyncModbusSerialClient(port, baudrate=19200, parity="N", timeout=timeout_s, retries=0, reconnect_delay=0)
-    assert await client.connect()
-    try:
-        yield client
-    finally:
-        client.close()
-
-
-def test_rtu_serves_the_same_registers_and_only_its_unit_id(pty_pair) -> None:
-    server_end, client_end = pty_pair
-    recorder = Recorder()
-
-    async def scenario() -> None:
-        async with serving(rtu_config(server_end, writes_enabled=True), recorder) as server:
-            assert server.tcp_port is None
-            async with rtu_client(client_end) as client:
-                words = await read_table(client, device_id=7)
-                for name in ("POSITION", "VELOCITY_UM_S", "SAMPLE_COUNTER", "BOARD_TEMPERATURE", "STATUS"):
-                    assert decode(client, words, name, WordOrder.ABCD) == expected_raw(name, SAMPLE), name
-                # writes need rtu_writes_enabled on top of writes_enabled
-                refused = await client.write_register(0, 1, device_id=7)
-                assert refused.isError() and refused.exception_code == 1
-            async with rtu_client(client_end, timeout_s=0.3) as client:
-                # another device's unit id: silence, so a real device 3 could answer
-                with pytest.raises(ModbusException):
-                    await client.read_input_registers(0, count=1, device_id=3)
-            async with rtu_client(client_end) as client:
-                assert not (await client.read_input_registers(0, count=1, device_id=7)).isError()
-            assert server.counters.rejected_writes == 1
-
-    run(scenario())
-    assert recorder.calls == []
-
-
-def test_rtu_writes_when_enabled_name_the_serial_port(pty_pair) -> None:
-    server_end, client_end = pty_pair
-    recorder = Recorder()
-
-    async def scenario() -> None:
-        config = rtu_config(server_end, writes_enabled=True, rtu_writes_enabled=True)
-        async with serving(config, recorder), rtu_client(client_end) as client:
-            response = await client.write_register(0, 1, device_id=7)
-            assert not response.isError(), response
-
-    run(scenario())
-    assert recorder.calls == [(Command.TARE, f"modbus-rtu:{server_end}:unit7")]
-
-
-def test_tcp_and_rtu_share_one_image(pty_pair) -> None:
-    server_end, client_end = pty_pair
-
-    async def scenario() -> None:
-        config = tcp_config(rtu_enabled=True, rtu_port=server_end, unit_id=7, rtu_parity="N")
-        async with serving(config) as server:
-            server.update(PublishedValues(position_m=-4.5, status=StatusBits.VALID))
-            async with tcp_client(server.tcp_port) as tcp, rtu_client(client_end) as rtu:
-                for client, device_id in ((tcp, 1), (rtu, 7)):
-                    words = await read_table(client, device_id=device_id)
-                    assert decode(client, words, "POSITION", WordOrder.ABCD) == -4.5
-                    assert math.isnan(decode(client, words, "VELOCITY", WordOrder.ABCD))
-                # both wires count into the same counters
-                assert server.counters.requests == 2
-
-    run(scenario())

@@ -17,7 +17,7 @@ import pytest
 from drivers.modbus_map import BY_NAME, MAP_VERSION, WordOrder
 from drivers.modbus_requests import MAX_QUEUED_REQUESTS
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
-from tests.modbus.test_modbus_server import (
+from tests.modbus_helpers import (
     SAMPLE,
     Recorder,
     decode,
@@ -312,7 +312,7 @@ def test_peer_errors_are_logged_once_per_interval_with_a_count(caplog) -> None:
 
 def test_a_hint_written_every_cycle_is_logged_once_per_interval(caplog) -> None:
     """A PLC writes CMD_HINT_AT_REST every cycle, as the register map says: one line, not one per write."""
-    from tests.modbus.test_modbus_server import Recorder
+    from tests.modbus_helpers import Recorder
 
     async def scenario() -> None:
         async with serving(tcp_config(writes_enabled=True, peer_log_interval_s=60), Recorder()) as server:

@@ -14,8 +14,8 @@ from hypothesis import strategies as st
 from gateway.cli import main as cli_main
 from gateway.offline.recording import MAX_LINE_BYTES, read_recording, to_acceleration
 from testing import hostile_files
+from testing.arrival_times import bursty_arrivals
 from testing.hostile_files import run_measured
-from tests.estimation.test_retiming import bursty_arrivals
 from tests.pty_helpers import stderr_on_a_pty
 
 REPO = Path(__file__).resolve().parents[2]
