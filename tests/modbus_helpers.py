@@ -18,7 +18,7 @@ from drivers.modbus_map import (
     WordOrder,
 )
 from drivers.modbus_server import ModbusServer, ModbusServerConfig
-from drivers.published_values import Command, PublishedValues, StatusBits
+from drivers.published_values import PublishedValues, StatusBits
 
 DT = AsyncModbusTcpClient.DATATYPE
 
@@ -54,8 +54,6 @@ SAMPLE = PublishedValues(
 )
 
 
-def run(coro, timeout_s: float = 30.0):
-    return asyncio.run(asyncio.wait_for(coro, timeout_s))
 
 
 def tcp_config(**overrides) -> ModbusServerConfig:
@@ -117,16 +115,6 @@ def decode(client, words: list[int], name: str, order: WordOrder) -> float | int
     return client.convert_from_registers(regs, CLIENT_TYPE[row.type], word_order=PYMODBUS_ORDER[order])
 
 
-class Recorder:
-    def __init__(self, answer: bool | Exception = True) -> None:
-        self.calls: list[tuple[Command, str]] = []
-        self.answer = answer
-
-    def __call__(self, command: Command, source: str) -> bool:
-        self.calls.append((command, source))
-        if isinstance(self.answer, Exception):
-            raise self.answer
-        return self.answer
 
 
 def mbap(transaction: int, pdu: bytes, unit: int = 1, protocol: int = 0) -> bytes:

@@ -9,7 +9,8 @@ from pymodbus.constants import ExcCodes
 
 from drivers.modbus_identity import DeviceIdentity, device_information, package_version, version_numbers
 from drivers.modbus_map import BY_NAME, MAP_VERSION, WordOrder
-from tests.modbus_helpers import decode, mbap, raw_exchange, read_table, run, serving, tcp_client, tcp_config
+from tests.modbus_helpers import decode, mbap, raw_exchange, read_table, serving, tcp_client, tcp_config
+from tests.wire_helpers import run
 
 NAME = "press 7 / ram"
 

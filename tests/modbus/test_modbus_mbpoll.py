@@ -9,7 +9,8 @@ import subprocess
 import pytest
 
 from drivers.modbus_map import BY_NAME, MAP_VERSION, WordOrder
-from tests.modbus_helpers import SAMPLE, run, serving, tcp_config
+from tests.modbus_helpers import SAMPLE, serving, tcp_config
+from tests.wire_helpers import run
 
 # --------------------------------------------------------------------------- #
 # mbpoll, a Modbus master written by other people

@@ -17,15 +17,8 @@ import pytest
 from drivers.modbus_map import WordOrder
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
 from drivers.published_values import StatusBits
-from tests.modbus_helpers import (
-    decode,
-    read_table,
-    rtu_client,
-    run,
-    serving,
-    tcp_client,
-    tcp_config,
-)
+from tests.modbus_helpers import decode, read_table, rtu_client, serving, tcp_client, tcp_config
+from tests.wire_helpers import run
 
 REPO = Path(__file__).resolve().parents[2]
 SOCAT = shutil.which("socat")

@@ -15,17 +15,16 @@ from drivers.modbus_map import WordOrder
 from drivers.published_values import Command, PublishedValues, StatusBits
 from tests.modbus_helpers import (
     SAMPLE,
-    Recorder,
     decode,
     expected_raw,
     read_table,
     rtu_client,
     rtu_config,
-    run,
     serving,
     tcp_client,
     tcp_config,
 )
+from tests.wire_helpers import Recorder, run
 
 # --------------------------------------------------------------------------- #
 # RTU over a pty pair made by socat

@@ -27,17 +27,16 @@ from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServer
 from drivers.published_values import Command, PublishedValues, StatusBits
 from tests.modbus_helpers import (
     SAMPLE,
-    Recorder,
     decode,
     expected_raw,
     mbap,
     raw_exchange,
     read_table,
-    run,
     serving,
     tcp_client,
     tcp_config,
 )
+from tests.wire_helpers import Recorder, run
 
 
 # --------------------------------------------------------------------------- #

@@ -17,17 +17,8 @@ import pytest
 from drivers.modbus_map import BY_NAME, MAP_VERSION, WordOrder
 from drivers.modbus_requests import MAX_QUEUED_REQUESTS
 from drivers.modbus_server import ModbusServer, ModbusServerConfig, ModbusServerError
-from tests.modbus_helpers import (
-    SAMPLE,
-    Recorder,
-    decode,
-    mbap,
-    read_table,
-    run,
-    serving,
-    tcp_client,
-    tcp_config,
-)
+from tests.modbus_helpers import SAMPLE, decode, mbap, read_table, serving, tcp_client, tcp_config
+from tests.wire_helpers import Recorder, run
 
 REPO = Path(__file__).resolve().parents[2]
 PLC_IP = "127.0.0.2"  # the whole of 127/8 is loopback on Linux: a second client address
@@ -312,7 +303,6 @@ def test_peer_errors_are_logged_once_per_interval_with_a_count(caplog) -> None:
 
 def test_a_hint_written_every_cycle_is_logged_once_per_interval(caplog) -> None:
     """A PLC writes CMD_HINT_AT_REST every cycle, as the register map says: one line, not one per write."""
-    from tests.modbus_helpers import Recorder
 
     async def scenario() -> None:
         async with serving(tcp_config(writes_enabled=True, peer_log_interval_s=60), Recorder()) as server:
