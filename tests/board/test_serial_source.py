@@ -10,111 +10,35 @@ from __future__ import annotations
 
 import asyncio
 import fcntl
-import itertools
 import os
 import struct
 import termios
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 import serial
 
 from drivers.board_decoder import StreamDecoder
-from drivers.board_protocol import Sample, encode
-from drivers.errors import DriverError, SerialPortError
-from drivers.serial_port import SerialSettings, reconnect_delays_s
+from drivers.errors import SerialPortError
+from drivers.serial_port import SerialSettings
 from drivers.serial_source import SerialSource
-
-DEADLINE_S = 10.0  # only a broken source needs this long
-
-FAST_BACKOFF = dict(reconnect_initial_s=0.02, reconnect_max_s=0.16, reconnect_multiplier=2.0)
-
-
-def frames(seqs: range) -> list[Sample]:
-    return [Sample(s, 900 + s % 50, 930 - s % 40, 1843, 0) for s in seqs]
-
-
-def wire(samples: list[Sample]) -> bytes:
-    return b"".join(encode(s) for s in samples)
-
-
-class Pty:
-    """A pty pair; the slave path is what the source opens, the master plays the board."""
-
-    def __init__(self) -> None:
-        self.master, self.slave = os.openpty()
-        self.path = os.ttyname(self.slave)
-
-    def unplug(self) -> None:
-        for fd in (self.master, self.slave):
-            if fd >= 0:
-                os.close(fd)
-        self.master = self.slave = -1
-
-
-@pytest.fixture
-def make_pty() -> Iterator[Callable[[], Pty]]:
-    made: list[Pty] = []
-
-    def make() -> Pty:
-        made.append(Pty())
-        return made[-1]
-
-    yield make
-    for pty in made:
-        pty.unplug()
-
-
-async def wait_until(condition: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + DEADLINE_S
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.005)
-
-
-def max_attempts_within(settings: SerialSettings, elapsed_s: float) -> int:
-    """Most reopen attempts the back-off schedule allows in elapsed_s after a loss."""
-    total = 0.0
-    for count, delay in enumerate(reconnect_delays_s(settings)):
-        total += delay
-        if total > elapsed_s:
-            return count
-
-
-class Consumer:
-    """Feeds a decoder from ``source.deliver()`` (as the daemon does) or from
-    ``async for chunk in source.chunks()``."""
-
-    def __init__(self, source: SerialSource, mode: str = "deliver") -> None:
-        self.source = source
-        self.decoder = StreamDecoder()
-        self.frames: list = []
-        self.task = asyncio.create_task(self._deliver() if mode == "deliver" else self._chunks())
-
-    def _consume(self, chunk: bytes) -> None:
-        self.frames += self.decoder.feed(chunk)
-
-    async def _deliver(self) -> None:
-        await self.source.deliver(self._consume)
-
-    async def _chunks(self) -> None:
-        async for chunk in self.source.chunks():
-            self._consume(chunk)
-
-    async def stop(self) -> None:
-        self.task.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await self.task
-        self.source.close()
-
+from tests.serial_helpers import (
+    DEADLINE_S,
+    FAST_BACKOFF,
+    READERS,
+    Consumer,
+    Pty,
+    RecordingOpener,
+    frames,
+    max_attempts_within,
+    wait_until,
+    wire,
+)
 
 # --- pty ------------------------------------------------------------------------------
 
 
-READERS = pytest.mark.parametrize("mode", ["deliver", "chunks"])
 
 
 @READERS
@@ -493,144 +417,3 @@ def test_thread_reader_does_not_spin_while_the_port_is_away(make_pty, tmp_path: 
         got += source.read(timeout_s=0.05)
     assert StreamDecoder().feed(got) == frames(range(5))
     source.close()
-
-
-# --- opening errors -------------------------------------------------------------------
-
-
-def test_missing_port_fails_at_first_open_with_a_clear_message(tmp_path: Path):
-    missing = str(tmp_path / "ttyUSB9")
-    source = SerialSource(SerialSettings(port=missing))
-    with pytest.raises(SerialPortError) as info:
-        source.open()
-    message = str(info.value)
-    assert missing in message and "No such file or directory" in message and "ENOENT" in message
-    assert info.value.port == missing
-    assert isinstance(info.value, DriverError)
-    assert isinstance(info.value.__cause__, serial.SerialException)
-    assert source.state.last_error == message
-
-
-def test_missing_port_fails_chunks_at_start(tmp_path: Path):
-    async def scenario():
-        async for _ in SerialSource(SerialSettings(port=str(tmp_path / "none"))).chunks():
-            pass
-
-    with pytest.raises(SerialPortError, match="cannot open serial port"):
-        asyncio.run(scenario())
-
-
-def test_a_file_that_is_not_a_tty_is_refused(tmp_path: Path):
-    not_a_tty = tmp_path / "plain-file"
-    not_a_tty.write_bytes(b"")
-    with pytest.raises(SerialPortError, match="cannot open serial port"):
-        SerialSource(SerialSettings(port=str(not_a_tty))).open()
-
-
-def test_second_reader_of_the_same_port_is_refused(make_pty):
-    pty = make_pty()
-    with (
-        SerialSource(SerialSettings(port=pty.path)),
-        pytest.raises(SerialPortError, match="another process holds the port"),
-    ):
-        SerialSource(SerialSettings(port=pty.path)).open()
-
-
-def test_settings_are_validated():
-    with pytest.raises(ValueError):
-        SerialSettings(port="")
-    with pytest.raises(ValueError):
-        SerialSettings(port="loop://", reconnect_initial_s=1.0, reconnect_max_s=0.5)
-    for wake in (0, 256):
-        with pytest.raises(ValueError, match="wake_min_bytes"):
-            SerialSettings(port="loop://", wake_min_bytes=wake)
-    with pytest.raises(ValueError, match="unknown serial settings: baud"):
-        SerialSource.from_config({"port": "loop://", "baud": 9600})
-    assert SerialSource.from_config({"port": "loop://", "baudrate": 9600}).settings.baudrate == 9600
-
-
-def test_backoff_schedule_doubles_up_to_the_cap():
-    settings = SerialSettings(port="x", reconnect_initial_s=0.1, reconnect_max_s=5.0, reconnect_multiplier=2.0)
-    delays = list(itertools.islice(reconnect_delays_s(settings), 9))
-    assert delays == pytest.approx([0.1, 0.2, 0.4, 0.8, 1.6, 3.2, 5.0, 5.0, 5.0])
-
-
-# --- pyserial URLs --------------------------------------------------------------------
-
-
-class RecordingOpener:
-    """pyserial's own opener, keeping the instance so the test can write into loop://."""
-
-    def __init__(self) -> None:
-        self.ports: list[serial.SerialBase] = []
-
-    def __call__(self, settings: SerialSettings) -> serial.SerialBase:
-        from drivers.serial_port import open_with_pyserial
-
-        self.ports.append(open_with_pyserial(settings))
-        return self.ports[-1]
-
-
-@READERS
-def test_loop_url_read_available_and_thread_backed_reading(mode):
-    opener = RecordingOpener()
-    sent = frames(range(50))
-
-    source = SerialSource(SerialSettings(port="loop://"), opener=opener)
-    source.open()
-    opener.ports[0].write(wire(sent[:5]))
-    assert StreamDecoder().feed(source.read_available()) == sent[:5]
-
-    async def scenario():
-        consumer = Consumer(source, mode)
-        await asyncio.sleep(0)
-        opener.ports[0].write(wire(sent[5:]))
-        await wait_until(lambda: len(consumer.frames) == 45, "loop:// frames")
-        await consumer.stop()
-        return consumer.frames
-
-    assert asyncio.run(scenario()) == sent[5:]
-
-
-@READERS
-def test_socket_url_reconnects_after_the_peer_hangs_up(mode):
-    """socket:// has a descriptor, so chunks() waits on the event loop's reader;
-    a peer hang-up is pyserial's 'socket disconnected', i.e. a loss."""
-    sent = frames(range(30))
-
-    async def scenario():
-        connections: list[asyncio.StreamWriter] = []
-        # pyserial drops whatever is buffered while it opens, so the "board" sends
-        # only once the source reports the port open.
-        may_send = [asyncio.Event(), asyncio.Event()]
-
-        async def board(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-            connections.append(writer)
-            n = len(connections) - 1
-            await may_send[n].wait()
-            writer.write(wire(sent[:10] if n == 0 else sent[10:]))
-            await writer.drain()
-            if n == 0:
-                writer.close()  # the link drops
-
-        server = await asyncio.start_server(board, "127.0.0.1", 0)
-        port = server.sockets[0].getsockname()[1]
-        source = SerialSource(SerialSettings(port=f"socket://127.0.0.1:{port}", **FAST_BACKOFF))
-        consumer = Consumer(source, mode)
-        await wait_until(lambda: source.state.is_open, "connected")
-        may_send[0].set()
-        await wait_until(lambda: source.state.reconnects == 1, "reconnected")
-        may_send[1].set()
-        await wait_until(lambda: len(consumer.frames) == 30, "frames over two connections")
-        state = source.state
-        await consumer.stop()
-        for writer in connections:
-            writer.close()
-        server.close()
-        await server.wait_closed()
-        return consumer.frames, state
-
-    got, state = asyncio.run(scenario())
-    assert got == sent
-    assert (state.losses, state.reconnects, state.is_open) == (1, 1, True)
-    assert "socket disconnected" in state.last_error
