@@ -150,6 +150,7 @@ from gateway.core.kernel_output import (
     undo_sensor_lag,
     with_scale_error,
     write_estimate,
+    zupt_beyond_chance,
 )
 from gateway.core.kernel_propagate import (
     drift_at,
@@ -205,7 +206,7 @@ __all__ = [
     'set_hint', 'soft_hinted_update', 'soft_update_bound', 'start_moving_after_restart', 'tare',
     'undecidable_quiet', 'undo_sensor_lag', 'unpack_cov', 'window_of', 'window_tests', 'with_scale_error',
     'within_period_position_var',
-    'write_estimate', 'run_forward', 'step',
+    'write_estimate', 'run_forward', 'step', 'zupt_beyond_chance',
 ]
 
 

@@ -82,11 +82,25 @@ def lag_undone_position_var(P, lag):
 
 @jit
 def disagreement_var(gain_pos, innovation):
-    """A stop taken on the machine's hint against the integrated velocity (beyond chance):
-    the position with the stop and without it differ by the update's position correction
-    K_p·y; the reported variance adds its square, so that σ covers both answers."""
+    """A stop whose velocity innovation is beyond chance (zupt_beyond_chance: the machine's
+    hint against the integrated velocity, or a quiet window after a move whose integrated
+    velocity the model's noise cannot explain): the position with the stop and without it
+    differ by the update's position correction K_p·y; the reported variance adds its square,
+    so that σ covers both answers."""
     d = gain_pos * innovation
     return d * d
+
+
+@jit
+def zupt_beyond_chance(innovation, innovation_var, scale_var, chi2_max):
+    """A stop's velocity innovation y (variance S = σ_v² + R, before the update) is no chance:
+    y² > χ²₁(1 − p)·(S + s²·y²) — the test of standstill.velocity_consistent_with_rest at the
+    detector's false-alarm rate p. Then the velocity error has a source the model does not
+    contain (a tilt putting gravity on the axis, an offset that moved, a gain error on the
+    pulses), and where in the move it arose the data do not say: the position correction the
+    ZUPT makes through Cov(p, v)/Var(v) — the white-noise shape of the error — is one answer
+    among those from "at the start" to "at the end", which differ by up to that correction."""
+    return innovation * innovation > chi2_max * (innovation_var + scale_var * innovation * innovation)
 
 
 @jit
