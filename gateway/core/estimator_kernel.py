@@ -55,6 +55,8 @@ from gateway.core.kernel_layout import (
     M_HINT_RUN,
     M_LAST_REST_HINT_T,
     M_LAST_STILL_T,
+    M_LAST_STOP_POS,
+    M_MOVES_SQ,
     M_PEAK_SPEED,
     M_PERIOD,
     M_PREV_INVALID,
@@ -143,10 +145,12 @@ from gateway.core.kernel_layout import (
 from gateway.core.kernel_output import (
     add_reading_instant_error,
     add_scale_error,
+    add_scale_position_error,
     disagreement_var,
     lag_undone_position_var,
     reading_instant_var,
     remember_sample,
+    scale_position_var,
     undo_sensor_lag,
     with_scale_error,
     write_estimate,
@@ -206,7 +210,8 @@ __all__ = [
     'set_hint', 'soft_hinted_update', 'soft_update_bound', 'start_moving_after_restart', 'tare',
     'undecidable_quiet', 'undo_sensor_lag', 'unpack_cov', 'window_of', 'window_tests', 'with_scale_error',
     'within_period_position_var',
-    'write_estimate', 'run_forward', 'step', 'zupt_beyond_chance',
+    'write_estimate', 'run_forward', 'step', 'zupt_beyond_chance', 'add_scale_position_error', 'scale_position_var',
+    'M_LAST_STOP_POS', 'M_MOVES_SQ',
 ]
 
 

@@ -132,7 +132,7 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     y_edge = np.zeros(n)
     y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
     cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
-    K.add_scale_error(cols["pos_var"], cols["pos"], prm)
+    K.add_scale_position_error(cols["pos_var"], cols["pos"], flags, prm)
     K.add_scale_error(cols["vel_var"], cols["vel"], prm)
     K.add_reading_instant_error(cols["pos_var"], cols["acc"], t, prm)
     _add_disagreement(cols["pos_var"], flags, zupt_index[:n_zupt], zupt_data[:n_zupt], prm)

@@ -10,6 +10,7 @@ from gateway.core.jit import jit, jit_inline
 from gateway.core.kernel_layout import (
     DIVERGED_SPEED_MPS,
     F_BIAS_ESTIMATING,
+    F_ENTRY,
     F_FAULT,
     F_INITIALISED,
     F_STANDSTILL,
@@ -18,6 +19,8 @@ from gateway.core.kernel_layout import (
     M_COUNT,
     M_DISAGREE_VAR,
     M_HAVE_U,
+    M_LAST_STOP_POS,
+    M_MOVES_SQ,
     M_PREV_INVALID,
     M_READING_DRIFT,
     M_REGIME,
@@ -112,6 +115,34 @@ def with_scale_error(var, value, prm):
 
 
 @jit
+def scale_position_var(pos, moves_sq, last_stop_pos, scale_var):
+    """The sensitivity's share of the position's variance: a reading (1 + s)·a puts each move
+    s·Δp off, and a ZUPT cannot see it (a symmetric pulse's gain error leaves no velocity at
+    the stop). If s is one constant, the errors add to s·p (p since the tare); if a pulse's
+    gain is not the same on every move (a sensor's nonlinearity and cross-axis terms depend
+    on the acceleration's size and direction: the robot's fast vertical moves read 4.4 %
+    and 4.8 % short, then 2.5 % long), they add as √Σ(s·Δp)². The data sheet's tolerance
+    bounds s, not how it varies between moves: the variance covers both, σ_s²·max(p², ΣΔp²)
+    — moves closed by a stop (moves_sq) and the current one since the latest stop."""
+    d = pos - last_stop_pos
+    return scale_var * max(pos * pos, moves_sq + d * d)
+
+
+@jit
+def add_scale_position_error(var, pos, flags, prm):
+    """scale_position_var over a track, in place (no new array: the smoothed estimate's memory
+    budget), its moves cut at the stops the forward pass entered (F_ENTRY)."""
+    moves_sq = 0.0
+    last_stop_pos = 0.0
+    for k in range(var.size):
+        if flags[k] & F_ENTRY:
+            d = pos[k] - last_stop_pos
+            moves_sq += d * d
+            last_stop_pos = pos[k]
+        var[k] += scale_position_var(pos[k], moves_sq, last_stop_pos, prm[P_SCALE_VAR])
+
+
+@jit
 def reading_instant_var(drift_m):
     """The reported position's variance share for a duty-cycle reading whose instant in its
     period is not known (SensorParams.dcm_reading; the data sheet does not say): read at the
@@ -195,7 +226,8 @@ def write_estimate(x, P, m, out, prm, regime, regime_prev, u_before, flags, upd,
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
         out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, prm[P_LAG])
         out[O_BIAS] = x[2]
-        out[O_POS_VAR] = with_scale_error(lag_undone_position_var(P, prm[P_LAG]), out[O_POS], prm) \
+        out[O_POS_VAR] = lag_undone_position_var(P, prm[P_LAG]) \
+            + scale_position_var(out[O_POS], m[M_MOVES_SQ], m[M_LAST_STOP_POS], prm[P_SCALE_VAR]) \
             + reading_instant_var(m[M_READING_DRIFT]) \
             + m[M_DISAGREE_VAR]
         out[O_VEL_VAR] = with_scale_error(P[1, 1], out[O_VEL], prm)

@@ -14,6 +14,8 @@ from gateway.core.kernel_layout import (
     M_DISAGREE_VAR,
     M_HINT_RUN,
     M_LAST_STILL_T,
+    M_LAST_STOP_POS,
+    M_MOVES_SQ,
     M_PEAK_SPEED,
     M_PERIOD,
     M_RING_FILL,
@@ -231,6 +233,10 @@ def apply_updates(x, P, m, gain, prm, t_s, z, ok, d, regime_prev, count):
                 # a hinted stop that disagrees is also flagged, by hint_gate)
                 m[M_DISAGREE_VAR] += disagreement_var(gain[0], zupt_y)
             flags |= F_ENTRY
+            # a move closed: its displacement for the sensitivity's share (scale_position_var)
+            move = x[0] - m[M_LAST_STOP_POS]
+            m[M_MOVES_SQ] += move * move
+            m[M_LAST_STOP_POS] = x[0]
             if d.hint > 0.0:
                 # entered while the machine says "at rest": the hint's stop, whether its gate
                 # opened it or its soft update (soft_hinted_update) made the velocity test decide it
