@@ -241,6 +241,9 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     soft, soft_y, soft_s = soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, decision)
     if soft:
         flags |= F_HINT_SOFT
+        if zupt_beyond_chance(soft_y, soft_s, prm[P_SCALE_VAR], prm[P_ZUPT_CHI2]):
+            # the machine's "at rest" against a velocity beyond chance: σ covers both answers
+            m[M_DISAGREE_VAR] += disagreement_var(gain[0], soft_y)
         upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft_y, soft_s, gain[0], gain[1],
                            gain[2], upd.flags, transition)
     else:
