@@ -55,6 +55,8 @@ from gateway.core.kernel_layout import (
     M_HINT_RUN,
     M_LAST_REST_HINT_T,
     M_LAST_STILL_T,
+    M_LAST_STOP_POS,
+    M_MOVES_SQ,
     M_PEAK_SPEED,
     M_PERIOD,
     M_PREV_INVALID,
@@ -143,13 +145,16 @@ from gateway.core.kernel_layout import (
 from gateway.core.kernel_output import (
     add_reading_instant_error,
     add_scale_error,
+    add_scale_position_error,
     disagreement_var,
     lag_undone_position_var,
     reading_instant_var,
     remember_sample,
+    scale_position_var,
     undo_sensor_lag,
     with_scale_error,
     write_estimate,
+    zupt_beyond_chance,
 )
 from gateway.core.kernel_propagate import (
     drift_at,
@@ -205,7 +210,8 @@ __all__ = [
     'set_hint', 'soft_hinted_update', 'soft_update_bound', 'start_moving_after_restart', 'tare',
     'undecidable_quiet', 'undo_sensor_lag', 'unpack_cov', 'window_of', 'window_tests', 'with_scale_error',
     'within_period_position_var',
-    'write_estimate', 'run_forward', 'step',
+    'write_estimate', 'run_forward', 'step', 'zupt_beyond_chance', 'add_scale_position_error', 'scale_position_var',
+    'M_LAST_STOP_POS', 'M_MOVES_SQ',
 ]
 
 
@@ -235,6 +241,9 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     soft, soft_y, soft_s = soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, decision)
     if soft:
         flags |= F_HINT_SOFT
+        if zupt_beyond_chance(soft_y, soft_s, prm[P_SCALE_VAR], prm[P_ZUPT_CHI2]):
+            # the machine's "at rest" against a velocity beyond chance: σ covers both answers
+            m[M_DISAGREE_VAR] += disagreement_var(gain[0], soft_y)
         upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft_y, soft_s, gain[0], gain[1],
                            gain[2], upd.flags, transition)
     else:

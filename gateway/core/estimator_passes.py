@@ -132,17 +132,24 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
     y_edge = np.zeros(n)
     y_edge[1:] = np.where(moving[1:] & moving[:-1], 0.5 * (cols["acc"][1:] + cols["acc"][:-1]), 0.0)
     cols["pos"], cols["vel"] = K.undo_sensor_lag(cols["pos"], cols["vel"], y_edge, lag)
-    K.add_scale_error(cols["pos_var"], cols["pos"], prm)
+    K.add_scale_position_error(cols["pos_var"], cols["pos"], flags, prm)
     K.add_scale_error(cols["vel_var"], cols["vel"], prm)
     K.add_reading_instant_error(cols["pos_var"], cols["acc"], t, prm)
-    _add_disagreement(cols["pos_var"], flags, zupt_index[:n_zupt], zupt_data[:n_zupt])
+    _add_disagreement(cols["pos_var"], flags, zupt_index[:n_zupt], zupt_data[:n_zupt], prm)
 
 
-def _add_disagreement(pos_var, flags, zupt_index, zupt_data) -> None:
+def _add_disagreement(pos_var, flags, zupt_index, zupt_data, prm) -> None:
     """The realtime estimate's disagreement term (kernel_output.disagreement_var) over a
-    smoothed track: from each stop taken on the hint against the integrated velocity on,
-    the square of the position its update moved — σ covers both answers."""
-    conflicted = (flags[zupt_index] & (K.F_ENTRY | K.F_HINT_CONFLICT)) == (K.F_ENTRY | K.F_HINT_CONFLICT)
+    smoothed track: from each stop taken on the hint against the integrated velocity, and
+    each stop or soft hinted update whose velocity innovation is beyond chance
+    (kernel_output.zupt_beyond_chance), on: the square of the position its update moved —
+    σ covers both answers."""
+    entry = (flags[zupt_index] & K.F_ENTRY) != 0
+    soft = (flags[zupt_index] & K.F_HINT_SOFT) != 0
+    hint_conflict = (flags[zupt_index] & K.F_HINT_CONFLICT) != 0
+    y, s = zupt_data[:, 0], zupt_data[:, 1]
+    beyond = K.zupt_beyond_chance(y, s, prm[K.P_SCALE_VAR], prm[K.P_ZUPT_CHI2])
+    conflicted = (entry & hint_conflict) | ((entry | soft) & beyond)
     if not conflicted.any():
         return
     step = np.zeros(pos_var.size)

@@ -83,7 +83,12 @@ M_DISAGREE_VAR = 26
 # the input held before M_U_PREV (sample k−2's mean; = M_U_PREV when there is none): with
 # sample k's, the range that bounds how the acceleration moved inside period k−1
 M_U_PREV2 = 27
-N_MISC = 28
+# the moves since the tare, for the sensitivity's share of the position's variance
+# (kernel_output.scale_position_var): Σ Δp² over the moves closed by a stop, and the
+# position of the latest stop (where the current move began)
+M_MOVES_SQ = 28
+M_LAST_STOP_POS = 29
+N_MISC = 30
 
 # snapshot ring (one row per sample of the last window): x, P (00 01 02 11 12 22), t,
 # and the sample's input: z, valid, lost_before; the input held before it (M_U_PREV2 after it)
@@ -223,6 +228,8 @@ def tare(state: KernelState) -> None:
     state.P[:, 0] = 0.0
     state.misc[M_READING_DRIFT] = 0.0
     state.misc[M_DISAGREE_VAR] = 0.0
+    state.misc[M_MOVES_SQ] = 0.0
+    state.misc[M_LAST_STOP_POS] = 0.0
 
 
 def request_bias_reestimate(state: KernelState, prm: np.ndarray) -> None:

@@ -10,6 +10,7 @@ from gateway.core.jit import jit, jit_inline
 from gateway.core.kernel_layout import (
     DIVERGED_SPEED_MPS,
     F_BIAS_ESTIMATING,
+    F_ENTRY,
     F_FAULT,
     F_INITIALISED,
     F_STANDSTILL,
@@ -18,6 +19,8 @@ from gateway.core.kernel_layout import (
     M_COUNT,
     M_DISAGREE_VAR,
     M_HAVE_U,
+    M_LAST_STOP_POS,
+    M_MOVES_SQ,
     M_PREV_INVALID,
     M_READING_DRIFT,
     M_REGIME,
@@ -82,11 +85,25 @@ def lag_undone_position_var(P, lag):
 
 @jit
 def disagreement_var(gain_pos, innovation):
-    """A stop taken on the machine's hint against the integrated velocity (beyond chance):
-    the position with the stop and without it differ by the update's position correction
-    K_p·y; the reported variance adds its square, so that σ covers both answers."""
+    """A stop whose velocity innovation is beyond chance (zupt_beyond_chance: the machine's
+    hint against the integrated velocity, or a quiet window after a move whose integrated
+    velocity the model's noise cannot explain): the position with the stop and without it
+    differ by the update's position correction K_p·y; the reported variance adds its square,
+    so that σ covers both answers."""
     d = gain_pos * innovation
     return d * d
+
+
+@jit
+def zupt_beyond_chance(innovation, innovation_var, scale_var, chi2_max):
+    """A stop's velocity innovation y (variance S = σ_v² + R, before the update) is no chance:
+    y² > χ²₁(1 − p)·(S + s²·y²) — the test of standstill.velocity_consistent_with_rest at the
+    detector's false-alarm rate p. Then the velocity error has a source the model does not
+    contain (a tilt putting gravity on the axis, an offset that moved, a gain error on the
+    pulses), and where in the move it arose the data do not say: the position correction the
+    ZUPT makes through Cov(p, v)/Var(v) — the white-noise shape of the error — is one answer
+    among those from "at the start" to "at the end", which differ by up to that correction."""
+    return innovation * innovation > chi2_max * (innovation_var + scale_var * innovation * innovation)
 
 
 @jit
@@ -95,6 +112,34 @@ def with_scale_error(var, value, prm):
     makes the velocity off by s·v and the position by s·p (p since the tare), a systematic
     error the filter's model does not contain."""
     return var + prm[P_SCALE_VAR] * value * value
+
+
+@jit
+def scale_position_var(pos, moves_sq, last_stop_pos, scale_var):
+    """The sensitivity's share of the position's variance: a reading (1 + s)·a puts each move
+    s·Δp off, and a ZUPT cannot see it (a symmetric pulse's gain error leaves no velocity at
+    the stop). If s is one constant, the errors add to s·p (p since the tare); if a pulse's
+    gain is not the same on every move (a sensor's nonlinearity and cross-axis terms depend
+    on the acceleration's size and direction: the robot's fast vertical moves read 4.4 %
+    and 4.8 % short, then 2.5 % long), they add as √Σ(s·Δp)². The data sheet's tolerance
+    bounds s, not how it varies between moves: the variance covers both, σ_s²·max(p², ΣΔp²)
+    — moves closed by a stop (moves_sq) and the current one since the latest stop."""
+    d = pos - last_stop_pos
+    return scale_var * max(pos * pos, moves_sq + d * d)
+
+
+@jit
+def add_scale_position_error(var, pos, flags, prm):
+    """scale_position_var over a track, in place (no new array: the smoothed estimate's memory
+    budget), its moves cut at the stops the forward pass entered (F_ENTRY)."""
+    moves_sq = 0.0
+    last_stop_pos = 0.0
+    for k in range(var.size):
+        if flags[k] & F_ENTRY:
+            d = pos[k] - last_stop_pos
+            moves_sq += d * d
+            last_stop_pos = pos[k]
+        var[k] += scale_position_var(pos[k], moves_sq, last_stop_pos, prm[P_SCALE_VAR])
 
 
 @jit
@@ -181,7 +226,8 @@ def write_estimate(x, P, m, out, prm, regime, regime_prev, u_before, flags, upd,
             y_edge = 0.5 * (u_before + m[M_U_PREV]) - x[2] if regime_prev == MOTION else 0.0
         out[O_POS], out[O_VEL] = undo_sensor_lag(x[0], x[1], y_edge, prm[P_LAG])
         out[O_BIAS] = x[2]
-        out[O_POS_VAR] = with_scale_error(lag_undone_position_var(P, prm[P_LAG]), out[O_POS], prm) \
+        out[O_POS_VAR] = lag_undone_position_var(P, prm[P_LAG]) \
+            + scale_position_var(out[O_POS], m[M_MOVES_SQ], m[M_LAST_STOP_POS], prm[P_SCALE_VAR]) \
             + reading_instant_var(m[M_READING_DRIFT]) \
             + m[M_DISAGREE_VAR]
         out[O_VEL_VAR] = with_scale_error(P[1, 1], out[O_VEL], prm)

@@ -14,6 +14,8 @@ from gateway.core.kernel_layout import (
     M_DISAGREE_VAR,
     M_HINT_RUN,
     M_LAST_STILL_T,
+    M_LAST_STOP_POS,
+    M_MOVES_SQ,
     M_PEAK_SPEED,
     M_PERIOD,
     M_RING_FILL,
@@ -32,11 +34,13 @@ from gateway.core.kernel_layout import (
     P_QV,
     P_R,
     P_R_ZUPT,
+    P_SCALE_VAR,
     P_SPEED_FLOOR,
     P_STEP_MAX,
     P_VAR_MAX,
     P_VEL_SIGMAS,
     P_WINDOW,
+    P_ZUPT_CHI2,
     STANDSTILL,
     T_NONE,
     T_RESET,
@@ -45,7 +49,7 @@ from gateway.core.kernel_layout import (
     pack_state,
     unpack_cov,
 )
-from gateway.core.kernel_output import disagreement_var
+from gateway.core.kernel_output import disagreement_var, zupt_beyond_chance
 from gateway.core.kernel_propagate import drift_at, propagate_motion, within_period_position_var
 from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_fits, mean_velocity_offset, velocity_decidable
 
@@ -223,11 +227,16 @@ def apply_updates(x, P, m, gain, prm, t_s, z, ok, d, regime_prev, count):
             m[M_ZUPT_INNOV] = zupt_y
             m[M_ZUPT_NIS] = zupt_y * zupt_y / zupt_s
             m[M_BIAS_REQUESTED] = 0.0  # this standstill measures the bias anew
-            if d.hint_disagrees:
-                # the two answers — the hint's stop and the integrated motion — differ by the
-                # position this update moved: the reported σ covers both (disagreement_var)
+            if d.hint_disagrees or zupt_beyond_chance(zupt_y, zupt_s, prm[P_SCALE_VAR], prm[P_ZUPT_CHI2]):
+                # the two answers — the stop and the integrated motion — differ by the
+                # position this update moved: the reported σ covers both (disagreement_var;
+                # a hinted stop that disagrees is also flagged, by hint_gate)
                 m[M_DISAGREE_VAR] += disagreement_var(gain[0], zupt_y)
             flags |= F_ENTRY
+            # a move closed: its displacement for the sensitivity's share (scale_position_var)
+            move = x[0] - m[M_LAST_STOP_POS]
+            m[M_MOVES_SQ] += move * move
+            m[M_LAST_STOP_POS] = x[0]
             if d.hint > 0.0:
                 # entered while the machine says "at rest": the hint's stop, whether its gate
                 # opened it or its soft update (soft_hinted_update) made the velocity test decide it

@@ -26,7 +26,8 @@ def test_the_reported_variance_is_that_of_p_plus_tau_v():
         lag = est.params[K.P_LAG]
         combo = np.array([1.0, lag, 0.0])
         share = float(combo @ P @ combo)  # the oracle: the linear combination's variance, by numpy
-        expected = (K.with_scale_error(share, out[K.O_POS], est.params)
+        expected = (share + K.scale_position_var(out[K.O_POS], misc[K.M_MOVES_SQ], misc[K.M_LAST_STOP_POS],
+                                                  est.params[K.P_SCALE_VAR])
                     + K.reading_instant_var(misc[K.M_READING_DRIFT]) + misc[K.M_DISAGREE_VAR])
         assert out[K.O_POS_VAR] == np.float64(expected) or abs(out[K.O_POS_VAR] - expected) <= 1e-9 * expected
         velocity_matters += share > 1.1 * P[0, 0]
