@@ -1,4 +1,4 @@
-"""adxlgw estimate: position and velocity from a recording, by one of four methods."""
+"""adxlgw estimate: position and velocity from a recording, by one of five methods."""
 from __future__ import annotations
 
 import argparse
@@ -10,7 +10,7 @@ import numpy as np
 
 from gateway.commands.model_option import add_model_argument, estimate_with_model
 from gateway.core.drift_fit import FittedDrift
-from gateway.core.estimator import METHODS, EstimateTrack, estimate_series
+from gateway.core.estimator import COMPARED_METHODS, METHODS, EstimateTrack, estimate_series
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
 from gateway.core.estimator_stream import RealtimeChunks
 from gateway.core.evaluation import ErrorSummary, summarise_errors
@@ -43,6 +43,13 @@ from gateway.offline.recording import (
 # (kernel_update.soft_update_bound: at most one per hinted sample, reached only by a
 # hint that toggles once per window) — counted, the worst case, not measured.
 SMOOTHED_BYTES_PER_SAMPLE = 360
+# Memory of the zupt estimate per sample, bytes: the recording's columns, the series and the
+# output as for smoothed (~270), plus the smoother's stored predictions and posteriors (24
+# floats, 192 bytes) and a second set when the record does not end at rest (zupt_smoother).
+# Counted from the code, not measured.
+ZUPT_BYTES_PER_SAMPLE = 270 + 2 * 192
+# the methods that take the filter's settings (noise from the sensor model or the rest)
+FILTER_METHODS = ("realtime", "smoothed", "zupt")
 # the estimate's columns written as integers
 TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 
@@ -55,11 +62,14 @@ def add_parser(sub) -> None:
                     "write them with the health columns. raw: plain double integration (paper fig. 6); "
                     "paper: reference-point compensation + the paper's Kalman filter (fig. 7); "
                     "realtime: the gateway's causal filter (bias state, standstill detection, ZUPT/ZARU); "
-                    "smoothed: the same with a backward pass. Where the recording has reference columns "
+                    "smoothed: the same with a backward pass; zupt: an offline smoother that finds the rests "
+                    "in the accelerometer's own quiet stretches, decides each from both ends, and applies "
+                    "zero-velocity updates with a bias state and a backward pass (the machine's hint only "
+                    "vetoes a rest). Where the recording has reference columns "
                     "the errors are printed (final, at each stop, RMS).",
     )
     p.add_argument("recording", metavar="FILE.csv", help="the recording: CSV, or Parquet (.parquet)")
-    p.add_argument("--method", choices=METHODS, default="realtime", help="estimation method (default: realtime)")
+    p.add_argument("--method", choices=METHODS + COMPARED_METHODS, default="realtime", help="estimation method (default: realtime)")
     p.add_argument("--out", required=True, help="output: t_s, pos_m, vel_mps, acc_mps2 and health columns; "
                                                 "CSV, or Parquet when it ends in .parquet")
     add_model_argument(p)
@@ -72,7 +82,7 @@ def add_parser(sub) -> None:
                    help="fitted drift and noise (adxlgw fit-drift --model-out) instead of the data-sheet values")
     p.add_argument("--ignore-hint", action="store_true",
                    help="do not use the recording's standstill_hint column (the machine's 'at rest' / "
-                        "'moving'; realtime and smoothed use it when present)")
+                        "'moving'; realtime, smoothed and zupt use it when present)")
     p.add_argument("--skip-s", type=_seconds, default=0.0, metavar="SECONDS",
                    help="leave out the recording's first SECONDS (e.g. a sensor settling at power-up, a "
                         "logger's first rows); the estimate and the reference's position begin after them")
@@ -238,7 +248,7 @@ class HintUse:
     one line that tells the user)."""
 
     def __init__(self, args: argparse.Namespace):
-        self.wanted = args.method in ("realtime", "smoothed")
+        self.wanted = args.method in FILTER_METHODS
         self.ignore = args.ignore_hint
         self.present = False
         self.rest = self.moving = self.unknown = 0
@@ -270,9 +280,10 @@ class HintUse:
 def _read_series(args: argparse.Namespace, source: RecordingSource) -> tuple[AccelerationSeries, str]:
     """The recording as acceleration (its form: raw or acceleration), checked: samples
     left after --skip-s, a time axis an estimate can run on."""
-    if args.method == "smoothed":
-        check_fits_in_memory(args.recording, SMOOTHED_BYTES_PER_SAMPLE * source.estimated_rows(),
-                             f"the smoothed estimate ({SMOOTHED_BYTES_PER_SAMPLE} bytes per sample)")
+    per_sample = {"smoothed": SMOOTHED_BYTES_PER_SAMPLE, "zupt": ZUPT_BYTES_PER_SAMPLE}.get(args.method)
+    if per_sample is not None:
+        check_fits_in_memory(args.recording, per_sample * source.estimated_rows(),
+                             f"the {args.method} estimate ({per_sample} bytes per sample)")
     # the host's arrival time and the temperature are not used here: not read
     wanted = [n for n in source.names if n not in ("t_host_s", "temp_c")] if not args.model else None
     with reading_bar(source) as bar:
@@ -295,7 +306,7 @@ def _estimated(args: argparse.Namespace, series: AccelerationSeries, form: str):
     drift = load_drift_model(args.drift_model) if args.drift_model else None
     settings = None
     try:
-        if args.method in ("realtime", "smoothed"):
+        if args.method in FILTER_METHODS:
             settings = settings_for(series, form, args.noise_from, drift)
         hints = HintUse(args)
         hint = hints.of(series)

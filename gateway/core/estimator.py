@@ -29,7 +29,8 @@ from gateway.core.reference_point import NoRestError, find_initial_rest
 from gateway.core.runs import true_runs
 
 METHODS = ("raw", "paper", "realtime", "smoothed")
-# judged beside `smoothed` on the corpus (benchmarks/accuracy/estimation_corpus.py --methods)
+# judged beside `smoothed` on the corpus (benchmarks/accuracy/estimation_corpus.py --compare) and
+# selectable from `adxlgw estimate --method`
 COMPARED_METHODS = ("zupt",)
 
 

@@ -49,8 +49,11 @@ time: the record is read as a whole, in three phases, each a small function.
    drift fit's or what a 4-hour record of the recording's white noise could have missed)
    plus the drift model's deterministic part; v = 0 at every rest sample with
    `zupt_velocity_std_mps`; then RTS over the stored predictions. A lost or invalid
-   stretch is bridged by the mean of its valid neighbours with their half-difference plus
-   one sample's noise as the acceleration's σ over it.
+   stretch is bridged by the mean of its valid neighbours, with one sample's noise as the
+   acceleration's σ over it, plus their half-difference when several samples are missing:
+   one missing sample of a band-limited sensor lies between its neighbours, and their
+   difference in motion is mostly their own noise (counting it let one lost sample take a
+   whole move's velocity correction: docs/decisions/0175).
 
 The reported σ adds what the model cannot see, as the realtime filter's: the sensitivity
 (σ_s·p)², (σ_s·v)² and the duty cycle's reading instant.
@@ -203,7 +206,8 @@ _QV, _QB, _SV, _ZV, _BP, _VP, _C1, _DT, _D0, _SC, _DEC, _LAG = range(12)
 def bridged_input(t_s, acc_mps2, valid, lost_before, sample_var):
     """Per period k → k+1: the acceleration that acts over it and the extra variance of its
     velocity change (an invalid sample or lost samples: the mean of the valid neighbours,
-    their half-difference plus one sample's noise as its σ over the bridged time)."""
+    one sample's noise as its σ over the bridged time, plus their half-difference when more
+    than one sample is missing between them)."""
     n = t_s.size
     ok = np.asarray(valid, dtype=bool)
     u = hold_invalid(acc_mps2, ok)
@@ -220,7 +224,15 @@ def bridged_input(t_s, acc_mps2, valid, lost_before, sample_var):
     a_lo = np.where(prev_ok >= 0, a_lo, a_hi)
     a_lo = np.where(np.isfinite(a_lo), a_lo, 0.0)
     a_hi = np.where(np.isfinite(a_hi), a_hi, 0.0)
-    std = 0.5 * np.abs(a_hi - a_lo) + math.sqrt(sample_var)
+    # samples missing between the valid neighbours of each period: one missing sample of a
+    # band-limited sensor lies between its neighbours (their mean, one sample's noise); the
+    # acceleration may change beyond them only over a gap of several (their half-difference)
+    lost_sum = np.concatenate(([0], np.cumsum(np.asarray(lost_before, dtype=np.int64)[1:])))
+    p_idx = np.where(ok, idx, lo)
+    q_idx = np.minimum(np.concatenate((next_ok[1:], [n - 1])), n - 1)
+    missing = (q_idx - p_idx - 1) + (lost_sum[q_idx] - lost_sum[p_idx])
+    several = missing > 1
+    std = np.where(several, 0.5 * np.abs(a_hi - a_lo), 0.0) + math.sqrt(sample_var)
     # the period k → k+1 is bridged when sample k is invalid or samples were lost after it
     lost_after = np.zeros(n, dtype=bool)
     lost_after[:-1] = np.asarray(lost_before)[1:] > 0
@@ -229,8 +241,8 @@ def bridged_input(t_s, acc_mps2, valid, lost_before, sample_var):
     nxt_ok = np.zeros(n, dtype=bool)
     nxt_ok[:-1] = ok[1:]
     a_next = np.where(nxt_ok, np.roll(acc_mps2, -1), a_hi)
-    std_after = 0.5 * np.abs(np.where(np.isfinite(a_next), a_next, 0.0) - np.where(ok, acc_mps2, a_lo)) \
-        + math.sqrt(sample_var)
+    std_after = np.where(several, 0.5 * np.abs(np.where(np.isfinite(a_next), a_next, 0.0)
+                                               - np.where(ok, acc_mps2, a_lo)), 0.0) + math.sqrt(sample_var)
     s = np.where(ok, std_after, std)
     dt = np.zeros(n)
     dt[:-1] = np.diff(t_s)

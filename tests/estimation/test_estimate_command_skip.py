@@ -28,7 +28,7 @@ def _settling_recording(path, settle_mps2: float = 3.0, tau_s: float = 0.0032, f
         "ref_vel_mps": run.ref_vel_mps[keep]})
 
 
-@pytest.mark.parametrize("method", ["realtime", "smoothed", "paper"])
+@pytest.mark.parametrize("method", ["realtime", "smoothed", "paper", "zupt"])
 def test_a_settling_start_is_refused_with_the_way_out_and_estimated_with_it(tmp_path, capsys, method):
     rec = tmp_path / "settling.csv"
     _settling_recording(rec)

@@ -239,7 +239,7 @@ def test_a_short_initial_rest_at_87_samples_per_second_still_estimates(tmp_path,
     assert np.all(np.isfinite(np.genfromtxt(out, delimiter=",", names=True)["pos_m"]))
 
 
-@pytest.mark.parametrize("method", ["paper", "realtime", "smoothed"])
+@pytest.mark.parametrize("method", ["paper", "realtime", "smoothed", "zupt"])
 def test_a_recording_that_starts_moving_is_exit_2_in_one_line(tmp_path, capsys, method):
     d = np.genfromtxt(ROBOT, delimiter=",", names=True)
     moving = int(np.flatnonzero(d["robot_at_rest"] == 0)[0]) + 20
@@ -260,7 +260,7 @@ def test_move_errors_take_each_move_from_rest_end_to_rest_end():
     assert moves[1].ref_m == pytest.approx(-0.4) and moves[1].error_m == pytest.approx(-0.04)
 
 
-@pytest.mark.parametrize("method", ["realtime", "smoothed"])
+@pytest.mark.parametrize("method", ["realtime", "smoothed", "zupt"])
 def test_arrival_times_are_refused_with_the_way_out(tmp_path, capsys, method):
     """A logger's arrival times (a backlog flushed at 2.5 ms spacing, then bursts) are no
     sample clock: every path of `adxlgw estimate` checks its time axis and refuses it in one

@@ -103,3 +103,33 @@ def test_a_record_that_ends_moving_is_flagged_and_covered():
     last_rest_end = true_runs(rest[:cut])[-1][1]
     assert res.untrusted[last_rest_end:].all()
     assert not res.untrusted[:int(round(2.0 / PERIOD_S))].any()
+
+
+def test_one_missing_sample_is_bridged_by_its_neighbours_and_several_by_their_range():
+    """A period that bridges one missing sample (an invalid one, or one lost after a valid
+    one) adds one sample's noise over the bridged time; a gap of several adds the
+    neighbours' half-difference too (the acceleration may have changed between them)."""
+    from gateway.core.zupt_smoother import bridged_input
+
+    n, sample_var = 12, 0.01 ** 2
+    t = np.arange(n) * PERIOD_S
+    acc = np.where(np.arange(n) < 6, 0.0, 2.0)  # a step: neighbours across it differ by 2 m/s²
+    one_invalid = np.ones(n, bool)
+    one_invalid[5] = False
+    _, extra = bridged_input(t, acc, one_invalid, np.zeros(n, np.int64), sample_var)
+    np.testing.assert_allclose(extra[5], sample_var * PERIOD_S ** 2)
+    three_invalid = one_invalid.copy()
+    three_invalid[3:6] = False
+    _, extra = bridged_input(t, acc, three_invalid, np.zeros(n, np.int64), sample_var)
+    np.testing.assert_allclose(extra[3:6], ((1.0 + 0.01) * PERIOD_S) ** 2)
+    t_lost = t.copy()
+    t_lost[6:] += PERIOD_S  # one sample lost after sample 5
+    lost = np.zeros(n, np.int64)
+    lost[6] = 1
+    _, extra = bridged_input(t_lost, acc, np.ones(n, bool), lost, sample_var)
+    np.testing.assert_allclose(extra[5], sample_var * (2 * PERIOD_S) ** 2)
+    lost[6] = 2
+    t_lost[6:] += PERIOD_S
+    _, extra = bridged_input(t_lost, acc, np.ones(n, bool), lost, sample_var)
+    np.testing.assert_allclose(extra[5], ((1.0 + 0.01) * 3 * PERIOD_S) ** 2)
+    assert np.count_nonzero(extra) == 1
