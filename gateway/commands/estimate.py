@@ -69,7 +69,8 @@ def add_parser(sub) -> None:
                     "the errors are printed (final, at each stop, RMS).",
     )
     p.add_argument("recording", metavar="FILE.csv", help="the recording: CSV, or Parquet (.parquet)")
-    p.add_argument("--method", choices=METHODS + COMPARED_METHODS, default="realtime", help="estimation method (default: realtime)")
+    p.add_argument("--method", choices=METHODS + COMPARED_METHODS, default="realtime",
+                   help="estimation method (default: realtime)")
     p.add_argument("--out", required=True, help="output: t_s, pos_m, vel_mps, acc_mps2 and health columns; "
                                                 "CSV, or Parquet when it ends in .parquet")
     add_model_argument(p)
