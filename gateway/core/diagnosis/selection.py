@@ -16,6 +16,7 @@ residual is still not white: structure remains that no candidate explains.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 from scipy.stats import chi2, norm
@@ -92,7 +93,12 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
              progress: Callable[[str], None] = lambda msg: None) -> DiagnosisResult:
     period_s = check_sample_clock(data.t_s, data.lost_before)  # TimestampError (a ValueError): bad input
     host = check_host_clock(data.t_host_s, period_s) if data.t_host_s is not None else None
-    plan = EstimatePlan(settings, returns_to_start)
+    # The estimator's reported σ carries the calibration's tolerance on the gain (per move:
+    # docs/estimation.md, "Never confidently wrong"); the diagnosis measures the gain against
+    # the reference instead (scale_factor, nonlinearity, cross-talk are its candidates), so the
+    # σ it calls "known" (judgement.matters) leaves that prior out: a compensation that makes
+    # the distance worse is not excused by the uncertainty it is there to resolve
+    plan = EstimatePlan(replace(settings, sensitivity_std_frac=0.0), returns_to_start)
     cannot: list[str] = []
     failures: list[dict] = []
     if data.reference is None:
