@@ -85,7 +85,11 @@ def _timed_daemon(config: str, out_path: str) -> None:
 
 
 def run(seconds: float, qos: int) -> list[dict]:
-    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-tick-parts-"))
+    with tempfile.TemporaryDirectory(prefix="adxlgw-tick-parts-") as folder:  # (nothing left behind)
+        return _run_in(Path(folder), seconds, qos)
+
+
+def _run_in(tmp: Path, seconds: float, qos: int) -> list[dict]:
     with Broker(tmp) as broker:
         pty = PtyPort(tmp / "board")
         config = tmp / "gw.toml"
