@@ -22,7 +22,8 @@ import functools
 import json
 import math
 import operator
-from collections.abc import Iterable, Mapping
+import struct
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -317,12 +318,90 @@ def device_birth(timestamp_ms: int, seq: int, row: Mapping[str, Any]) -> bytes:
 
 def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, historical: bool = False) -> bytes:
     """DDATA with the changed metrics; historical: values of a moment ago sent late (kept
-    while the broker was away), flagged so that no host takes them as the current ones."""
-    p = Payload(timestamp=timestamp_ms, seq=seq)
-    metric_timestamp_ms = timestamp_ms if historical else None  # (current data: the payload's timestamp says it)
-    for name, value in changed.items():
-        _add(p, name, value, birth=False, timestamp_ms=metric_timestamp_ms, historical=historical)
-    return p.SerializeToString()
+    while the broker was away), flagged so that no host takes them as the current ones.
+
+    Written as protobuf bytes here, not through the generated classes: a DDATA is made
+    rate_hz times a second in the daemon's event loop, cold each time, and a message
+    object with one `add` and three or four attribute sets per metric was most of its
+    encoding (docs/decisions/0153). What does not change from one message to the next —
+    a metric's alias, datatype and value tag, a current Double's whole prefix, a null or
+    a boolean whole — is made once (`_CURRENT`, `_HISTORICAL`); only the values are
+    encoded per message. The bytes are those protobuf makes for the same message, field
+    for field (tests/mqtt/test_mqtt_payload.py compares them)."""
+    stamp = _varint(timestamp_ms)
+    parts = [b"\x08", stamp]  # timestamp (field 1)
+    append = parts.append
+    if historical:  # (rare: the backlog after a reconnect) each metric carries its time and the flag
+        metric_stamp = b"\x18" + stamp
+        for name, value in changed.items():
+            alias_field, datatype_field, encode = _HISTORICAL[name]
+            metric = alias_field + metric_stamp + datatype_field + b"\x28\x01" + (
+                _NULL if value is None else encode(value))
+            append(b"\x12" + _varint(len(metric)) + metric)
+    else:
+        for name, value in changed.items():
+            null_entry, entry = _CURRENT[name]
+            append(null_entry if value is None else entry(value))
+    append(b"\x18")  # seq (field 3)
+    append(_varint(seq))
+    return b"".join(parts)
+
+
+def _varint(n: int) -> bytes:
+    """Protobuf's base-128 varint of a non-negative int (uint32/uint64 fields)."""
+    if n < 0x80:
+        return _SMALL_VARINTS[n]
+    out = bytearray()
+    while n > 0x7F:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+_SMALL_VARINTS = tuple(bytes((n,)) for n in range(0x80))
+_PACK_DOUBLE = struct.Struct("<d").pack
+# Payload.metrics is field 2 (a length-delimited Metric); in a Metric (sparkplug_b.proto):
+# alias 2, timestamp 3, datatype 4, is_historical 5, is_null 7; the values int_value 10
+# (uint32, varint), long_value 11 (uint64, varint), double_value 13 (fixed64),
+# boolean_value 14 (varint), string_value 15 (length-delimited)
+_NULL = b"\x38\x01"
+_VALUE_ENCODERS: dict[DataType, Callable[[Any], bytes]] = {
+    DataType.UINT32: lambda v: b"\x50" + _varint(v),
+    DataType.UINT64: lambda v: b"\x58" + _varint(v),
+    DataType.DOUBLE: lambda v: b"\x69" + _PACK_DOUBLE(v),
+    DataType.BOOLEAN: lambda v: b"\x70\x01" if v else b"\x70\x00",
+    DataType.STRING: lambda v: b"\x7a" + _varint(len(b := v.encode())) + b,
+}
+
+
+def _entry(metric: bytes) -> bytes:
+    return b"\x12" + _varint(len(metric)) + metric
+
+
+def _current_encoder(head: bytes, datatype: DataType) -> Callable[[Any], bytes]:
+    """A current DDATA's metric (alias, datatype, value) as a Payload.metrics entry."""
+    if datatype is DataType.DOUBLE:  # fixed length: everything but the 8 bytes is made once
+        prefix = _entry(head + b"\x69" + bytes(8))[:-8]
+        return lambda v: prefix + _PACK_DOUBLE(v)
+    if datatype is DataType.BOOLEAN:
+        true, false = _entry(head + b"\x70\x01"), _entry(head + b"\x70\x00")
+        return lambda v: true if v else false
+    encode = _VALUE_ENCODERS[datatype]
+    return lambda v: _entry(head + encode(v))
+
+
+def _heads(m: MetricDef) -> tuple[bytes, bytes]:
+    return b"\x10" + _varint(ALIASES[m.name]), b"\x20" + _varint(int(m.datatype))
+
+
+#: name → (the entry of a null, the encoder of a value): a current DDATA's metrics
+_CURRENT: dict[str, tuple[bytes, Callable[[Any], bytes]]] = {
+    m.name: (_entry(b"".join(_heads(m)) + _NULL), _current_encoder(b"".join(_heads(m)), m.datatype))
+    for m in DEVICE_METRICS}
+#: name → (the alias field, the datatype field, the value's encoder): a historical one's
+_HISTORICAL: dict[str, tuple[bytes, bytes, Callable[[Any], bytes]]] = {
+    m.name: (*_heads(m), _VALUE_ENCODERS[m.datatype]) for m in DEVICE_METRICS}
 
 
 @dataclass(frozen=True, slots=True)

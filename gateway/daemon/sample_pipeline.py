@@ -21,7 +21,7 @@ function runs as plain Python — one implementation under two runners
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -350,10 +350,24 @@ class SamplePipeline:
         if not self._estimated:
             return None
         state = self.estimator.state
-        # one Estimate, built once per change: every wire's snapshot reads it
-        est = Estimate.from_kernel(state.misc[K.M_T_PREV], state.out, self.reference_offset_m, held_std_unknown=True)
-        if self.reference_var_m2 > 0.0:  # the start position's own uncertainty, independent of the filter's
-            est = replace(est, pos_std_m=math.sqrt(est.pos_std_m * est.pos_std_m + self.reference_var_m2))
+        out = state.out
+        filter_var_m2 = out.item(K.O_POS_VAR)
+        published_var_m2 = self._published_pos_var_m2(out.item(K.O_POS) - self.reference_offset_m, filter_var_m2)
+        if published_var_m2 != filter_var_m2:
+            # the published σ as the kernel's output says it, so that the estimate is built
+            # once (built per change, and read by every wire's snapshot: a dataclasses.replace
+            # after it cost more than the build itself)
+            out = out.copy()
+            out[K.O_POS_VAR] = published_var_m2
+        return Estimate.from_kernel(state.misc[K.M_T_PREV], out, self.reference_offset_m, held_std_unknown=True)
+
+    def _published_pos_var_m2(self, pos_m: float, filter_var_m2: float) -> float:
+        """The variance of the published position: the filter's, plus the start position's
+        own (reference_var_m2: independent of the filter's), bounded by the travel. A
+        variance the filter does not have (negative, NaN) stays as it is: σ unknown."""
+        if not filter_var_m2 >= 0.0:
+            return filter_var_m2
+        var_m2 = filter_var_m2 + self.reference_var_m2
         if self.travel_m is not None:
             # The axis is somewhere in its travel: the published position is never farther
             # from the truth than from the farther end of the travel, whatever the filter's
@@ -362,10 +376,10 @@ class SamplePipeline:
             # the axis can have within 1σ; an estimate outside the travel gets a σ that
             # reaches back over all of it.
             lo, hi = self.travel_m
-            farthest_m = max(est.pos_m - lo, hi - est.pos_m)
-            if est.pos_std_m > farthest_m:
-                est = replace(est, pos_std_m=farthest_m)
-        return est
+            farthest_m = max(pos_m - lo, hi - pos_m)
+            if var_m2 > farthest_m * farthest_m:
+                var_m2 = farthest_m * farthest_m
+        return var_m2
 
     @property
     def stop_by_hint(self) -> bool:

@@ -41,7 +41,7 @@ CAN_RETRY_S = 5.0
 STOP_TIMEOUT_S = 1.0
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)  # not frozen: two are made per snapshot (LinkHealth), and a frozen init is slower
 class WireHealth:
     """What the status surfaces say of a wire (Modbus registers, CAN quality frame, log)."""
 

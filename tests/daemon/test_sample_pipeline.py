@@ -292,7 +292,10 @@ def test_a_start_over_and_a_restored_start_keep_the_position_no_more_certain_tha
     at_rest(p, 0, 200)
     assert p.latest().pos_std_m >= before
     p.set_start_uncertainty(0.5)  # a restored position, 0.25 s unwatched at 2 m/s
-    assert p.latest().pos_std_m >= 0.5
+    filter_var_m2 = float(p.estimator.state.out[K.O_POS_VAR])
+    # the two variances add (independent errors); the filter's own state is left as it was
+    assert p.latest().pos_std_m == pytest.approx(math.sqrt(filter_var_m2 + 0.25), rel=1e-12)
+    assert p.estimator.state.out[K.O_POS_VAR] == filter_var_m2
     assert p.tare() and p.reference_var_m2 == 0.0  # here is zero by definition
 
 

@@ -105,3 +105,39 @@ def test_a_status_bit_that_changes_is_sent_and_unchanged_bits_are_not():
     b = spb.device_reading(PublishedValues(position_m=0.1, status=StatusBits.VALID | StatusBits.STANDSTILL))
     assert spb.reading_changes(a, b) == {"status": int(StatusBits.VALID | StatusBits.STANDSTILL),
                                          "status/STANDSTILL": True}
+
+
+_VALUES_BY_TYPE = {
+    spb.DataType.DOUBLE: st.one_of(st.none(), st.floats(allow_nan=False)),
+    spb.DataType.UINT32: st.one_of(st.none(), st.integers(0, 2**32 - 1)),
+    spb.DataType.UINT64: st.one_of(st.none(), st.integers(0, 2**64 - 1)),
+    spb.DataType.BOOLEAN: st.one_of(st.none(), st.booleans()),
+}
+_DDATA_METRICS = list(spb.DEVICE_METRICS)  # (a metric of a type not above: a KeyError, the test fails)
+
+
+def _protobuf_ddata(timestamp_ms, seq, changed, historical):
+    """The oracle: the same DDATA made with the classes generated from the .proto."""
+    payload = spb.Payload(timestamp=timestamp_ms, seq=seq)
+    for name, value in changed.items():
+        m = spb.BY_NAME[name]
+        metric = payload.metrics.add(alias=spb.ALIASES[name], datatype=int(m.datatype))
+        if historical:
+            metric.timestamp = timestamp_ms
+            metric.is_historical = True
+        if value is None:
+            metric.is_null = True
+        else:
+            setattr(metric, {spb.DataType.DOUBLE: "double_value", spb.DataType.UINT32: "int_value",
+                             spb.DataType.UINT64: "long_value", spb.DataType.BOOLEAN: "boolean_value"}[m.datatype],
+                    value)
+    return payload.SerializeToString()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.data(), st.integers(0, 2**63), st.integers(0, 255), st.booleans())
+def test_a_ddata_is_the_bytes_protobuf_makes_for_it(data, timestamp_ms, seq, historical):
+    chosen = data.draw(st.lists(st.sampled_from(_DDATA_METRICS), unique=True, max_size=len(_DDATA_METRICS)))
+    changed = {m.name: data.draw(_VALUES_BY_TYPE[m.datatype]) for m in chosen}
+    assert spb.device_data(timestamp_ms, seq, changed, historical=historical) == \
+        _protobuf_ddata(timestamp_ms, seq, changed, historical)
