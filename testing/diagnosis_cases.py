@@ -199,7 +199,7 @@ CHECKS: dict[str, tuple[ParamCheck, ...]] = {
     "bias_random_walk": (ParamCheck("random_walk_ug_per_rts", lambda t, d: t.k_g_per_rts * 1e6, 0.50),),
     "reference_delay": (ParamCheck("delay_ms", lambda t, d: t.delay_s * 1e3, 0.05),),
     "sample_loss": (ParamCheck("lost_fraction", lambda t, d: actual_lost_fraction(d), 0.01),),
-    "timing": (ParamCheck("hold_back_ms", lambda t, d: t.hold_s * 1e3, 0.05),),
+    "timing": (ParamCheck("hold_back_ms", lambda t, d: t.wait_span_s() * 1e3, 0.05),),
 }
 assert set(CHECKS) == set(EFFECTS), "every documented effect needs its parameter check"
 
