@@ -227,7 +227,7 @@ class TimingTerm(ErrorTerm):
     step_at: float = 0.5
     packet_bytes: int = USB_PACKET_DATA_BYTES
     name = "timing"
-    _wait_span_s: float = float("nan")
+    _hold_back_s: float = float("nan")
 
     def samples(self, ctx, run):
         rng = ctx.rng("usb")
@@ -237,9 +237,9 @@ class TimingTerm(ErrorTerm):
         sent = buffered_arrivals_s(done, link.frame_bytes, link.baud, self.latency_timer_s, self.packet_bytes,
                                    float(rng.uniform(0.0, self.latency_timer_s)))
         # one read latency per packet: frames sent together are stamped together
-        # the waits' span, without the last packet (sent when the record ends, by the timer)
+        # the waits' spread, without the last packet (sent when the record ends, by the timer)
         last = sent < sent[-1]
-        self._wait_span_s = float(np.ptp((sent - done)[last])) if last.any() else 0.0
+        self._hold_back_s = math.sqrt(12.0) * float(np.std((sent - done)[last])) if last.any() else 0.0
         packet = np.concatenate([[0], np.cumsum(np.diff(sent) > 0)])
         read = sent + rng.exponential(link.latency_mean_s, packet[-1] + 1)[packet]
         t0 = float(run.t_s[0])
@@ -247,12 +247,11 @@ class TimingTerm(ErrorTerm):
         run.t_host_s = read + self.clock_rate_error * (read - t0) + np.where(read >= step_time, self.clock_step_s, 0.0)
         return run
 
-    def wait_span_s(self) -> float:
-        """How far apart the adapter's waits lie in the record made (the diagnosis's
-        hold-back): the latency timer when it expires first, what a packet takes to fill
-        when that is shorter, less when the timer is a multiple of the sample period
-        (the frames then meet it at the same few phases). Set by samples()."""
-        return self._wait_span_s
+    def equivalent_hold_back_s(self) -> float:
+        """The adapter's waits in the record made, as the width of the uniform wait with
+        their spread (√12·σ: exact when the frames meet the flushes at all phases, the
+        latency timer's; a packet filling makes its waits uneven). Set by samples()."""
+        return self._hold_back_s
 
 
 # Documented effect sizes: (low, high) of a uniform draw per parameter (sign random where ±).
