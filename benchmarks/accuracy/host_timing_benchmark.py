@@ -4,7 +4,8 @@ corrected host clock made the host times, and how often on clean records.
     .venv/bin/python -m benchmarks.accuracy.host_timing_benchmark --cases 200
 
 Each case is testing.diagnosis_cases.make_case (seeds seed0 … seed0 + N − 1): clean
-(the baseline link: UART + Exp(0.2 ms)), or `timing` (sensor_effects.TimingTerm at its
+(the baseline link: UART + Exp(0.2 ms)), `timing_no_step` (the adapter and the slew
+below, the clock not stepped: how often a step is kept that is not there), or `timing` (sensor_effects.TimingTerm at its
 documented sizes: latency timer 4–16 ms, 62-byte packets, a clock step within ±30 ms, a
 slew within ±500 ppm). The host delays go through the diagnosis's own test
 (host_timing.host_delays, judge_timing at the side tests' false-alarm rate); the full
@@ -15,6 +16,7 @@ the hold-back (against √12·σ of the adapter's waits), the step and the rate.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 
@@ -26,7 +28,9 @@ from testing.diagnosis_cases import SENSOR, make_case
 
 
 def one_case(row: str, seed: int) -> dict:
-    terms, data = make_case(() if row == "clean" else ("timing",), seed)
+    # timing_no_step: the same adapter and slew, the clock never stepped
+    unstepped = (lambda t: replace(t, clock_step_s=0.0)) if row == "timing_no_step" else None
+    terms, data = make_case(() if row == "clean" else ("timing",), seed, adjust=unstepped)
     d = host_delays(data.t_s, data.t_host_s, data.lost_before, SENSOR.t2_s)
     alpha = ALPHA / len(SIDE_EFFECTS)
     v = judge_timing(d.delay_s, d.t_s, TIMING_RESOLUTION_S, alpha)
@@ -48,7 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=50, help="cases per row")
     ap.add_argument("--seed0", type=int, default=0, help="first seed")
-    ap.add_argument("--rows", default="timing,clean", help="comma-separated: timing, clean")
+    ap.add_argument("--rows", default="timing,timing_no_step,clean",
+                    help="comma-separated: timing, timing_no_step (the clock not stepped), clean")
     args = ap.parse_args(argv)
     harness.stamp("benchmarks.accuracy.host_timing_benchmark", argv)
     print("| row | extension predictive | clock step kept | hold-back error median / p90 (ms) "

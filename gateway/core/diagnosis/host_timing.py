@@ -63,6 +63,9 @@ STEP_PARAMS = 2
 ENVELOPE_MIN_DELAYS = 50
 ENVELOPE_MAX_BLOCKS = 50
 ENVELOPE_STEP_MARGIN = 2
+# the step's size is refined by the likelihood within this many bins of the envelope's
+# (a search range, not a threshold: the envelope's error is a few tenths of a ms)
+STEP_SEARCH_BINS = 10
 
 
 def delay_cdf(x, hold_s: float, mean_s: float):
@@ -186,9 +189,25 @@ def fit_timing(delay: np.ndarray, t: np.ndarray, use: np.ndarray, res: float, wi
         origin = float(np.min(fit.corrected(delay, t)[known]))
         places, ll_used, _ = _step_places(delay, t, use, np.zeros_like(use), fit, origin, res)
         fit = fit.with_step_at(int(places[int(np.argmax(ll_used))]))
+        # the step's size by the likelihood, near the envelope's (whose blocks' 5th
+        # percentiles move with the phase at which the frames meet the flushes)
+        fit = replace(fit, step_s=_step_size(delay, t, idx, fit, res))
         hold, mu = _hold_and_latency(fit.corrected(delay, t)[idx], res, bounds, fit)
         fit = replace(fit, hold_s=hold, mean_s=mu)
     return fit
+
+
+def _step_size(delay: np.ndarray, t: np.ndarray, idx: np.ndarray, fit: TimingFit, res: float) -> float:
+    """The step that makes the used delays most likely under the fit's L and μ, searched
+    within STEP_SEARCH_BINS bins of the fit's."""
+    def nll(step):
+        c, e = _delay_histogram(replace(fit, step_s=step).corrected(delay, t)[idx], res)
+        return -binned_loglik(c, e, fit.hold_s, fit.mean_s)
+
+    span = STEP_SEARCH_BINS * res
+    best = minimize_scalar(nll, bounds=(fit.step_s - span, fit.step_s + span), method="bounded",
+                           options={"xatol": res / 100})
+    return float(best.x) if best.fun < nll(fit.step_s) else fit.step_s
 
 
 def _envelope(d: np.ndarray, tt: np.ndarray, idx: np.ndarray, with_step: bool,
