@@ -192,6 +192,8 @@ def fit_timing(delay: np.ndarray, t: np.ndarray, use: np.ndarray, res: float, wi
         # the step's size by the likelihood, near the envelope's (whose blocks' 5th
         # percentiles move with the phase at which the frames meet the flushes)
         fit = replace(fit, step_s=_step_size(delay, t, idx, fit, res))
+        if abs(fit.step_s) < res:  # below the resolution once sized: none (as in _envelope)
+            fit = replace(fit, step_s=0.0, step_index=0, window_lo=0, window_hi=0)
         hold, mu = _hold_and_latency(fit.corrected(delay, t)[idx], res, bounds, fit)
         fit = replace(fit, hold_s=hold, mean_s=mu)
     return fit
@@ -335,7 +337,8 @@ def judge_timing(delay: np.ndarray, t: np.ndarray, res: float, alpha: float) -> 
             out = fit_timing(delay, t, use, res, with_step=s, start=fits[s])
             base[f], ext[s][f] = predictive_logliks(delay, t, use, held, out, res)
     step_cv = cv_gain(ext[True], ext[False])
-    stepped = step_cv.predictive(alpha, STEP_PARAMS)
+    # (a record whose own fit finds no step resolved has none, whatever its folds found)
+    stepped = fits[True].step_s != 0.0 and step_cv.predictive(alpha, STEP_PARAMS)
     return TimingVerdict(fits[stepped], cv_gain(ext[stepped], base), step_cv,
                          TIMING_PARAMS + (STEP_PARAMS if stepped else 0))
 
