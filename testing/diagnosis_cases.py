@@ -42,7 +42,11 @@ tolerance was widened for a single seed.
 | bias_random_walk   | random_walk_ug_per_rts | k_g_per_rts · 1e6                 | 25 % (2 of 20 named) | | 50 % |
 | reference_delay    | delay_ms               | delay_s · 1e3                     | 0.1 %        | 0.1 %  | 5 %     |
 | sample_loss        | lost_fraction          | lost / (received + lost), counted | 0            | 0      | 1 %     |
-| timing             | hold_back_ms           | hold_s · 1e3                      | 0.8 %        | 0.4 %  | 5 %     |
+| timing             | hold_back_ms           | √12·σ of the adapter's waits · 1e3 | –           | 2.3 %  | 5 %     |
+
+timing's row is of the buffered adapter with a stepped host clock (sensor_effects.TimingTerm;
+`diagnosis_benchmark --generator own --cases 10 --effects timing`, seeds 0–9: median 0.6 %,
+p90 2.3 %; the largest not printed): its 5 % is the rule's floor.
 
 Exceptions to the rule: vibration's damping gets 10 % (two effects at once, vibration
 with sample loss, gave 4.5 %); sample_loss is checked against the fraction actually
@@ -199,7 +203,7 @@ CHECKS: dict[str, tuple[ParamCheck, ...]] = {
     "bias_random_walk": (ParamCheck("random_walk_ug_per_rts", lambda t, d: t.k_g_per_rts * 1e6, 0.50),),
     "reference_delay": (ParamCheck("delay_ms", lambda t, d: t.delay_s * 1e3, 0.05),),
     "sample_loss": (ParamCheck("lost_fraction", lambda t, d: actual_lost_fraction(d), 0.01),),
-    "timing": (ParamCheck("hold_back_ms", lambda t, d: t.hold_s * 1e3, 0.05),),
+    "timing": (ParamCheck("hold_back_ms", lambda t, d: t.equivalent_hold_back_s() * 1e3, 0.05),),
 }
 assert set(CHECKS) == set(EFFECTS), "every documented effect needs its parameter check"
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gateway.core.filters import mount_resonance, one_pole_lowpass
+from gateway.core.sensor_model import BOARD_HOST_LINK
 from gateway.core.simulator import ErrorTerm, SignalContext
 
 
@@ -168,17 +169,89 @@ class SampleLossTerm(ErrorTerm):
         return run.select(keep)
 
 
+# A USB-serial adapter's buffer (FTDI FT232R/FT232H data sheets, application note
+# AN232B-04 "Data throughput, latency and handshaking"): a full-speed bulk packet is 64
+# bytes, two of them the chip's modem status, so 62 data bytes; the chip sends what it
+# holds when the packet is full or when its latency timer (1–255 ms, default 16) expires,
+# the timer restarting at each packet sent (with an empty buffer only the status goes).
+# The host reads a packet at once: every frame whose last byte it holds gets one stamp.
+USB_PACKET_DATA_BYTES = 62
+UART_BITS_PER_BYTE = 10  # 8N1: start + 8 data + stop
+
+
+def buffered_arrivals_s(frame_done_s: np.ndarray, frame_bytes: int, baud: float, latency_timer_s: float,
+                        packet_bytes: int, timer_phase_s: float) -> np.ndarray:
+    """When each frame reaches the host through an adapter that buffers (above): the
+    time its last byte's packet leaves the chip. frame_done_s: when each frame's last
+    byte left the UART (sorted); the bytes before it left one byte time apart."""
+    byte_s = UART_BITS_PER_BYTE / baud
+    offsets = (np.arange(frame_bytes) - (frame_bytes - 1)) * byte_s
+    byte_times = (frame_done_s[:, None] + offsets[None, :]).ravel()
+    sent_s = np.empty(byte_times.size)
+    timer_start = -timer_phase_s
+    held: list[int] = []  # bytes in the chip's buffer, waiting
+    for i, b in enumerate(byte_times):
+        if held and b >= timer_start + latency_timer_s:  # the timer expired with data: a short packet
+            timer_start += latency_timer_s
+            sent_s[held] = timer_start
+            held = []
+        if not held and b >= timer_start + latency_timer_s:  # it expired empty (status only), restarted
+            timer_start += latency_timer_s * np.floor((b - timer_start) / latency_timer_s)
+        held.append(i)
+        if len(held) == packet_bytes:  # a full packet leaves at once
+            sent_s[held] = b
+            held = []
+            timer_start = b
+    if held:
+        sent_s[held] = timer_start + latency_timer_s
+    return sent_s.reshape(frame_done_s.size, frame_bytes)[:, -1]
+
+
 @dataclass
 class TimingTerm(ErrorTerm):
-    """A USB adapter's latency timer: the host sees samples in bursts every hold_s."""
+    """Host arrival times through a buffering USB-serial adapter, on a host clock that
+    is corrected while the record runs.
 
-    hold_s: float
+    - the adapter (buffered_arrivals_s): 62-byte packets, sent when full or when the
+      latency timer expires; every frame in one packet is stamped at once;
+    - the host reads each packet after an exponential latency (the baseline link's);
+    - the host clock runs off by clock_rate_error (NTP slews an offset below its 128 ms
+      step threshold at up to 500 ppm; ntpd's documented maximum) and is stepped once by
+      clock_step_s at step_at (a fraction of the record; chrony's makestep, a PTP or
+      manual correction): a step back makes arrival times go backwards.
+    """
+
+    latency_timer_s: float
+    clock_step_s: float = 0.0
+    clock_rate_error: float = 0.0
+    step_at: float = 0.5
+    packet_bytes: int = USB_PACKET_DATA_BYTES
     name = "timing"
+    _hold_back_s: float = float("nan")
 
     def samples(self, ctx, run):
-        phase = float(ctx.rng("usb").uniform(0.0, self.hold_s))
-        run.t_host_s = (np.floor((run.t_host_s + phase) / self.hold_s) + 1.0) * self.hold_s - phase
+        rng = ctx.rng("usb")
+        link = BOARD_HOST_LINK
+        period = ctx.sensor.t2_s
+        done = run.t_s + period + link.frame_time_s  # the frame's last byte leaves the UART
+        sent = buffered_arrivals_s(done, link.frame_bytes, link.baud, self.latency_timer_s, self.packet_bytes,
+                                   float(rng.uniform(0.0, self.latency_timer_s)))
+        # one read latency per packet: frames sent together are stamped together
+        # the waits' spread, without the last packet (sent when the record ends, by the timer)
+        last = sent < sent[-1]
+        self._hold_back_s = math.sqrt(12.0) * float(np.std((sent - done)[last])) if last.any() else 0.0
+        packet = np.concatenate([[0], np.cumsum(np.diff(sent) > 0)])
+        read = sent + rng.exponential(link.latency_mean_s, packet[-1] + 1)[packet]
+        t0 = float(run.t_s[0])
+        step_time = t0 + self.step_at * float(run.t_s[-1] - t0)
+        run.t_host_s = read + self.clock_rate_error * (read - t0) + np.where(read >= step_time, self.clock_step_s, 0.0)
         return run
+
+    def equivalent_hold_back_s(self) -> float:
+        """The adapter's waits in the record made, as the width of the uniform wait with
+        their spread (√12·σ: exact when the frames meet the flushes at all phases, the
+        latency timer's; a packet filling makes its waits uneven). Set by samples()."""
+        return self._hold_back_s
 
 
 # Documented effect sizes: (low, high) of a uniform draw per parameter (sign random where ±).
@@ -194,7 +267,10 @@ EFFECT_SIZES = {
     "bias_random_walk": {"k_g_per_rts": (0.2e-3, 0.6e-3)},  # on a 60 s standstill (SCENARIO_FOR)
     "reference_delay": {"delay_s": (0.004, 0.012)},
     "sample_loss": {"lost_fraction": (0.002, 0.01)},
-    "timing": {"hold_s": (0.004, 0.016)},
+    # a latency timer of 4–16 ms (16: the FTDI default); a clock step of up to 30 ms either
+    # way; a slew within ntpd's 500 ppm
+    "timing": {"latency_timer_s": (0.004, 0.016), "clock_step_s": (-0.030, 0.030),
+               "clock_rate_error": (-500e-6, 500e-6), "step_at": (0.1, 0.9)},
 }
 # A bias random walk is a standstill phenomenon (as the paper's drift model is): it is
 # diagnosed on a standstill record, where no motion regressor can mimic it. A 4-stroke run

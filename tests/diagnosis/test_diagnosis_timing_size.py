@@ -50,7 +50,8 @@ def test_a_timer_is_named_when_its_scatter_exceeds_half_a_period(hold_s, named):
     # 1.5 ms one by 0.43 ms = 0.22 of a period (the board's timing convention allows 0.5)
     slow = StrokeSettings(strokes=STROKES, max_speed_mps=0.15, max_acc_mps2=1.0)
     for seed in range(3, 6):
-        _, data = make_case(("timing",), seed, adjust=lambda t: replace(t, hold_s=hold_s), strokes=slow)
+        _, data = make_case(("timing",), seed, strokes=slow, adjust=lambda t: replace(
+            t, latency_timer_s=hold_s, clock_step_s=0.0, clock_rate_error=0.0))
         result = run_diagnosis(data)
         timing = [e for e in result.effects if e.name == "timing"]
         if named:

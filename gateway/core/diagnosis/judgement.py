@@ -73,6 +73,11 @@ MAX_TILT_IN_MOTION_DEG = 5.0  # a tool tilting more than 5° under its drive is 
 # that fell behind — host times that are wrong, but not by a clock or a latency timer
 MAX_HOLD_BACK_S = 0.255
 MAX_CLOCK_RATE_ERROR = 0.02
+# a host clock's step: ntpd steps an offset beyond 128 ms at once and below it slews
+# (500 ppm at most), chrony's makestep and PTP step smaller ones; no synchronising daemon
+# sets the clock by more than ntpd's panic threshold, 1000 s (beyond it ntpd refuses and
+# exits): a larger jump is a clock set by hand or a logger's own time base, not a step
+MAX_CLOCK_STEP_S = 1000.0
 
 
 def period_s(prep: Prepared) -> float:
@@ -149,8 +154,12 @@ def physical(name: str, prep: Prepared, theta: np.ndarray) -> str | None:
         return f"{100 * theta[0]:+.0f} % of the other axis's motion (beyond ±{100 * MAX_CROSS_GAIN:g} %)"
     if name == "temperature_offset" and abs(theta[0] / G * 1e3) > MAX_OFFSET_MG_PER_C:
         return f"{theta[0] / G * 1e3:.1f} mg/°C (data sheet: order of 1 mg/°C)"
-    if name == "timing":  # theta: (hold-back s, clock rate error as a fraction, scatter s)
+    if name == "timing":  # theta: (hold-back s, clock rate error as a fraction, scatter s, clock step s)
         hold, rate = theta[:2]
+        step = float(theta[3]) if len(theta) > 3 else 0.0
+        if abs(step) > MAX_CLOCK_STEP_S:
+            return (f"a host clock step of {step:+.0f} s (no synchronising daemon steps more than "
+                    f"{MAX_CLOCK_STEP_S:g} s: a clock set by hand, or not a clock)")
         if hold > MAX_HOLD_BACK_S or abs(rate) > MAX_CLOCK_RATE_ERROR:
             return (f"host times held back up to {1e3 * hold:.0f} ms with a clock {1e6 * rate:+.0f} ppm off "
                     f"(a latency timer is at most {1e3 * MAX_HOLD_BACK_S:g} ms, a clock within "

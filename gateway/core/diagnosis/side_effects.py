@@ -31,18 +31,17 @@ from scipy.optimize import minimize, minimize_scalar
 from scipy.stats import chi2
 
 from gateway.core.diagnosis.context import USABLE_COLUMN_FRACTION, G, Prepared
-from gateway.core.diagnosis.criterion import MIN_CV_BLOCKS, CvGain, block_ids, block_predictive_loglik, cv_gain
+from gateway.core.diagnosis.criterion import ALPHA, MIN_CV_BLOCKS, CvGain, block_ids, block_predictive_loglik, cv_gain
+from gateway.core.diagnosis.host_timing import (
+    BASELINE_LATENCY_MEAN_S,
+    TIMING_RESOLUTION_S,
+    host_delays,
+    host_time_position_mm,
+    judge_timing,
+    predictive_logliks,
+)
 from gateway.core.diagnosis.reading import fit_noise_model, gaussian_loglik
 from gateway.core.diagnosis.signal_interface import Compensation
-
-# The baseline host link (sensor_model.HostLinkParams): exponential latency, mean 0.2 ms.
-BASELINE_LATENCY_MEAN_S = 0.2e-3
-# The bin width of the timing test (see Timing)
-TIMING_RESOLUTION_S = 1e-4
-# a stretch between sequence gaps gives the delay's lower edge by its smallest value: of n
-# exponential latencies the smallest lies μ/n above the edge, 20 samples put it within
-# 5 % of the baseline's 0.2 ms (10 µs, a tenth of a bin)
-MIN_EDGE_STRETCH = 20
 
 
 @dataclass
@@ -147,45 +146,6 @@ class CrossAxis(SideEffect):
         )
 
 
-def delay_cdf(x, hold_s: float, mean_s: float):
-    """CDF of U(0, L) + Exp(μ) (L = 0: the exponential alone)."""
-    x = np.maximum(np.asarray(x, dtype=float), 0.0)
-    if hold_s <= 0.0:
-        return -np.expm1(-x / mean_s)
-    below = np.minimum(x, hold_s)
-    # ∫0^x (1 − e^(−u/μ))/L du for x ≤ L; beyond L the exponential tail of the sum
-    inside = (below + mean_s * np.expm1(-below / mean_s)) / hold_s
-    # (x − L clipped at 0: np.where evaluates both branches, and e^(−(x−L)/μ) for x ≪ L overflowed)
-    past = np.maximum(x - hold_s, 0.0)
-    beyond = np.where(x > hold_s, mean_s * -np.expm1(-hold_s / mean_s) * -np.expm1(-past / mean_s) / hold_s, 0.0)
-    return inside + beyond
-
-
-def binned_loglik(counts: np.ndarray, edges: np.ndarray, hold_s: float, mean_s: float) -> float:
-    """Multinomial log-likelihood of a histogram (last bin open to +∞)."""
-    cdf = delay_cdf(edges, hold_s, mean_s)
-    p = np.diff(np.append(cdf, 1.0))
-    return float(np.sum(counts * np.log(np.maximum(p, 1e-300))))
-
-
-def host_time_position_mm(delay_s: np.ndarray, speed_mps: np.ndarray) -> float:
-    """How far a position stamped with the host's arrival time lies from where the axis
-    was, at the record's top speed: top speed × the delay's scatter beyond what the
-    baseline link gives (Exp(μ) has σ = μ), in mm rms.
-
-    Why not the residual share: the baseline and the extension are both distributions of
-    the same delays around their own means, so the spread left "unexplained" is the same
-    under both (a latency timer's U(0, L) has σ = L/√12 either way) and the share is ~0
-    for any L. What a latency timer costs a user is the scatter itself: a gateway stamping
-    (or a logger timing) samples on arrival misplaces each by v·δt. The top speed is the
-    99th percentile of |v| (one spike of a differentiated reference does not set it)."""
-    if delay_s.size < 2 or speed_mps.size == 0:
-        return 0.0
-    excess_var = float(np.var(delay_s)) - BASELINE_LATENCY_MEAN_S**2
-    top_speed = float(np.quantile(speed_mps[np.isfinite(speed_mps)], 0.99)) if np.isfinite(speed_mps).any() else 0.0
-    return top_speed * math.sqrt(max(excess_var, 0.0)) * 1e3
-
-
 class Timing(SideEffect):
     """Host delays are compared as a histogram of TIMING_RESOLUTION_S bins.
 
@@ -205,123 +165,48 @@ class Timing(SideEffect):
 
     def test(self, prep, residual):
         d = prep.data
-        ok = np.isfinite(d.t_host_s)
-        t_end = d.t_s[ok] + d.period_s  # the sample is sent when its period ends
-        delay = d.t_host_s[ok] - t_end
-        t = t_end - t_end[0]
-        # after a gap the board time steps by up to a tick per lost sample: the delay's
-        # lower edge is taken per stretch between gaps (shorter stretches dropped)
-        stretch = np.cumsum(d.lost_before > 0)[ok]
-        sizes = np.bincount(stretch)
-        keep = sizes[stretch] >= MIN_EDGE_STRETCH
-        edge = np.full(sizes.size, np.inf)
-        np.minimum.at(edge, stretch[keep], delay[keep])
-        delay = (delay - edge[stretch])[keep]
-        t = t[keep]
+        delays = host_delays(d.t_s, d.t_host_s, d.lost_before, d.period_s)
+        delay, t, t_end, ok, keep = delays.delay_s, delays.t_s, delays.t_end_s, delays.finite, delays.kept
         res = TIMING_RESOLUTION_S
-        # every fit and every fold's prediction on TIMING_RESOLUTION_S bins from the lower edge
+        # the extension with or without a clock step, judged out of block (host_timing.py),
+        # at the false-alarm rate the side tests share
+        verdict = judge_timing(delay, t, res, ALPHA / len(SIDE_EFFECTS))
+        full = verdict.fit
         every = np.ones(t.size, dtype=bool)
-        full = _timing_fit(delay, t, every, res)
-        ll0, ll1 = _timing_loglik(delay, t, every, full, res)
-        rate, hold, mu, mu_base = full.rate, full.hold_s, full.mean_s, full.base_mean_s
-        x1 = delay - rate * t
-        # out of block: each of MIN_CV_BLOCKS stretches of the record predicted by both
-        # models fitted on the others
-        fold = np.minimum((np.arange(t.size) * MIN_CV_BLOCKS) // max(t.size, 1), MIN_CV_BLOCKS - 1)
-        with_effect, without = np.zeros(MIN_CV_BLOCKS), np.zeros(MIN_CV_BLOCKS)
-        for f in range(MIN_CV_BLOCKS):
-            out = _timing_fit(delay, t, fold != f, res, start=full)
-            without[f], with_effect[f] = _timing_loglik(delay, t, fold == f, out, res)
-        cv = cv_gain(with_effect, without)
+        ll0, ll1 = predictive_logliks(delay, t, every, every, full, res)
+        x1 = full.corrected(delay, t)
         spread = float(np.std(np.diff(d.t_host_s[ok])))
-        excess0 = delay - delay.min() - mu_base
-        excess1 = x1 - x1.min() - (hold / 2 + mu)
+        excess0 = delay - delay.min() - full.base_mean_s
+        excess1 = x1 - x1.min() - (full.hold_s / 2 + full.mean_s)
         position_mm = host_time_position_mm(x1, np.abs(d.ref_vel_mps[ok][keep]))
         # the delays' scatter beyond the baseline link's (judgement: the setup's range, and
         # whether it matters, in sample periods)
         scatter_s = math.sqrt(max(float(np.var(x1)) - BASELINE_LATENCY_MEAN_S**2, 0.0))
+        step_at_s = float(t[min(full.step_index, t.size - 1)] + t_end[0] - d.t_s[0]) if full.step_s else float("nan")
+        step = verdict.step_cv
         return SideTest(
-            params={"clock_rate_error_ppm": (rate * 1e6, float("nan")),
-                    "hold_back_ms": (hold * 1e3, float("nan")),
-                    "latency_mean_ms": (mu * 1e3, float("nan")),
+            params={"clock_rate_error_ppm": (full.rate * 1e6, float("nan")),
+                    "hold_back_ms": (full.hold_s * 1e3, float("nan")),
+                    "latency_mean_ms": (full.mean_s * 1e3, float("nan")),
+                    "clock_step_ms": (full.step_s * 1e3, float("nan")),
+                    "clock_step_at_s": (step_at_s, float("nan")),
                     "arrival_interval_std_ms": (spread * 1e3, float("nan")),
                     "position_at_top_speed_mm": (position_mm, float("nan"))},
-            loglik_before=ll0, loglik_after=ll1, extra_params=3, p_value=_lr_p(ll0, ll1, 3),
+            loglik_before=ll0, loglik_after=ll1, extra_params=verdict.extra_params,
+            p_value=_lr_p(ll0, ll1, verdict.extra_params),
             rms_before=float(np.sqrt(np.mean(excess0**2))), rms_after=float(np.sqrt(np.mean(excess1**2))),
             rms_unit="s",
             detail=(f"host delay against the board clock, {res * 1e3:g} ms bins; baseline latency "
-                    f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms"),
+                    f"mean {BASELINE_LATENCY_MEAN_S * 1e3:g} ms; a host clock step: "
+                    + (f"{full.step_s * 1e3:+.1f} ms at {step_at_s:.2f} s" if full.step_s else "none")
+                    + f" (out of block {step.text()})"),
             # the delays' scatter beyond the baseline link's, in sample periods (judgement.matters)
             values={"host_time": True, "host_scatter_periods": scatter_s / d.period_s},
             position_mm=position_mm,
-            # the hold-back (s), the clock's rate error (fraction), the delays' scatter (s)
-            theta=np.array([hold, rate, scatter_s]),
-            cv=cv,
+            # the hold-back (s), the clock's rate error (fraction), the delays' scatter (s), the clock's step (s)
+            theta=np.array([full.hold_s, full.rate, scatter_s, full.step_s]),
+            cv=verdict.cv,
         )
-
-
-@dataclass(frozen=True)
-class _TimingFit:
-    rate: float  # the host clock's rate error against the board's (fraction)
-    hold_s: float  # the extension's uniform hold-back L
-    mean_s: float  # the extension's exponential latency μ
-    base_mean_s: float  # the baseline's exponential latency μ
-
-
-def _timing_fit(delay: np.ndarray, t: np.ndarray, use: np.ndarray, res: float,
-                start: _TimingFit | None = None) -> _TimingFit:
-    """Both host-delay models fitted on the samples `use`: the baseline Exp(μ) on the
-    delays, the extension U(0, L) + Exp(μ) on the delays less a clock-rate line."""
-    d, tt = delay[use], t[use]
-    # a clock rate error shows as a slope of the delay's lower envelope: each block's 5th
-    # percentile (the edge, not moved by one early sample), up to 50 blocks of ≥ 50 delays
-    blocks = np.array_split(np.arange(tt.size), max(2, min(50, tt.size // 50)))
-    bt = np.array([float(np.median(tt[b])) for b in blocks])
-    bd = np.array([float(np.quantile(d[b], 0.05)) for b in blocks])
-    rate = float(np.polyfit(bt, bd, 1)[0]) if bt.size >= 3 else 0.0
-    c0, e0 = _delay_histogram(d, res)
-    mu0 = max(float(np.mean(d - d.min())), res / 10)
-    bounds = (math.log(mu0) - 4, math.log(mu0) + 2)
-    base = minimize_scalar(lambda lm: -binned_loglik(c0, e0, 0.0, math.exp(lm)), bounds=bounds, method="bounded")
-    c1, e1 = _delay_histogram(d - rate * tt, res)
-    span = float(np.ptp(d - rate * tt))
-    if start is None:
-        starts = [(math.log(max(f * span, res / 10)), math.log(max(g * mu0, res / 10)))
-                  for f in (0.05, 0.5, 0.9) for g in (0.1, 1.0)]
-    else:  # a fold: from the whole record's fit
-        starts = [(math.log(max(start.hold_s, res / 10)), math.log(max(start.mean_s, res / 10)))]
-    best = min((minimize(lambda p: -binned_loglik(c1, e1, math.exp(p[0]), math.exp(p[1])), s0,
-                         method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3, "maxiter": 400})
-                for s0 in starts), key=lambda r: r.fun)
-    hold, mu = (math.exp(v) for v in best.x)
-    # nested: the extension at L = 0 is the exponential alone; never below it
-    exp_only = minimize_scalar(lambda lm: -binned_loglik(c1, e1, 0.0, math.exp(lm)), bounds=bounds, method="bounded")
-    if -float(exp_only.fun) > -float(best.fun):
-        hold, mu = 0.0, math.exp(exp_only.x)
-    return _TimingFit(rate, hold, mu, math.exp(base.x))
-
-
-def _delay_histogram(x: np.ndarray, res: float):
-    """Counts of x − min(x) in bins of res (the last open), and the bins' lower edges."""
-    x = x - x.min()
-    edges = np.arange(0.0, float(x.max()) + res, res)
-    counts = np.bincount(np.minimum((x / res).astype(np.int64), edges.size - 1), minlength=edges.size)
-    return counts, edges
-
-
-def _timing_loglik(delay: np.ndarray, t: np.ndarray, sel: np.ndarray, fit: _TimingFit,
-                   res: float) -> tuple[float, float]:
-    """Binned log-likelihoods of the delays `sel` under the baseline and the extension
-    fitted as `fit`; each model's lower edge is where its fit put it (the record's)."""
-    def counts(x, origin):
-        edges = np.arange(0.0, float(x.max() - origin) + 2 * res, res)
-        idx = np.clip(((x[sel] - origin) / res).astype(np.int64), 0, edges.size - 1)
-        return np.bincount(idx, minlength=edges.size), edges
-
-    x1 = delay - fit.rate * t
-    c0, e0 = counts(delay, float(delay.min()))
-    c1, e1 = counts(x1, float(x1.min()))
-    return binned_loglik(c0, e0, 0.0, fit.base_mean_s), binned_loglik(c1, e1, fit.hold_s, fit.mean_s)
 
 
 class SampleLoss(SideEffect):
