@@ -22,8 +22,13 @@ DBC = ROOT / "config" / "adxl-gateway.dbc"
 
 def start(tmp_path):
     link = tmp_path / "board"
-    emu = subprocess.Popen([*CLI, "emulate", "--loop", "--link", str(link)], stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
+    # An ADXL202 with RSET 1.25 MOhm (T2 10 ms, 100 samples/s; data-sheet range): the guest's
+    # emulated CPU runs the plain-Python daemon 10-20x slower than the host, more than one
+    # emulated core at the board's 500 samples/s; it then fell behind, worked through backlogs
+    # of 10-15 s at once and cleared VALID after each gap (a CI run, 2026-11-28). This test is
+    # about SocketCAN, not speed.
+    emu = subprocess.Popen([*CLI, "emulate", "--loop", "--rset-kohm", "1250", "--link", str(link)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert emu.stdout.readline(), emu.stderr.read()
     cfg = tmp_path / "gw.toml"
     cfg.write_text(
@@ -38,7 +43,7 @@ def start(tmp_path):
         '[estimator]\nstart_at_rest = true\n'  # the emulated board starts at rest
     )
     # Under software emulation numba's first compile takes minutes; the plain-Python
-    # step (the same code) is plenty for 500 samples/s and this test is about SocketCAN.
+    # step (the same code) keeps up with the 100 samples/s above.
     env = {**os.environ, "ADXLGW_NO_JIT": "1"}
     daemon = subprocess.Popen([*CLI, "run", "--config", str(cfg)], stdout=subprocess.PIPE,
                               stderr=subprocess.STDOUT, text=True, env=env)
