@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from .mqtt_packet import mqtt_varint
 from .published_values import Command, PublishedValues, StatusBits, StatusExtBits, usable_status
 from .sparkplug import sparkplug_b_pb2
 
@@ -348,15 +349,9 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
 
 
 def _varint(n: int) -> bytes:
-    """Protobuf's base-128 varint of a non-negative int (uint32/uint64 fields)."""
-    if n < 0x80:
-        return _SMALL_VARINTS[n]
-    out = bytearray()
-    while n > 0x7F:
-        out.append((n & 0x7F) | 0x80)
-        n >>= 7
-    out.append(n)
-    return bytes(out)
+    """Protobuf's base-128 varint of a non-negative int (uint32/uint64 fields): MQTT's
+    remaining-length encoding, the one-byte values from a table (most of a DDATA's)."""
+    return _SMALL_VARINTS[n] if n < 0x80 else mqtt_varint(n)
 
 
 _SMALL_VARINTS = tuple(bytes((n,)) for n in range(0x80))
