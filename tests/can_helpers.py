@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import subprocess
+import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
@@ -77,3 +79,22 @@ async def publishing(
 
 def virtual_config(channel: str, **overrides) -> CanPublisherConfig:
     return CanPublisherConfig(**{"interface": "virtual", "channel": channel, **overrides})
+
+
+def candump_line(channel: str, frame_id: int, payload: bytes) -> str:
+    """One frame as `candump` prints it (what `cantools decode` reads)."""
+    return f"  {channel}  {frame_id:03X}   [{len(payload)}]  " + " ".join(f"{b:02X}" for b in payload)
+
+
+def cantools_decode(lines: list[str]) -> list[str]:
+    """candump lines through `python -m cantools decode --single-line` with the shipped DBC:
+    one decoded line per frame."""
+    result = subprocess.run(
+        [sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
+        input="\n".join(lines) + "\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
+    )
+    return result.stdout.splitlines()

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import math
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import cantools
@@ -30,6 +28,7 @@ from drivers.can_frames import (
 )
 from drivers.can_frames_text import dbc_text, frames_markdown
 from drivers.published_values import Command, PublishedValues, StatusBits
+from tests.can_helpers import candump_line, cantools_decode
 
 ROOT = Path(__file__).resolve().parents[2]
 DBC_PATH = ROOT / "config" / "adxl-gateway.dbc"
@@ -222,24 +221,12 @@ def test_halfway_between_two_steps_rounds_to_a_neighbour(raw) -> None:
     assert decoded in (pytest.approx(raw * 1e-6, abs=1e-9), pytest.approx((raw + 1) * 1e-6, abs=1e-9))
 
 
-def _candump_line(channel: str, frame_id: int, payload: bytes) -> str:
-    return f"  {channel}  {frame_id:03X}   [{len(payload)}]  " + " ".join(f"{b:02X}" for b in payload)
-
-
 def test_cantools_command_line_decodes_candump_output() -> None:
     values = PublishedValues(position_m=1.234567, velocity_mps=-0.5, acceleration_mps2=0.25, status=StatusBits.VALID)
     frames = encode_cyclic(values, 7, 8)
-    lines = [_candump_line("vcan0", frame.frame_id, payload) for frame, payload in frames.items()]
-    lines.append(_candump_line("vcan0", COMMAND_FRAME.frame_id, encode_command(Command.TARE, 2)))
-    result = subprocess.run(
-        [sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
-        input="\n".join(lines) + "\n",
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    )
-    out = result.stdout.splitlines()
+    lines = [candump_line("vcan0", frame.frame_id, payload) for frame, payload in frames.items()]
+    lines.append(candump_line("vcan0", COMMAND_FRAME.frame_id, encode_command(Command.TARE, 2)))
+    out = cantools_decode(lines)
     assert len(out) == 4
     assert "ADXL_Position(" in out[0] and "Pos_Counter: 7" in out[0]
     assert float(re.search(r"Pos_Position: (\S+) m,", out[0]).group(1)) == pytest.approx(1.234567, abs=0.5e-6)

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import re
-import subprocess
-import sys
 import time
 
 import can
@@ -21,7 +19,7 @@ from drivers.can_frames import (
 )
 from drivers.can_publisher import CanPublisher, CanPublisherConfig, CanPublisherError
 from drivers.published_values import PublishedValues, StatusBits
-from tests.can_helpers import DB, DBC_PATH, VALUES, publishing, virtual_config
+from tests.can_helpers import DB, VALUES, candump_line, cantools_decode, publishing, virtual_config
 from tests.wire_helpers import run
 
 
@@ -105,18 +103,8 @@ def test_candump_of_real_frames_decodes_with_the_cantools_cli(channel: str) -> N
             return await peer.frames(6)
 
     messages = run(scenario())
-    lines = [
-        f"  vcan0  {m.arbitration_id:03X}   [{m.dlc}]  " + " ".join(f"{b:02X}" for b in m.data) for m in messages
-    ]
-    result = subprocess.run(
-        [sys.executable, "-m", "cantools", "decode", "--single-line", str(DBC_PATH)],
-        input="\n".join(lines) + "\n",
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=True,
-    )
-    out = result.stdout.splitlines()
+    lines = [candump_line("vcan0", m.arbitration_id, bytes(m.data)) for m in messages]
+    out = cantools_decode(lines)
     assert len(out) == 6
     positions = [float(v) for line in out for v in re.findall(r"Pos_Position: (\S+) m,", line)]
     velocities = [float(v) for line in out for v in re.findall(r"Vel_Velocity: (\S+) m/s,", line)]
