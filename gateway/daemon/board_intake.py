@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from drivers.published_values import PublishedValues, StatusExtBits, flag_word
 from gateway.core import estimator_kernel as K
 from gateway.core.estimator import HOLDING_FLAGS, Estimate
+from gateway.daemon.sample_loop import OUTAGE_S
 from gateway.daemon.sample_pipeline import ChunkResult, SamplePipeline
 from gateway.daemon.status_flags import EVENT_HOLD_S, GatewayCondition, LinkHealth, status_bits
 
@@ -22,12 +23,13 @@ log = logging.getLogger("adxlgw")
 # a clipped or an invalid sample shows on the wires at least this long
 SATURATION_HOLD_S = 1.0
 AXIS_INVALID_HOLD_S = 1.0
-# Samples after a silence longer than this (a port lost, a board that stopped talking)
-# start the estimator over with the velocity unknown: bridging a velocity across seconds
-# is a guess (benchmarks/daemon/fault_benchmark.py: a 2 s outage bridged came back 2 m off with
-# a 75 mm σ). Gaps of a few samples stay bridged (they cost < 1 mm there).
-OUTAGE_S = 0.25
-
+# A silence shorter than this on the host's clock is judged by the board's seq: a seq gap
+# longer than sample_loop.OUTAGE_S of the board's clock starts the estimator over (the
+# pipeline does it, at the gap), a backlog read late after a host stall lost nothing and
+# keeps the estimate. A longer silence could hide a whole wrap of the 16-bit seq at the
+# fastest period the data sheet allows (T2 ≥ 0.5 ms: 65536 × 0.5 ms), so the seq cannot
+# prove that nothing was lost: start over.
+SEQ_PROVES_CONTINUITY_S = 65536 * 0.5e-3
 _SIMULATED = int(StatusExtBits.SIMULATED)
 _HINT_AT_REST = int(StatusExtBits.HINT_AT_REST)
 _HINT_MOVING = int(StatusExtBits.HINT_MOVING)
@@ -85,9 +87,10 @@ class BoardIntake:
         sampled = False
         for arrived_s, data in batch:
             last = self.events.last_sample_s
-            if last is not None and arrived_s - last > OUTAGE_S and self.pipeline.latest() is not None:
-                log.warning("no samples for %.2f s: the axis may have moved meanwhile; position not trusted "
-                            "until a stop is seen", arrived_s - last)
+            if (last is not None and arrived_s - last > SEQ_PROVES_CONTINUITY_S
+                    and self.pipeline.latest() is not None):
+                log.warning("no samples for %.2f s, longer than the board's seq can account for: the axis "
+                            "may have moved meanwhile; position not trusted until a stop is seen", arrived_s - last)
                 self.pipeline.reset()
                 self.events.outage_at_s = arrived_s
             sampled = self._take(arrived_s, self.pipeline.feed(data)) or sampled
@@ -98,6 +101,10 @@ class BoardIntake:
         if r.board_reset:
             log.warning("board reset: continuity lost, position not referenced until the next tare")
             ev.board_reset_at_s = arrived_s
+        if r.outage_s > 0.0:
+            log.warning("%.2f s of samples lost on the line: the axis may have moved meanwhile; position "
+                        "not trusted until a stop is seen", r.outage_s)
+            ev.outage_at_s = arrived_s
         if r.estimator_fault:
             log.error("estimator state not finite or diverged: started over, position not referenced")
             ev.estimator_fault_at_s = arrived_s

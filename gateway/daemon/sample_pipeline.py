@@ -43,9 +43,11 @@ from gateway.core.units import STANDARD_GRAVITY_MPS2
 from gateway.daemon.sample_loop import (
     N_SLOTS,
     R_FAULT,
+    R_OUTAGE_S,
     R_SAMPLES,
     S_AXIS_Y,
     S_INVALID_MASK,
+    S_OUTAGE_TAKEN,
     S_SAT_LIMIT,
     S_SENS,
     S_STOP_BY_HINT,
@@ -90,6 +92,7 @@ class ChunkResult:
     board_reset: bool = False  # the board restarted (HELLO, or STATUS uptime went back)
     entered_standstill: bool = False
     estimator_fault: bool = False  # the estimator's state broke and it started over
+    outage_s: float = 0.0  # > 0: a seq gap this long (board's clock) started the estimator over
 
 
 @dataclass(frozen=True, slots=True)
@@ -177,14 +180,30 @@ class SamplePipeline:
         return result
 
     def take_samples(self, buf: bytes, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
-        """`SampleSink`: a run of SAMPLE frames through `run_samples` (the decoder calls it)."""
+        """`SampleSink`: a run of SAMPLE frames through `run_samples` (the decoder calls it).
+        A run that stops before an outage (a seq gap longer than sample_loop.OUTAGE_S of the
+        board's clock) starts the estimator over there and runs on from that frame."""
         if JIT_ENABLED:  # compiled code takes the bytes as a numpy array (no copy), plain Python as they are
             if buf is not self._buf:
                 self._buf, self._array = buf, np.frombuffer(buf, np.uint8)
             buf = self._array
+        end, taken, last_seq, lost_total, gaps, repeats, backwards = self._run(buf, pos, last_seq)
+        while self._st[R_OUTAGE_S] > 0.0:
+            self._outage(float(self._st[R_OUTAGE_S]))
+            self._st[S_OUTAGE_TAKEN] = 1.0
+            end, more, last_seq, more_lost, more_gaps, more_repeats, more_backwards = self._run(buf, end, last_seq)
+            taken += more
+            lost_total += more_lost
+            gaps += more_gaps
+            repeats += more_repeats
+            backwards += more_backwards
+        # plain ints: run as plain Python (no numba), the run's numbers are numpy's
+        return int(end), int(taken), int(last_seq), int(lost_total), int(gaps), int(repeats), int(backwards)
+
+    def _run(self, buf, pos: int, last_seq: int) -> tuple[int, int, int, int, int, int, int]:
+        """One `run_samples` call and its results taken into the counters and the chunk's result."""
         st = self._st
-        end, taken, last_seq, lost_total, gaps, repeats, backwards = run_samples(
-            buf, pos, last_seq, st, self.model_terms, self.estimator.params, *self.estimator.state)
+        ran = run_samples(buf, pos, last_seq, st, self.model_terms, self.estimator.params, *self.estimator.state)
         self._latest = None
         (samples, lost, _gaps, invalid, saturated, no_tick, entry, fault) = st[R_SAMPLES:R_FAULT + 1].tolist()
         c = self.counters
@@ -208,8 +227,14 @@ class SamplePipeline:
             c.estimator_faults += 1
             r.estimator_fault = True
             self._start_over()
-        # plain ints: run as plain Python (no numba), the run's numbers are numpy's
-        return int(end), int(taken), int(last_seq), int(lost_total), int(gaps), int(repeats), int(backwards)
+        return ran
+
+    def _outage(self, length_s: float) -> None:
+        """A seq gap of `length_s` on the board's clock: the axis may have moved meanwhile,
+        the velocity is no longer known (nothing to do before the first estimate)."""
+        self._result.outage_s = max(self._result.outage_s, length_s)
+        if self.latest() is not None:
+            self._start_over()
 
     def _keep_sigma_of_a_stop_on_quiet_alone(self) -> None:
         """A stop accepted while the position is untrusted (the velocity was lost — a gap,

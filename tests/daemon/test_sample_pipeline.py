@@ -402,3 +402,48 @@ def test_the_published_sigma_never_exceeds_the_distance_to_the_farther_end_of_th
     assert est.pos_std_m == pytest.approx(farthest) and est.pos_m == free.pos_m
     bounded.set_travel((-10.0, 10.0))  # a reload: the new travel from the next read on
     assert bounded.latest().pos_std_m == pytest.approx(min(free.pos_std_m, 10.0 + abs(est.pos_m)))
+
+
+def test_a_seq_gap_longer_than_an_outage_starts_over_at_the_gap_a_short_one_is_bridged():
+    """The board's seq and period say how long the line lost samples: beyond OUTAGE_S the
+    axis may have moved meanwhile (the estimator starts over with the velocity unknown, the
+    position continuous but no longer referenced); a gap of a few samples is bridged."""
+    from gateway.daemon.sample_loop import OUTAGE_S
+
+    period_s = 1843 / 921_600
+    short_gap = 10
+    long_gap = int(OUTAGE_S / period_s) + 20
+    for gap, starts_over in ((short_gap, False), (long_gap, True)):
+        p = pipeline()
+        p.feed(encode_hello(uptime_s=0, **REPORT))
+        seq = at_rest(p, 0, 200)
+        assert p.tare()
+        seq = accelerate(p, seq, 0.3, 50)
+        before = p.latest().pos_m
+        # the gap, then the samples after it in one chunk: the start-over comes at the gap
+        r = p.feed(b"".join(encode_sample((seq + gap + k) & 0xFFFF, 921, 921, 1843) for k in range(5)))
+        assert r.samples == 5 and r.samples_lost == gap
+        assert (r.outage_s > 0.0) is starts_over
+        assert p.referenced is not starts_over
+        if starts_over:
+            assert r.outage_s == pytest.approx(gap * period_s)
+            assert p.latest().untrusted and p.latest().pos_m == pytest.approx(before, abs=0.01)
+
+
+def test_a_backlog_read_late_keeps_the_estimate_a_silence_the_seq_cannot_account_for_does_not():
+    """A host that fell behind (a loaded machine, a slow VM) reads the board's backlog at once:
+    the seq runs on, nothing was lost, the estimate and its reference stay. A silence longer
+    than a whole wrap of the 16-bit seq at the fastest board could hide lost samples."""
+    from gateway.daemon.board_intake import SEQ_PROVES_CONTINUITY_S, BoardIntake
+
+    for late_s, starts_over in ((10.0, False), (SEQ_PROVES_CONTINUITY_S + 1.0, True)):
+        intake = BoardIntake(pipeline())
+        p = intake.pipeline
+        intake.receive(0.0, encode_hello(uptime_s=0, **REPORT))
+        intake.receive(0.0, b"".join(encode_sample(k, 921, 921, 1843) for k in range(200)))
+        intake.drain()
+        assert p.tare()
+        intake.receive(late_s, b"".join(encode_sample(200 + k, 921, 921, 1843) for k in range(50)))
+        assert intake.drain()
+        assert p.referenced is not starts_over
+        assert (intake.events.outage_at_s is not None) is starts_over
