@@ -45,6 +45,7 @@ import atexit
 import json
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -150,9 +151,16 @@ def real_daemon(tmp: Path, port: int, name: str, rate_hz: float, board: str = "e
     return proc
 
 
+def scratch_dir(prefix: str) -> Path:
+    """A private directory for brokers, daemons and ptys, removed when the benchmark exits."""
+    path = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return path
+
+
 # ----------------------------------------------------------------- part 1 --
 def fleet_run(args) -> dict:
-    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-"))
+    tmp = scratch_dir("adxlgw-fleet-")
     # a plant's broker for a historian: sessions kept across a restart, and room to queue
     # what arrives for the host while it reconnects (mosquitto's default: 1000 messages)
     broker = Broker(tmp, persistence=True, max_queued_messages=100_000).start()
@@ -278,7 +286,7 @@ def fleet_run(args) -> dict:
 
 # ----------------------------------------------------------------- part 2 --
 def cpu_round(broker_port: int, seconds: float, mqtt_first: bool, qos: int) -> dict:
-    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-cpu-"))
+    tmp = scratch_dir("adxlgw-fleet-cpu-")
     ptys = {role: PtyPort(tmp / f"board-{role}") for role in ("on", "off")}
     roles = ("on", "off") if mqtt_first else ("off", "on")
     daemons = {role: real_daemon(tmp, broker_port if role == "on" else 0, f"cpu-{role}", 20.0,
@@ -315,7 +323,7 @@ def cpu_round(broker_port: int, seconds: float, mqtt_first: bool, qos: int) -> d
 
 
 def cpu_compare(args) -> dict:
-    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-cpu-"))
+    tmp = scratch_dir("adxlgw-fleet-cpu-")
     results = {}
     with Broker(tmp) as broker, FleetListener("127.0.0.1", broker.port, group=GROUP) as host:
         for qos in args.cpu_qos:
@@ -372,7 +380,7 @@ def probe_process(port: int, poll: bool, qos: int, seconds: float, conn) -> None
 def node_probe(args) -> dict:
     """`--probe-rounds` rounds per QoS; in each, the polling and the idle process run at the
     same time (side by side: the machine's load, shared with other work, is the same for both)."""
-    tmp = Path(tempfile.mkdtemp(prefix="adxlgw-fleet-probe-"))
+    tmp = scratch_dir("adxlgw-fleet-probe-")
     ctx = mp.get_context("fork")
     out = {}
     with Broker(tmp) as broker:
