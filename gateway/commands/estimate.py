@@ -49,7 +49,7 @@ SMOOTHED_BYTES_PER_SAMPLE = 360
 # Counted from the code, not measured.
 ZUPT_BYTES_PER_SAMPLE = 270 + 2 * 192
 # the methods that take the filter's settings (noise from the sensor model or the rest)
-FILTER_METHODS = ("realtime", "smoothed", "zupt")
+FILTER_METHODS = ("realtime", "smoothed", "zupt", "zupt-forward")
 # the estimate's columns written as integers
 TRACK_INTEGER_COLUMNS = ("standstill", "flags")
 
@@ -65,7 +65,9 @@ def add_parser(sub) -> None:
                     "smoothed: the same with a backward pass; zupt: an offline smoother that finds the rests "
                     "in the accelerometer's own quiet stretches, decides each from both ends, and applies "
                     "zero-velocity updates with a bias state and a backward pass (the machine's hint only "
-                    "vetoes a rest). Where the recording has reference columns "
+                    "vetoes a rest); zupt-forward: the same with each rest decided from its start alone and "
+                    "no backward pass (what a realtime estimator with that detector would give). Where the "
+                    "recording has reference columns "
                     "the errors are printed (final, at each stop, RMS).",
     )
     p.add_argument("recording", metavar="FILE.csv", help="the recording: CSV, or Parquet (.parquet)")
@@ -281,7 +283,8 @@ class HintUse:
 def _read_series(args: argparse.Namespace, source: RecordingSource) -> tuple[AccelerationSeries, str]:
     """The recording as acceleration (its form: raw or acceleration), checked: samples
     left after --skip-s, a time axis an estimate can run on."""
-    per_sample = {"smoothed": SMOOTHED_BYTES_PER_SAMPLE, "zupt": ZUPT_BYTES_PER_SAMPLE}.get(args.method)
+    per_sample = {"smoothed": SMOOTHED_BYTES_PER_SAMPLE, "zupt": ZUPT_BYTES_PER_SAMPLE,
+                  "zupt-forward": ZUPT_BYTES_PER_SAMPLE}.get(args.method)
     if per_sample is not None:
         check_fits_in_memory(args.recording, per_sample * source.estimated_rows(),
                              f"the {args.method} estimate ({per_sample} bytes per sample)")

@@ -31,7 +31,7 @@ from gateway.core.runs import true_runs
 METHODS = ("raw", "paper", "realtime", "smoothed")
 # judged beside `smoothed` on the corpus (benchmarks/accuracy/estimation_corpus.py --compare) and
 # selectable from `adxlgw estimate --method`
-COMPARED_METHODS = ("zupt",)
+COMPARED_METHODS = ("zupt", "zupt-forward")
 
 
 # the flags that make an estimate's numbers the last ones, not live (Estimate.holding)
@@ -322,12 +322,16 @@ def _filter(t, acc, valid, lost, hint, settings: EstimatorSettings, smooth: bool
                   cols["vel_var"], cols["innov"], cols["nis"], cols["zupt"], flags, notes)
 
 
-def _zupt_smoothed(t, acc, valid, lost, hint, settings: EstimatorSettings, notes) -> EstimateTrack:
+def _zupt_smoothed(t, acc, valid, lost, hint, settings: EstimatorSettings, notes,
+                   forward_only: bool = False) -> EstimateTrack:
     """The offline ZUPT smoother (zupt_smoother) as a track: its rests, its flags, the
-    reported σ with the terms the model cannot see (as the realtime filter's)."""
+    reported σ with the terms the model cannot see (as the realtime filter's).
+    `forward_only` ("zupt-forward"): its rests decided from their start alone and no
+    backward pass — what a realtime estimator with its detector would publish."""
     from gateway.core.zupt_smoother import smooth
 
-    res = smooth(t, acc, valid, lost, settings, hint=hint if np.isfinite(hint).any() else None)
+    res = smooth(t, acc, valid, lost, settings, hint=hint if np.isfinite(hint).any() else None,
+                 forward_only=forward_only)
     n = t.size
     prm = settings.kernel_params()
     entry = np.zeros(n, dtype=bool)
@@ -347,7 +351,8 @@ def _zupt_smoothed(t, acc, valid, lost, hint, settings: EstimatorSettings, notes
     K.add_scale_error(vel_var, vel, prm)
     K.add_reading_instant_error(pos_var, acc_out, t, prm)
     zeros = np.zeros(n)
-    return _track("zupt", t, pos, vel, acc_out, res.bias_mps2, pos_var, vel_var, zeros, zeros, zeros, flags,
+    method = "zupt-forward" if forward_only else "zupt"
+    return _track(method, t, pos, vel, acc_out, res.bias_mps2, pos_var, vel_var, zeros, zeros, zeros, flags,
                   notes)
 
 
@@ -470,8 +475,8 @@ def estimate_series(t_s, acc_mps2, valid=None, method: str = "realtime",
         notes.append(latency.describe(applied=align_hint))
         if align_hint and latency.lag_s is not None:
             hint = aligned_hint(t, hint, latency.lag_s)
-    if method == "zupt":
-        track = _zupt_smoothed(t, acc, ok, lost, hint, settings, notes)
+    if method in COMPARED_METHODS:
+        track = _zupt_smoothed(t, acc, ok, lost, hint, settings, notes, forward_only=method == "zupt-forward")
     else:
         track = _filter(t, acc, ok, lost, hint, settings, method == "smoothed", notes)
     init = track.initialised

@@ -60,6 +60,7 @@ The reported σ adds what the model cannot see, as the realtime filter's: the se
 """
 from __future__ import annotations
 
+import heapq
 import math
 from dataclasses import dataclass
 
@@ -119,11 +120,34 @@ def window_stats(acc_mps2, valid, w: int):
     return cnt, m + centre, np.maximum(var, 0.0)
 
 
-def quiet_samples(t_s, acc_mps2, valid, settings: EstimatorSettings, hint=None) -> np.ndarray:
+def rest_level(mean, flat, forward_only: bool) -> np.ndarray:
+    """The rest level per window: the median of the flat windows' means (a cruise's mean is
+    the rest's too) — over the record, or (`forward_only`) over the windows up to this one;
+    NaN before the first flat window (no rest seen yet: nothing can be judged a rest)."""
+    if not forward_only:
+        level = float(np.median(mean[flat])) if flat.any() else float(np.median(mean))
+        return np.full(mean.size, level)
+    out = np.empty(mean.size)
+    low: list[float] = []  # max-heap (negated) of the lower half, min-heap of the upper half
+    high: list[float] = []
+    current = math.nan
+    for i, (m, f) in enumerate(zip(mean.tolist(), flat.tolist(), strict=True)):
+        if f:
+            heapq.heappush(low, -heapq.heappushpop(high, m))
+            if len(low) > len(high) + 1:
+                heapq.heappush(high, -heapq.heappop(low))
+            current = -low[0] if len(low) > len(high) else 0.5 * (high[0] - low[0])
+        out[i] = current
+    return out
+
+
+def quiet_samples(t_s, acc_mps2, valid, settings: EstimatorSettings, hint=None,
+                  forward_only: bool = False) -> np.ndarray:
     """True on every sample a quiet window covers (phase 1): its acceleration, the rest level
     removed, moves the velocity by at most the velocity test's resolution (speed floor /
     DECISIVE_SIGMAS) anywhere inside it, and its mean sits at the rest level within the
-    noise's t bound at the detector's false-alarm rate. The machine's "moving" vetoes."""
+    noise's t bound at the detector's false-alarm rate. The machine's "moving" vetoes.
+    `forward_only`: the rest level from the windows so far (`rest_level`)."""
     from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
     n = np.size(acc_mps2)
@@ -133,12 +157,16 @@ def quiet_samples(t_s, acc_mps2, valid, settings: EstimatorSettings, hint=None) 
     ok = np.asarray(valid, dtype=bool)
     cnt, mean, var = window_stats(acc_mps2, ok, w)
     flat = (cnt >= MIN_VALID_SHARE * w) & (var <= settings.window_variance_threshold_mps2_sq)
-    # the rest level: the median of the flat windows' means (a cruise's mean is the rest's too)
-    level = float(np.median(mean[flat])) if flat.any() else float(np.median(mean))
+    level = rest_level(mean, flat, forward_only)
+    # at each sample, the level known when it arrived: that of the window ending there
+    level_at = level[np.clip(np.arange(n) - w + 1, 0, level.size - 1)]
+    # (before any rest level: a velocity swing is a difference inside one window, so any
+    # finite level there cancels)
+    level_at = np.where(np.isfinite(level_at), level_at, 0.0)
     dt = np.empty(n)
     dt[:-1] = np.diff(t_s)
     dt[-1] = dt[-2] if n > 1 else 0.0
-    vel = np.concatenate(([0.0], np.cumsum(np.where(ok, acc_mps2 - level, 0.0) * dt)))
+    vel = np.concatenate(([0.0], np.cumsum(np.where(ok, acc_mps2 - level_at, 0.0) * dt)))
     # window starting at i: the velocities vel[i+1 … i+w] against vel[i]
     lo = w // 2
     # maximum_filter1d's window at j is j − w//2 … j − w//2 + w − 1: the one starting at i is at i + w//2
@@ -391,9 +419,12 @@ def _verdicts(t, u, extra, quiet, model) -> np.ndarray:
     return verdict
 
 
-def decide_rests(t, u, extra, quiet, model: FilterModel) -> list[RestDecision]:
-    """Each quiet stretch judged from both ends (phase 2)."""
+def decide_rests(t, u, extra, quiet, model: FilterModel, forward_only: bool = False) -> list[RestDecision]:
+    """Each quiet stretch judged from both ends (phase 2); `forward_only`: from its start
+    alone, as a realtime estimator must (the backward verdict abstains)."""
     fwd = _verdicts(t, u, extra, quiet, model)
+    if forward_only:
+        return [RestDecision(a, b, int(fwd[a]), ABSTAIN) for a, b in true_runs(quiet)]
     # backward: the record reversed in time; the period k → k+1 is the reversed period
     # n−2−k → n−1−k, so its input and extra variance move by one
     t_back = np.ascontiguousarray(t[-1] - t[::-1])
@@ -429,14 +460,19 @@ class ZuptSmoothed:
     decisions: list[RestDecision]
 
 
-def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=None) -> ZuptSmoothed:
+def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=None,
+           forward_only: bool = False) -> ZuptSmoothed:
+    """The estimate from the whole record. `forward_only`: what a realtime estimator with
+    this detector would publish — each rest decided from its start alone and the forward
+    filter's estimate without the backward pass (a quiet window still covers the samples
+    it spans: one window of latency)."""
     t = np.ascontiguousarray(t_s, dtype=float)
     ok = np.asarray(valid, dtype=bool) & np.isfinite(acc_mps2)
     acc = np.where(ok, acc_mps2, 0.0)
     model = FilterModel.of(settings)
     u, extra = bridged_input(t, acc, ok, np.asarray(lost_before), model.sample_var)
-    quiet = quiet_samples(t, acc, ok, settings, hint)
-    decisions = decide_rests(t, u, extra, quiet, model)
+    quiet = quiet_samples(t, acc, ok, settings, hint, forward_only)
+    decisions = decide_rests(t, u, extra, quiet, model, forward_only)
     n = t.size
     rest = np.zeros(n, dtype=bool)
     untrusted = np.zeros(n, dtype=bool)
@@ -451,7 +487,7 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
             untrusted[lo:hi] = True
     if not used:
         untrusted[:] = True
-    x, p, v_pred, v_pred_var = _smoothed(t, u, extra, rest, model)
+    x, p, v_pred, v_pred_var = _smoothed(t, u, extra, rest, model, not forward_only)
     if not rest[-1]:
         # the recording does not end in a rest the data confirm: two answers — it ends at
         # rest (v = 0 at its last sample, as every method assumes it starts at rest) or
@@ -461,7 +497,7 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
         last = max((d.stop for d in used if d.decisive), default=0)
         ended = rest.copy()
         ended[-1] = True
-        x_end, p_end, v_pred, v_pred_var = _smoothed(t, u, extra, ended, model)
+        x_end, p_end, v_pred, v_pred_var = _smoothed(t, u, extra, ended, model, not forward_only)
         for i in range(3):
             p_end[:, i, i] = np.maximum(p_end[:, i, i], p[:, i, i]) + (x_end[:, i] - x[:, i]) ** 2
         x, p = x_end, p_end
@@ -471,14 +507,16 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
                         p[:, 2, 2].copy(), rest, untrusted, decisions)
 
 
-def _smoothed(t, u, extra, rest, model: FilterModel):
-    """The forward filter with v = 0 on the rest samples, then RTS: (x, P) per sample."""
+def _smoothed(t, u, extra, rest, model: FilterModel, backward_pass: bool = True):
+    """The forward filter with v = 0 on the rest samples, then RTS (unless not
+    `backward_pass`): (x, P) per sample."""
     n = t.size
     xs_pred, xs_f = np.empty((n, 3)), np.empty((n, 3))
     ps_pred, ps_f = np.empty((n, 3, 3)), np.empty((n, 3, 3))
     _run(t, u, extra, rest, np.zeros(n, dtype=np.int8), model.as_array(), True, xs_pred, ps_pred, xs_f, ps_f,
          False)
-    _rts(t, xs_pred, ps_pred, xs_f, ps_f, xs_f, ps_f)  # in place: RTS reads x_f(k), P_f(k) before writing
+    if backward_pass:
+        _rts(t, xs_pred, ps_pred, xs_f, ps_f, xs_f, ps_f)  # in place: RTS reads x_f(k), P_f(k) before writing
     return xs_f, ps_f, xs_pred[:, 1].copy(), ps_pred[:, 1, 1].copy()
 
 

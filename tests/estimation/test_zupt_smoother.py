@@ -133,3 +133,23 @@ def test_one_missing_sample_is_bridged_by_its_neighbours_and_several_by_their_ra
     _, extra = bridged_input(t_lost, acc, np.ones(n, bool), lost, sample_var)
     np.testing.assert_allclose(extra[5], ((1.0 + 0.01) * 3 * PERIOD_S) ** 2)
     assert np.count_nonzero(extra) == 1
+
+
+def test_forward_only_uses_no_sample_beyond_one_window_ahead():
+    """`zupt-forward` is what a realtime estimator with this detector would publish: its
+    position at a sample is the same whether the record goes on or ends one window and a
+    sample later (a quiet window covers the samples it spans: one window of latency). The
+    method with its backward pass and two-sided decisions does not have this property."""
+    t, z, _pos, _vel, _rest = synthetic(3, 0.3)
+    s = settings_for(z)
+    w = s.window_samples
+    full = {m: estimate_series(t, z, method=m, settings=s).pos_m for m in ("zupt-forward", "zupt")}
+    differs = {"zupt-forward": 0, "zupt": 0}
+    # ends in a rest, mid-move, in a cruise, in the last rest
+    for end in (300, 330, 370, 560, 900):
+        for method in differs:
+            cut = estimate_series(t[:end], z[:end], method=method, settings=s).pos_m
+            settled = end - w - 1  # the samples a window ending before the cut has judged
+            if not np.array_equal(cut[:settled], full[method][:settled]):
+                differs[method] += 1
+    assert differs["zupt-forward"] == 0 and differs["zupt"] > 0, differs
