@@ -98,7 +98,8 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     # the reference instead (scale_factor, nonlinearity, cross-talk are its candidates), so the
     # σ it calls "known" (judgement.matters) leaves that prior out: a compensation that makes
     # the distance worse is not excused by the uncertainty it is there to resolve
-    plan = EstimatePlan(replace(settings, sensitivity_std_frac=0.0), returns_to_start)
+    plan = EstimatePlan(replace(settings, sensitivity_std_frac=0.0), returns_to_start,
+                        standstill_hint=data.standstill_hint)
     cannot: list[str] = []
     failures: list[dict] = []
     if data.reference is None:
