@@ -226,7 +226,8 @@ def details(d: dict) -> list[str]:
     lines += [f"not physical {n['shape']}: {n['why']}" for n in d.get("not_physical", [])]
     lines += [f"setup {s['name']}: {_values(s['params'])}" for s in d.get("setup", [])]
     if d.get("leftover"):
-        lines.append(f"left unexplained: {d['leftover']}")
+        left = d["leftover"]
+        lines.append(f"left unexplained: {left['what']}, {100 * left['share']:.1f} % of the residual variance")
     lines += [f"failed: {f['what']}: {f['error']}" for f in d.get("failures", [])]
     return lines
 

@@ -5,7 +5,7 @@
 estimator fed the same hint. Measured without it, a compensation can gain against an
 estimate no one runs and lose against the one that is run: on the Leiria robot's
 horizontal moves a bias random walk gained 188 and 144 mm on the unhinted estimate and
-lost 12 and 20 mm on the hinted one (docs/diagnosis.md §8).
+loses 22 mm on each on the hinted one (docs/diagnosis.md §8).
 """
 from __future__ import annotations
 
