@@ -31,7 +31,8 @@ simulated recording, alternating (benchmarks/speed/estimator_speed.py, side_by_s
 diagnosis — the two Leiria robot files (each at the default comparison and at every
 sample, as docs/diagnosis.md) and the two hand-lifted airbrakes recordings that return to
 their start, each diagnosed: the effects named, the negligible ones, the not physical
-ones, and whether the residual is white.
+ones, and whether the residual is white; for this checkout also each one's parameters
+and why (`details`).
 
 initial-rest — `reference_point.find_initial_rest` sets everything `adxlgw estimate` and
 `diagnose` take from a recording's own rest (the offset, the noise settings, the paper
@@ -200,6 +201,37 @@ def summary(d: dict) -> str:
     return f"named {named}; negligible {negligible}; not physical {not_physical}; white {d['residual_white']}"
 
 
+def _values(params: dict) -> str:
+    """{name: [value, std or None]} (or a bare value) as `name value ± std`."""
+    def one(v) -> str:
+        value, std = (v[0], v[1]) if isinstance(v, list | tuple) else (v, None)
+        text = f"{value:.4g}" if isinstance(value, int | float) else str(value)
+        return text + (f" ± {std:.2g}" if isinstance(std, int | float) else "")
+    return ", ".join(f"{k} {one(v)}" for k, v in params.items())
+
+
+def details(d: dict) -> list[str]:
+    """What docs/diagnosis.md §8 quotes beyond the summary: each named effect with its
+    parameters, distance gain and what it cannot be told from; each accepted effect not
+    named (negligible or harmful), each not physical one, and the setup's, with why; what
+    is left unexplained; any failure."""
+    lines = []
+    for e in d["effects"]:
+        dist = e["gain"].get("distance", {})
+        gain = f"{dist['improvement_mm']:+.2f} mm" if dist.get("available") else "n/a"
+        lines.append(f"named {e['name']}: {_values(e['params'])}; distance {gain}"
+                     + (f"; not separable from {', '.join(e['not_separable_from'])}"
+                        if e.get("not_separable_from") else ""))
+    lines += [f"not named {n['name']}: {_values(n['params'])} — {n['why']}" for n in d.get("negligible", [])]
+    lines += [f"not physical {n['shape']}: {n['why']}" for n in d.get("not_physical", [])]
+    lines += [f"setup {s['name']}: {_values(s['params'])}" for s in d.get("setup", [])]
+    if d.get("leftover"):
+        left = d["leftover"]
+        lines.append(f"left unexplained: {left['what']}, {100 * left['share']:.1f} % of the residual variance")
+    lines += [f"failed: {f['what']}: {f['error']}" for f in d.get("failures", [])]
+    return lines
+
+
 def compare_diagnosis(checkouts: list[Path]) -> dict:
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -212,6 +244,8 @@ def compare_diagnosis(checkouts: list[Path]) -> dict:
         for checkout in checkouts:
             label = "this checkout" if checkout == ROOT else str(checkout)
             print(f"  {label:24s} {summary(results[checkout][case])}")
+        for line in details(results[ROOT][case]):
+            print(f"    {line}")
         same = all(summary(results[c][case]) == summary(results[ROOT][case]) for c in checkouts)
         print(f"  {'same' if same else 'DIFFERENT'}")
     return {str(c): {case: summary(d) for case, d in results[c].items()} for c in checkouts}

@@ -129,6 +129,7 @@ def build_input(path: str, rec, series, notes: list[str], other_axis_still: bool
         raw_form=raw,
         other_axis_still=other_axis_still,
         reference_block=block,
+        standstill_hint=series.standstill_hint,
     )
 
 

@@ -12,6 +12,7 @@ from gateway.core.sensor_effects import ScaleFactorTerm
 from gateway.core.sensor_model import SensorParams
 from gateway.core.simulator import simulate
 from gateway.offline.recording import write_recording
+from gateway.sensor_model_file import load_sensor_model
 
 EFFECTS = ["scale_factor", "tilt", "cross_axis", "temperature_offset", "timing", "sample_loss", "vibration",
            "bandwidth", "nonlinearity", "clipping", "bias_random_walk", "reference_delay", "motion_offset",
@@ -44,7 +45,9 @@ def clean(tmp_path_factory):
 @pytest.fixture(scope="module")
 def clean_run(clean, tmp_path_factory):
     out = tmp_path_factory.mktemp("clean_out")
-    code = main(["diagnose", str(clean), "--json", str(out / "d.json"), "--report", str(out / "rep")])
+    # --model-with asks for a candidate the clean record does not name: it is fitted anyway
+    code = main(["diagnose", str(clean), "--json", str(out / "d.json"), "--report", str(out / "rep"),
+                 "--model-out", str(out / "m.json"), "--model-with", "tilt"])
     return code, out
 
 
@@ -75,6 +78,29 @@ def test_clean_recording_finds_nothing_and_writes_strict_json(clean_run):
     # every effect, and the setup's own properties fitted beside them (never named)
     assert sorted(c["name"] for c in doc["candidates"]) == sorted([*EFFECTS, *SETUP_PROPERTIES])
     assert SETUP_PROPERTIES == ("output_filter", "reading_instant")
+
+
+def test_model_with_writes_an_unnamed_candidate_with_its_fitted_parameters(clean_run):
+    code, out = clean_run
+    assert code == 0
+    model = load_sensor_model(str(out / "m.json"))
+    assert [t.name for t in model.terms] == ["tilt"]
+    (kappa,) = model.terms[0].params.values()
+    assert np.isfinite(kappa) and abs(kappa) < 0.5  # fitted on a clean record: small, not the range's edge
+    assert any(note.startswith("tilt: added by --model-with; the diagnosis did not name it") for note in model.notes)
+
+
+def test_a_fit_no_part_can_have_is_listed_as_not_physical(tmp_path):
+    # a 30 % scale error: predictive, but beyond the data sheet's range (|s| <= 20 %); the
+    # report lists the shape under not_physical ("look elsewhere") and names nothing of it
+    rec = _write_sim(tmp_path / "scale30.csv", seed=5, terms=(ScaleFactorTerm(0.30),))
+    out = tmp_path / "scale30.json"
+    assert main(["diagnose", str(rec), "--json", str(out)]) == 0
+    doc = _strict_json(out)
+    status = {c["name"]: c["status"] for c in doc["candidates"]}
+    assert status["scale_factor"] == "not physical"
+    assert "scale_factor" in [n["shape"] for n in doc["not_physical"]]
+    assert "scale_factor" not in [e["name"] for e in doc["effects"]]
 
 
 def test_report_writes_markdown_and_png_plots(clean_run):

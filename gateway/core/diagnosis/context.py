@@ -114,11 +114,16 @@ class DiagnosisInput:
     # samples per interval of the reference's own resolution (1: it resolves every sample);
     # see reference_resolution_block
     reference_block: int = 1
+    # the machine's word per sample (1 at rest, 0 moving, NaN unknown), when the recording
+    # carries one: the distance estimates are the estimator as `adxlgw estimate` runs it on
+    # this recording, hint included (gain.EstimatePlan)
+    standstill_hint: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.t_s = np.asarray(self.t_s, dtype=float)
         n = self.t_s.size
-        for name in ("acc_mps2", "ref_pos_m", "ref_vel_mps", "ref_acc_mps2", "other_mps2", "temp_c", "t_host_s"):
+        for name in ("acc_mps2", "ref_pos_m", "ref_vel_mps", "ref_acc_mps2", "other_mps2", "temp_c", "t_host_s",
+                     "standstill_hint"):
             value = getattr(self, name)
             if value is not None:
                 value = np.asarray(value, dtype=float)

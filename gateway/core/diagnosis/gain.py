@@ -2,10 +2,12 @@
 
 An EstimatePlan is what the gateway's estimator (smoothed, offline) is fed: sample
 times, the measured acceleration as the extended model corrects it, samples to skip,
-setting changes, and — for reference_delay — a shift of the reference the error is
-taken against. The gain of an effect is the error of the plan without it against the
-plan with it: at the stops of a recorded reference (RMS and final), or the final
-position of a motion that returns to its start.
+setting changes, the machine's standstill hint where the recording has one (as
+`adxlgw estimate` uses it by default: a gain or a loss is of the estimate a user gets),
+and — for reference_delay — a shift of the reference the error is taken against. The
+gain of an effect is the error of the plan without it against the plan with it: at the
+stops of a recorded reference (RMS and final), or the final position of a motion that
+returns to its start.
 """
 from __future__ import annotations
 
@@ -35,14 +37,16 @@ class EstimatePlan:
     valid: np.ndarray | None = None
     lost_before: np.ndarray | None = None
     ref_shift_s: float = 0.0
+    standstill_hint: np.ndarray | None = None  # per sample, as DiagnosisInput.standstill_hint
     _cache: dict = field(default_factory=dict, repr=False)
 
     def run(self, t_s, acc, valid, lost) -> EstimateTrack:
-        return estimate_series(t_s, acc, valid, method="smoothed", settings=self.settings, lost_before=lost)
+        return estimate_series(t_s, acc, valid, method="smoothed", settings=self.settings, lost_before=lost,
+                               standstill_hint=self.standstill_hint)
 
     def baseline(self, data) -> EstimatePlan:
         return EstimatePlan(self.settings, self.returns_to_start, data.t_s, data.acc_mps2, data.valid.copy(),
-                            data.lost_before)
+                            data.lost_before, standstill_hint=data.standstill_hint)
 
     def _copy(self, **changes) -> EstimatePlan:
         return replace(self, _cache={}, **changes)
@@ -97,7 +101,8 @@ class EstimatePlan:
 
     def _base_of_chain(self, prep: Prepared) -> EstimatePlan:
         d = prep.data
-        return EstimatePlan(self.settings, self.returns_to_start, d.t_s, d.acc_mps2, d.valid.copy(), d.lost_before)
+        return EstimatePlan(self.settings, self.returns_to_start, d.t_s, d.acc_mps2, d.valid.copy(), d.lost_before,
+                            standstill_hint=d.standstill_hint)
 
     def apply(self, comp) -> EstimatePlan:
         if comp is None:

@@ -98,7 +98,8 @@ def diagnose(data: DiagnosisInput, settings: EstimatorSettings, returns_to_start
     # the reference instead (scale_factor, nonlinearity, cross-talk are its candidates), so the
     # σ it calls "known" (judgement.matters) leaves that prior out: a compensation that makes
     # the distance worse is not excused by the uncertainty it is there to resolve
-    plan = EstimatePlan(replace(settings, sensitivity_std_frac=0.0), returns_to_start)
+    plan = EstimatePlan(replace(settings, sensitivity_std_frac=0.0), returns_to_start,
+                        standstill_hint=data.standstill_hint)
     cannot: list[str] = []
     failures: list[dict] = []
     if data.reference is None:
@@ -188,7 +189,10 @@ def _forward_selection(prep: Prepared, base: ModelFit, candidates: dict[str, Can
                        fitted: dict[str, dict], progress: Callable[[str], None]) -> tuple:
     """The forward rounds: each usable signal effect tried jointly with those accepted, the
     first predictive and physical one accepted, until none is. Returns the final fit, the
-    accepted effects in order, their fitted starts, and the effects still usable."""
+    accepted effects in order, their fitted starts, and the effects still usable; fills
+    `candidates`, `not_physical` (a shape that fits with values no part can have) and
+    `fitted` (each candidate's parameters as last fitted: `--model-with` writes them) in
+    place — the caller's containers, which the report reads."""
     usable: list[SignalEffect] = []
     for e in SIGNAL_EFFECTS:
         why = e.unusable(prep)
@@ -199,8 +203,6 @@ def _forward_selection(prep: Prepared, base: ModelFit, candidates: dict[str, Can
 
     current, accepted = base, []
     start: dict[str, np.ndarray] = {}
-    not_physical: list[dict] = []
-    fitted: dict[str, dict] = {}  # each signal candidate's parameters as last fitted
     # whiteness does not end the search: a Ljung–Box test on lags is weak against an effect
     # tied to a regressor (a 1 % scale error leaves the residual almost white); the rounds
     # go on until no candidate predicts the blocks it was not fitted on (criterion.py),
