@@ -15,6 +15,7 @@ estimate_series(method="realtime").
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +37,11 @@ COMPARED_METHODS = ("zupt",)
 
 # the flags that make an estimate's numbers the last ones, not live (Estimate.holding)
 HOLDING_FLAGS = K.F_INPUT_INVALID | K.F_TIME_ERROR
+
+
+# what an Estimate reads of the kernel's output, with one call
+_KERNEL_OUTPUTS = operator.itemgetter(K.O_POS, K.O_VEL, K.O_ACC, K.O_BIAS, K.O_POS_VAR, K.O_VEL_VAR, K.O_INNOV,
+                                      K.O_NIS, K.O_ZUPT_INNOV, K.O_ZUPT_NIS, K.O_FLAGS)
 
 
 # not frozen: a frozen dataclass's __init__ sets each of the 12 fields through
@@ -77,14 +83,13 @@ class Estimate:
                            held_std_unknown: bool = False) -> Estimate:
         """`from_kernel` of the output array as a list (`out.tolist()`: one conversion, not
         twelve numpy scalars), for a caller that reads or changes it first."""
-        pos_var, vel_var = o[K.O_POS_VAR], o[K.O_VEL_VAR]
-        flags = int(o[K.O_FLAGS])
+        pos, vel, acc, bias, pos_var, vel_var, innov, nis, zupt_innov, zupt_nis, flags = _KERNEL_OUTPUTS(o)
+        flags = int(flags)
         pos_std = math.sqrt(pos_var) if pos_var >= 0.0 else math.nan
         if held_std_unknown and not flags & K.F_INITIALISED:
             pos_std = math.nan
-        return cls(float(t_s), o[K.O_POS] - reference_m, o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS], pos_std,
-                   math.sqrt(vel_var) if vel_var >= 0.0 else math.nan,
-                   o[K.O_INNOV], o[K.O_NIS], o[K.O_ZUPT_INNOV], o[K.O_ZUPT_NIS], flags)
+        return cls(float(t_s), pos - reference_m, vel, acc, bias, pos_std,
+                   math.sqrt(vel_var) if vel_var >= 0.0 else math.nan, innov, nis, zupt_innov, zupt_nis, flags)
 
     @property
     def standstill(self) -> bool:

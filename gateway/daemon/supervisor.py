@@ -139,6 +139,8 @@ class Gateway(ServiceTasks, ConfigReload):
         self.board = BoardPort(lambda: self.cfg)
         self.wires = WireSet(cfg, WireContext(self.fresh_values, self.on_command, self._drain_now,
                                               can_bus_factory, version=package_version()))
+        # the wires whose numbers the status words carry, their health asked for every snapshot
+        self._can_health, self._mqtt_health = self.wires["can"].health, self.wires["mqtt"].health
         self.view = view if view is not None else (_terminal_view() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
@@ -435,8 +437,7 @@ class Gateway(ServiceTasks, ConfigReload):
         health = self._link_health
         source = self.board.source  # (the port itself: read per snapshot, one hop fewer)
         serial = self.cfg.serial
-        can = self.wires.health("can")
-        mqtt = self.wires.health("mqtt")
+        can, mqtt = self._can_health(), self._mqtt_health()
         health.port_open = source is not None and source.is_open
         health.last_byte_s = None if source is None else source.last_data_monotonic_s
         health.stale_after_s = serial.stale_after_ms / 1000

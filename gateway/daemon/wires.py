@@ -5,8 +5,8 @@ made from its config section by `gateway/daemon/settings.py`; None where the sec
 says the wire is off), started, told when new values exist, given new settings on a
 reload, stopped, and asked for its health. The supervisor holds a `WireSet` and loops
 over it; it knows no wire by its kind except for the few numbers the status words
-carry (`WireSet.health`). Adding an output is one driver module, its config keys and
-its row in `WIRE_KINDS`.
+carry (`wires["can"].health()`, `wires["mqtt"].health()`). Adding an output is one
+driver module, its config keys and its row in `WIRE_KINDS`.
 
 Start: Modbus must come up (without it the daemon has no point: DeviceError); CAN that
 cannot start is retried every CAN_RETRY_S in the background while Modbus serves; the
@@ -377,6 +377,3 @@ class WireSet:
     async def stop(self) -> None:
         for wire in reversed(self.wires):
             await wire.stop()
-
-    def health(self, name: str) -> WireHealth:
-        return self._by_name[name].health()
