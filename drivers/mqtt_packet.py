@@ -12,13 +12,20 @@ MAX_DIRECT_PACKET = 1280 - 40 - 60
 
 
 def mqtt_varint(n: int) -> bytes:
-    """MQTT's remaining length (and protobuf's varint): 7 bits a byte, low first."""
+    """MQTT's remaining length (and protobuf's varint): 7 bits a byte, low first. The
+    one-byte values (most of a DDATA's, and its packet's length) from a table: this runs
+    several times per DDATA, cold on a VM, where the loop costs more than the lookup."""
+    if n < 0x80:
+        return _ONE_BYTE[n]
     out = bytearray()
     while n > 0x7F:
         out.append((n & 0x7F) | 0x80)
         n >>= 7
     out.append(n)
     return bytes(out)
+
+
+_ONE_BYTE = tuple(bytes((n,)) for n in range(0x80))
 
 
 def qos0_publish_packet(topic_field: bytes, payload: bytes) -> bytes:

@@ -340,26 +340,35 @@ class SparkplugNode:
     def _tick(self) -> None:
         """One rate period: a DDATA with what changed, or into the backlog while away."""
         reading = self._reading()
-        previous = self._backlog[-1][1] if self._backlog and not self._born else self._last_reading
-        changed = spb.reading_changes(previous, reading)
-        if not changed:
+        if not self._born:
+            self._keep(reading)
+            return
+        previous = self._last_reading  # (set by the birth)
+        if reading == previous:  # report by exception: nothing changed, nothing sent
             return
         counters = self.counters
         counters.ddata_made += 1
-        now_ms = self._now_ms()
-        if not self._born:
-            if len(self._backlog) >= self.settings.backlog_len:
-                self._backlog.popleft()
-                counters.dropped += 1
-            self._backlog.append((now_ms, reading, counters.ddata_made))
-            return
-        changed[spb.DDATA_COUNT] = counters.ddata_made
+        dropped = None
         if counters.dropped != self._dropped_sent:
-            changed[spb.MQTT_DROPPED] = self._dropped_sent = counters.dropped
-        payload = spb.device_data(now_ms, self._next_seq(), changed)
+            dropped = self._dropped_sent = counters.dropped
+        payload = spb.changed_device_data(self._now_ms(), self._next_seq(), previous, reading,
+                                          counters.ddata_made, dropped)
         if self._send_direct(payload) if self._direct else self._publish(self.topics["DDATA"], payload):
             counters.ddata_sent += 1
         self._last_reading = reading
+
+    def _keep(self, reading: spb.Reading) -> None:
+        """Not born (the broker away, or the primary host): a reading that changed waits in
+        the backlog, the oldest dropped and counted when it is full."""
+        previous = self._backlog[-1][1] if self._backlog else self._last_reading
+        if previous == reading:
+            return
+        counters = self.counters
+        counters.ddata_made += 1
+        if len(self._backlog) >= self.settings.backlog_len:
+            self._backlog.popleft()
+            counters.dropped += 1
+        self._backlog.append((self._now_ms(), reading, counters.ddata_made))
 
     def _send_direct(self, payload: bytes) -> bool:
         """A current QoS 0 DDATA written to the socket as one MQTT PUBLISH packet, without

@@ -348,22 +348,19 @@ def device_data(timestamp_ms: int, seq: int, changed: Mapping[str, Any], *, hist
     return b"".join(parts)
 
 
-def _varint(n: int) -> bytes:
-    """Protobuf's base-128 varint of a non-negative int (uint32/uint64 fields): MQTT's
-    remaining-length encoding, the one-byte values from a table (most of a DDATA's)."""
-    return _SMALL_VARINTS[n] if n < 0x80 else mqtt_varint(n)
-
-
-_SMALL_VARINTS = tuple(bytes((n,)) for n in range(0x80))
+#: Protobuf's base-128 varint of a non-negative int (uint32/uint64 fields) is MQTT's
+#: remaining-length encoding
+_varint = mqtt_varint
 _PACK_DOUBLE = struct.Struct("<d").pack
 # Payload.metrics is field 2 (a length-delimited Metric); in a Metric (sparkplug_b.proto):
 # alias 2, timestamp 3, datatype 4, is_historical 5, is_null 7; the values int_value 10
 # (uint32, varint), long_value 11 (uint64, varint), double_value 13 (fixed64),
 # boolean_value 14 (varint), string_value 15 (length-delimited)
 _NULL = b"\x38\x01"
+_INT_TAGS = {DataType.UINT32: b"\x50", DataType.UINT64: b"\x58"}
 _VALUE_ENCODERS: dict[DataType, Callable[[Any], bytes]] = {
-    DataType.UINT32: lambda v: b"\x50" + _varint(v),
-    DataType.UINT64: lambda v: b"\x58" + _varint(v),
+    DataType.UINT32: lambda v: _INT_TAGS[DataType.UINT32] + _varint(v),
+    DataType.UINT64: lambda v: _INT_TAGS[DataType.UINT64] + _varint(v),
     DataType.DOUBLE: lambda v: b"\x69" + _PACK_DOUBLE(v),
     DataType.BOOLEAN: lambda v: b"\x70\x01" if v else b"\x70\x00",
     DataType.STRING: lambda v: b"\x7a" + _varint(len(b := v.encode())) + b,
@@ -374,14 +371,25 @@ def _entry(metric: bytes) -> bytes:
     return b"\x12" + _varint(len(metric)) + metric
 
 
+def _double_prefix(head: bytes) -> bytes:
+    """A current Double's Payload.metrics entry but its 8 value bytes (fixed length)."""
+    return _entry(head + b"\x69" + bytes(8))[:-8]
+
+
 def _current_encoder(head: bytes, datatype: DataType) -> Callable[[Any], bytes]:
     """A current DDATA's metric (alias, datatype, value) as a Payload.metrics entry."""
     if datatype is DataType.DOUBLE:  # fixed length: everything but the 8 bytes is made once
-        prefix = _entry(head + b"\x69" + bytes(8))[:-8]
+        prefix = _double_prefix(head)
         return lambda v: prefix + _PACK_DOUBLE(v)
     if datatype is DataType.BOOLEAN:
         true, false = _entry(head + b"\x70\x01"), _entry(head + b"\x70\x00")
         return lambda v: true if v else false
+    if datatype in _INT_TAGS:
+        # a varint is 1–10 bytes, so the metric is shorter than 128 bytes and its length one
+        # byte: the entry's prefix for each varint length made once, one lookup per value
+        tagged = head + _INT_TAGS[datatype]
+        prefixes = tuple(b"\x12" + bytes((len(tagged) + k,)) + tagged for k in range(11))
+        return lambda v: prefixes[len(value := _varint(v))] + value
     encode = _VALUE_ENCODERS[datatype]
     return lambda v: _entry(head + encode(v))
 
@@ -397,6 +405,52 @@ _CURRENT: dict[str, tuple[bytes, Callable[[Any], bytes]]] = {
 #: name → (the alias field, the datatype field, the value's encoder): a historical one's
 _HISTORICAL: dict[str, tuple[bytes, bytes, Callable[[Any], bytes]]] = {
     m.name: (*_heads(m), _VALUE_ENCODERS[m.datatype]) for m in DEVICE_METRICS}
+
+
+#: per slot of a Reading, in order: its null entry, and for a Double the entry's prefix
+#: (all but the 8 value bytes) or else its encoder — what changed_device_data needs per slot
+_SLOT_NULLS = tuple(_CURRENT[name][0] for name in _READABLE_NAMES)
+_SLOT_DOUBLE_PREFIXES = tuple(_double_prefix(b"".join(_heads(m)))
+                              if m.datatype is DataType.DOUBLE else None for m in _READABLE)
+_SLOT_ENCODERS = tuple(_CURRENT[m.name][1] for m in _READABLE)
+_SLOTS = tuple(zip(_SLOT_NULLS, _SLOT_DOUBLE_PREFIXES, _SLOT_ENCODERS, strict=True))
+
+
+def changed_device_data(timestamp_ms: int, seq: int, previous: Reading, reading: Reading, ddata_count: int,
+                        dropped: int | None = None) -> bytes:
+    """The current DDATA from `previous` to `reading` (not equal): the metrics that changed,
+    the status bits that flipped, then the node's own `mqtt/ddata_count` and, when given,
+    `mqtt/dropped` — the bytes `device_data` makes of `reading_changes(previous, reading)`
+    with those two added (tests/mqtt/test_mqtt_payload.py compares them), in one pass over
+    the reading's slots: the edge node's due tick, rate_hz times a second in the daemon's
+    event loop and cold each time, then builds no dict of changes, looks no metric up by
+    name and packs a Double with one C call (docs/decisions/0154)."""
+    parts = [b"\x08", _varint(timestamp_ms)]  # timestamp (field 1)
+    append = parts.append
+    for (null_entry, double_prefix, encode), old, new in zip(_SLOTS, previous, reading, strict=True):
+        if old != new:
+            if new is None:
+                append(null_entry)
+            elif double_prefix is not None:
+                append(double_prefix + _PACK_DOUBLE(new))
+            else:
+                append(encode(new))
+    i, j = _WORD_INDEXES
+    if previous[i] != reading[i] or previous[j] != reading[j]:
+        old_bits = _bits(previous[i], previous[j])
+        for name, bit in _bits(reading[i], reading[j]).items():
+            if old_bits[name] != bit:
+                append(_CURRENT[name][1](bit))
+    append(_DDATA_COUNT_ENTRY(ddata_count))
+    if dropped is not None:
+        append(_DROPPED_ENTRY(dropped))
+    append(b"\x18")  # seq (field 3)
+    append(_varint(seq))
+    return b"".join(parts)
+
+
+_DDATA_COUNT_ENTRY = _CURRENT[DDATA_COUNT][1]
+_DROPPED_ENTRY = _CURRENT[MQTT_DROPPED][1]
 
 
 @dataclass(frozen=True, slots=True)

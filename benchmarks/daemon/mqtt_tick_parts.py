@@ -9,10 +9,10 @@ daemon's process the parts of the node's tick are wrapped with a timer
 (time.thread_time_ns before and after: CPU time, not wall time), and the counts and
 totals printed when it stops. The parts nest: the node's tick holds the snapshot read
 (Gateway.fresh_values: the LinkHealth, the estimate, the status words, the snapshot),
-the change set, the DDATA's encoding and the socket write. Each timer costs a few µs of
-its own, counted in the part it wraps and in the parts around it: compare the parts of
-one run, or two runs of this command side by side, not single numbers with other
-benchmarks'. On a VM every piece runs cold at each wakeup, several times its cost in a
+the device reading, the change set with the DDATA's encoding, and the socket write.
+Each timer costs a few µs of its own, counted in the part it wraps and in the parts
+around it: compare the parts of one run, or two runs of this command side by side, not
+single numbers with other benchmarks'. On a VM every piece runs cold at each wakeup, several times its cost in a
 hot loop (why: docs/decisions/0153-snapshot-and-ddata-cheap-per-tick.md).
 """
 from __future__ import annotations
@@ -40,8 +40,7 @@ PARTS = (
     ("    link health", "gateway.daemon.supervisor:Gateway", "_health"),
     ("    estimate", "gateway.daemon.sample_pipeline:SamplePipeline", "_build_latest"),
     ("  device reading", "drivers.sparkplug_payload", "device_reading"),
-    ("  change set", "drivers.sparkplug_payload", "reading_changes"),
-    ("  DDATA encoding", "drivers.sparkplug_payload", "device_data"),
+    ("  change set and DDATA encoding", "drivers.sparkplug_payload", "changed_device_data"),
     ("  socket write (QoS 0)", "drivers.sparkplug_node:SparkplugNode", "_send_direct"),
 )
 

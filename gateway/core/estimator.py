@@ -15,6 +15,7 @@ estimate_series(method="realtime").
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,10 +39,22 @@ COMPARED_METHODS = ("zupt", "zupt-forward")
 HOLDING_FLAGS = K.F_INPUT_INVALID | K.F_TIME_ERROR
 
 
-@dataclass(frozen=True, slots=True)
+# what an Estimate reads of the kernel's output, with one call
+_KERNEL_OUTPUTS = operator.itemgetter(K.O_POS, K.O_VEL, K.O_ACC, K.O_BIAS, K.O_POS_VAR, K.O_VEL_VAR, K.O_INNOV,
+                                      K.O_NIS, K.O_ZUPT_INNOV, K.O_ZUPT_NIS, K.O_FLAGS)
+
+
+# not frozen: a frozen dataclass's __init__ sets each of the 12 fields through
+# object.__setattr__, and the daemon builds one per published change, read by every
+# wire's snapshot — on a VM cold at each wakeup (docs/decisions/0154)
+@dataclass(slots=True)
 class Estimate:
     """One sample's estimate and the health the daemon publishes: the one estimate type
-    (the realtime estimator, the daemon's pipeline and every wire read this)."""
+    (the realtime estimator, the daemon's pipeline and every wire read this).
+
+    Read only: no one changes an estimate once built (nothing assigns to one or hashes
+    one; the pipeline caches the newest and builds a new one when it changes). The rule
+    is said, not enforced, as for PublishedValues."""
 
     t_s: float
     pos_m: float
@@ -63,15 +76,20 @@ class Estimate:
         position measured from `reference_m`. With `held_std_unknown`, the position's σ
         is NaN before the filter has initialised (the position is held there, not
         estimated, and the kernel's variance 0 would claim it exact)."""
-        o = out.tolist()  # one conversion, not twelve numpy scalars
-        pos_var, vel_var = o[K.O_POS_VAR], o[K.O_VEL_VAR]
-        flags = int(o[K.O_FLAGS])
+        return cls.from_kernel_values(t_s, out.tolist(), reference_m, held_std_unknown)
+
+    @classmethod
+    def from_kernel_values(cls, t_s: float, o: list[float], reference_m: float = 0.0,
+                           held_std_unknown: bool = False) -> Estimate:
+        """`from_kernel` of the output array as a list (`out.tolist()`: one conversion, not
+        twelve numpy scalars), for a caller that reads or changes it first."""
+        pos, vel, acc, bias, pos_var, vel_var, innov, nis, zupt_innov, zupt_nis, flags = _KERNEL_OUTPUTS(o)
+        flags = int(flags)
         pos_std = math.sqrt(pos_var) if pos_var >= 0.0 else math.nan
         if held_std_unknown and not flags & K.F_INITIALISED:
             pos_std = math.nan
-        return cls(float(t_s), o[K.O_POS] - reference_m, o[K.O_VEL], o[K.O_ACC], o[K.O_BIAS], pos_std,
-                   math.sqrt(vel_var) if vel_var >= 0.0 else math.nan,
-                   o[K.O_INNOV], o[K.O_NIS], o[K.O_ZUPT_INNOV], o[K.O_ZUPT_NIS], flags)
+        return cls(float(t_s), pos - reference_m, vel, acc, bias, pos_std,
+                   math.sqrt(vel_var) if vel_var >= 0.0 else math.nan, innov, nis, zupt_innov, zupt_nis, flags)
 
     @property
     def standstill(self) -> bool:

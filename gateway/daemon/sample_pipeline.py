@@ -375,16 +375,14 @@ class SamplePipeline:
         if not self._estimated:
             return None
         state = self.estimator.state
-        out = state.out
-        filter_var_m2 = out.item(K.O_POS_VAR)
-        published_var_m2 = self._published_pos_var_m2(out.item(K.O_POS) - self.reference_offset_m, filter_var_m2)
-        if published_var_m2 != filter_var_m2:
-            # the published σ as the kernel's output says it, so that the estimate is built
-            # once (built per change, and read by every wire's snapshot: a dataclasses.replace
-            # after it cost more than the build itself)
-            out = out.copy()
-            out[K.O_POS_VAR] = published_var_m2
-        return Estimate.from_kernel(state.misc[K.M_T_PREV], out, self.reference_offset_m, held_std_unknown=True)
+        # the kernel's output as one list (each numpy access is a call, and this runs for
+        # every snapshot that follows a change, cold on a VM), with the published σ put in
+        # it so that the estimate is built once: a dataclasses.replace after it cost more
+        # than the build itself; the kernel's own array is left as it is
+        out = state.out.tolist()
+        out[K.O_POS_VAR] = self._published_pos_var_m2(out[K.O_POS] - self.reference_offset_m, out[K.O_POS_VAR])
+        return Estimate.from_kernel_values(state.misc.item(K.M_T_PREV), out, self.reference_offset_m,
+                                           held_std_unknown=True)
 
     def _published_pos_var_m2(self, pos_m: float, filter_var_m2: float) -> float:
         """The variance of the published position: the filter's, plus the start position's

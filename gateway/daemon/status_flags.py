@@ -36,9 +36,11 @@ class GatewayCondition:
 
 
 
-@dataclass(slots=True)  # not frozen: built per snapshot, and a frozen init is slower
+@dataclass(slots=True)  # not frozen: the supervisor keeps one and sets its fields at each snapshot read
 class LinkHealth:
-    """What the supervisor knows of the wires, for the status bits and counters."""
+    """What the supervisor knows of the wires, for the status bits and counters: a live
+    record (the supervisor's one, brought up to date before each snapshot); read it when
+    given, keep no reference."""
 
     port_open: bool
     last_byte_s: float | None

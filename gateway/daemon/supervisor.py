@@ -139,10 +139,15 @@ class Gateway(ServiceTasks, ConfigReload):
         self.board = BoardPort(lambda: self.cfg)
         self.wires = WireSet(cfg, WireContext(self.fresh_values, self.on_command, self._drain_now,
                                               can_bus_factory, version=package_version()))
+        # the wires whose numbers the status words carry, their health asked for every snapshot
+        self._can_health, self._mqtt_health = self.wires["can"].health, self.wires["mqtt"].health
         self.view = view if view is not None else (_terminal_view() if cfg.service.view else None)
         self._kernel_batches = False  # the port wakes us per batch of frames (see receive)
         self._port_just_read = False
         self._reloaded_at: float | None = None
+        #: the links' state: one record, brought up to date in place at each snapshot read (_health)
+        self._link_health = LinkHealth(port_open=False, last_byte_s=None, stale_after_s=math.inf,
+                                       lost_after_s=math.inf)
         self._stop_requested = asyncio.Event()
         self._sigint = False
         self._ready = asyncio.Event()
@@ -424,19 +429,25 @@ class Gateway(ServiceTasks, ConfigReload):
         return self.intake.snapshot(self._health())
 
     def _health(self) -> LinkHealth:
+        """The links' state as of now: the one record, its fields set in place — not a new
+        record (and two wire records) per snapshot: the MQTT node reads a snapshot rate_hz
+        times a second, on a VM cold at each wakeup, and building them was an eighth of
+        its tick (docs/decisions/0154). Readers take its numbers when they get it and
+        keep no reference to it (BoardIntake builds the snapshot from it at once)."""
+        health = self._link_health
         source = self.board.source  # (the port itself: read per snapshot, one hop fewer)
         serial = self.cfg.serial
-        can = self.wires.health("can")
-        mqtt = self.wires.health("mqtt")
-        return LinkHealth(
-            port_open=source is not None and source.is_open,
-            last_byte_s=None if source is None else source.last_data_monotonic_s,
-            stale_after_s=serial.stale_after_ms / 1000, lost_after_s=serial.lost_after_ms / 1000,
-            config_reloaded_at_s=self._reloaded_at,
-            can_send_errors=can.dropped, can_refused_commands=can.refused,
-            mqtt_down=mqtt.enabled and not mqtt.up, mqtt_dropped=mqtt.dropped,
-            simulated=self.cfg.serial.port == "emulated",
-        )
+        can, mqtt = self._can_health(), self._mqtt_health()
+        health.port_open = source is not None and source.is_open
+        health.last_byte_s = None if source is None else source.last_data_monotonic_s
+        health.stale_after_s = serial.stale_after_ms / 1000
+        health.lost_after_s = serial.lost_after_ms / 1000
+        health.config_reloaded_at_s = self._reloaded_at
+        health.can_send_errors, health.can_refused_commands = can.dropped, can.refused
+        health.mqtt_down = mqtt.enabled and not mqtt.up
+        health.mqtt_dropped = mqtt.dropped
+        health.simulated = serial.port == "emulated"
+        return health
 
     def _drain_now(self) -> None:
         self._drain(self.clock())

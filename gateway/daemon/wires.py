@@ -5,8 +5,8 @@ made from its config section by `gateway/daemon/settings.py`; None where the sec
 says the wire is off), started, told when new values exist, given new settings on a
 reload, stopped, and asked for its health. The supervisor holds a `WireSet` and loops
 over it; it knows no wire by its kind except for the few numbers the status words
-carry (`WireSet.health`). Adding an output is one driver module, its config keys and
-its row in `WIRE_KINDS`.
+carry (`wires["can"].health()`, `wires["mqtt"].health()`). Adding an output is one
+driver module, its config keys and its row in `WIRE_KINDS`.
 
 Start: Modbus must come up (without it the daemon has no point: DeviceError); CAN that
 cannot start is retried every CAN_RETRY_S in the background while Modbus serves; the
@@ -41,9 +41,11 @@ CAN_RETRY_S = 5.0
 STOP_TIMEOUT_S = 1.0
 
 
-@dataclass(slots=True)  # not frozen: two are made per snapshot (LinkHealth), and a frozen init is slower
+@dataclass(slots=True)  # not frozen: each wire keeps one and sets its fields when asked
 class WireHealth:
-    """What the status surfaces say of a wire (Modbus registers, CAN quality frame, log)."""
+    """What the status surfaces say of a wire (Modbus registers, CAN quality frame, log):
+    a live record (the wire's one, brought up to date by `health()`, which the supervisor
+    calls for every snapshot); read it when given, keep no reference."""
 
     name: str
     enabled: bool
@@ -84,7 +86,8 @@ class Wire(Protocol):
     async def stop(self) -> None:
         """Idempotent; nothing left running."""
 
-    def health(self) -> WireHealth: ...
+    def health(self) -> WireHealth:
+        """As of now (the wire's one WireHealth, updated in place: asked for every snapshot)."""
 
 
 async def stop_within_timeout(component) -> None:
@@ -102,6 +105,7 @@ class ModbusWire:
         self.settings = settings
         self._ctx = ctx
         self.server: ModbusServer | None = None
+        self._health = WireHealth(self.name, enabled=True, up=False)
 
     def _new_server(self, settings: ModbusServerConfig) -> ModbusServer:
         return ModbusServer(settings, on_command=self._ctx.on_command, before_read=self._ctx.before_read)
@@ -146,7 +150,8 @@ class ModbusWire:
         self.server = None
 
     def health(self) -> WireHealth:
-        return WireHealth(self.name, enabled=True, up=self.server is not None)
+        self._health.up = self.server is not None
+        return self._health
 
 
 class CanWire:
@@ -161,6 +166,7 @@ class CanWire:
         self.publisher: CanPublisher | None = None
         self.start_failures = 0
         self._retry: asyncio.Task | None = None
+        self._health = WireHealth(self.name, enabled=False, up=False)
 
     async def _open(self, settings: CanPublisherConfig) -> CanPublisher:
         publisher = CanPublisher(settings, on_command=self._ctx.on_command, bus_factory=self._ctx.can_bus_factory)
@@ -231,10 +237,11 @@ class CanWire:
         self.publisher = None
 
     def health(self) -> WireHealth:
-        p = self.publisher
-        return WireHealth(self.name, enabled=self.settings is not None, up=p is not None,
-                          dropped=0 if p is None else p.send_errors,
-                          refused=0 if p is None else p.refused_commands)
+        p, health = self.publisher, self._health
+        health.enabled, health.up = self.settings is not None, p is not None
+        health.dropped = 0 if p is None else p.send_errors
+        health.refused = 0 if p is None else p.refused_commands
+        return health
 
 
 class MqttWire:
@@ -247,6 +254,7 @@ class MqttWire:
         self.settings = settings
         self._ctx = ctx
         self.node: SparkplugNode | None = None
+        self._health = WireHealth(self.name, enabled=False, up=False)
 
     def _new_node(self, settings: SparkplugSettings, first_bd_seq: int = 0) -> SparkplugNode:
         return SparkplugNode(settings, values=self._ctx.values, on_command=self._ctx.on_command,
@@ -293,9 +301,10 @@ class MqttWire:
         self.node = None
 
     def health(self) -> WireHealth:
-        n = self.node
-        return WireHealth(self.name, enabled=self.settings is not None, up=n is not None and n.publishing,
-                          dropped=0 if n is None else n.counters.dropped)
+        n, health = self.node, self._health
+        health.enabled, health.up = self.settings is not None, n is not None and n.publishing
+        health.dropped = 0 if n is None else n.counters.dropped
+        return health
 
 
 @dataclass(frozen=True)
@@ -368,6 +377,3 @@ class WireSet:
     async def stop(self) -> None:
         for wire in reversed(self.wires):
             await wire.stop()
-
-    def health(self, name: str) -> WireHealth:
-        return self._by_name[name].health()
