@@ -25,6 +25,7 @@ import datetime
 import io
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -61,11 +62,20 @@ def final_error_mm(rec: Path, track_csv: Path) -> float:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--out", default="/tmp/diagnosis_horizontal", help="working directory")
+    p.add_argument("--out", default=None,
+                   help="working directory, kept (default: a private temporary one, removed at the end)")
     p.add_argument("--model-with", default="tilt", help="passed to diagnose --model-with (default: tilt)")
     args = p.parse_args()
+    if args.out is None:
+        with tempfile.TemporaryDirectory(prefix="adxlgw-diagnosis-horizontal-") as tmp:
+            return run(args, Path(tmp))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    return run(args, out)
+
+
+def run(args, out: Path) -> int:
+    """Diagnose each file in `out`, then carry each model to the others (the tables)."""
     print(f"command: .venv/bin/python -m benchmarks.accuracy.diagnosis_horizontal --model-with {args.model_with}")
     print(f"date: {datetime.datetime.now(datetime.UTC).isoformat(timespec='seconds')}; machine: {machine()}")
     recs, models = {}, {}
