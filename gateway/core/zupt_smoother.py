@@ -42,7 +42,8 @@ time: the record is read as a whole, in three phases, each a small function.
    decisive, the position is flagged 256 from the rest before it to the rest after it.
    A record that does not end in a used rest is smoothed both ways — ending at rest
    (v = 0 at its last sample) and not — the first given, flagged from the last decisive
-   rest, its variance the larger plus the squared difference: σ covers both answers.
+   rest, its variance the larger plus the squared difference: σ covers both answers
+   (not `forward_only`: a realtime estimator does not know where the record ends).
 3. **Filter and backward pass** (`_forward`, `_rts`): x = [p, v, b], the measured
    acceleration as the input (v̇ = z − b − w), the white noise's density N (velocity
    random walk N²/2), the bias a random walk of strength K (`bias_random_walk_…`: the
@@ -463,9 +464,9 @@ class ZuptSmoothed:
 def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=None,
            forward_only: bool = False) -> ZuptSmoothed:
     """The estimate from the whole record. `forward_only`: what a realtime estimator with
-    this detector would publish — each rest decided from its start alone and the forward
-    filter's estimate without the backward pass (a quiet window still covers the samples
-    it spans: one window of latency)."""
+    this detector would publish — each rest decided from its start alone, the forward
+    filter's estimate without the backward pass, no assumption that the record ends at
+    rest (a quiet window still covers the samples it spans: one window of latency)."""
     t = np.ascontiguousarray(t_s, dtype=float)
     ok = np.asarray(valid, dtype=bool) & np.isfinite(acc_mps2)
     acc = np.where(ok, acc_mps2, 0.0)
@@ -488,12 +489,15 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
     if not used:
         untrusted[:] = True
     x, p, v_pred, v_pred_var = _smoothed(t, u, extra, rest, model, not forward_only)
-    if not rest[-1]:
+    ended = rest
+    if not rest[-1] and not forward_only:
         # the recording does not end in a rest the data confirm: two answers — it ends at
         # rest (v = 0 at its last sample, as every method assumes it starts at rest) or
         # not — and no evidence to choose. The first is given, flagged from the last
         # decisive rest, with a variance that covers both (the larger plus their squared
-        # difference).
+        # difference). Not `forward_only`: a realtime estimator does not know that the
+        # record ends there (assuming it took zupt-forward's worst move on robot ×6 from
+        # 39.2 to 10.5 % with knowledge no causal estimator has).
         last = max((d.stop for d in used if d.decisive), default=0)
         ended = rest.copy()
         ended[-1] = True
@@ -502,7 +506,7 @@ def smooth(t_s, acc_mps2, valid, lost_before, settings: EstimatorSettings, hint=
             p_end[:, i, i] = np.maximum(p_end[:, i, i], p[:, i, i]) + (x_end[:, i] - x[:, i]) ** 2
         x, p = x_end, p_end
         untrusted[last:] = True
-    p[:, 0, 0] += model_error_var(t, x[:, 0], rest if rest[-1] else ended, v_pred, v_pred_var, model.scale_var)
+    p[:, 0, 0] += model_error_var(t, x[:, 0], ended, v_pred, v_pred_var, model.scale_var)
     return ZuptSmoothed(x[:, 0].copy(), x[:, 1].copy(), x[:, 2].copy(), p[:, 0, 0].copy(), p[:, 1, 1].copy(),
                         p[:, 2, 2].copy(), rest, untrusted, decisions)
 

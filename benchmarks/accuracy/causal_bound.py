@@ -1,0 +1,131 @@
+"""What an estimator without the machine's word can know at the end of each robot move,
+sample by sample (causally): whether the detector can see the stop before the move is
+scored, and how well the past tells the offset the move is integrated with.
+
+    nice .venv/bin/python -m benchmarks.accuracy.causal_bound [--json PATH]
+
+Per move of each robot file (sensor clock, imported as the corpus benchmark imports it;
+moves between the robot's rests as `gateway.core.evaluation.move_errors` takes them, each
+scored at the last sample of the rest that ends it):
+
+- `end rest`: how long the robot stands before the move is scored, in seconds and in
+  detector windows (`standstill_window_s`); the machine's "at rest" may lead the sensor's
+  stop by tens of ms;
+- `quiet windows in it`: windows of the detector wholly inside that end rest that the
+  quiet test passes (`zupt_smoother`'s tests, against that end rest's own median: as
+  generous to a detector as it can be) — 0: no stop can be seen before the move is
+  scored, and a causal estimate there is dead reckoning from the rest before;
+- `level wander`: how much the axis's reading at rest moves from one half-second to the
+  next in the rest before the move (the standard deviation of its 0.5 s medians, the
+  white noise's share removed; — when that rest holds fewer than three) — the offset a
+  move is integrated with is known no better than that from the past;
+- `its position σ`: ½·wander·T² over the move's duration T, % of the move — the position
+  uncertainty that offset alone leaves at the move's end when no stop inside it is seen.
+
+Where the end rest holds no quiet window and that σ is several % of the move, no causal
+estimate without the machine's word can promise a few % on the move.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from benchmarks import harness
+from benchmarks.accuracy.estimation_corpus import ROBOT_FILES, robot_case
+from gateway.core.evaluation import move_errors
+from gateway.core.runs import true_runs
+
+BLOCK_S = 0.5  # the level's blocks: long against the noise (√n), short against a move
+
+
+def rest_level(acc, ok, first: int, last: int) -> float:
+    """The rest's level: the median of its valid samples first … last."""
+    span = slice(first, last + 1)
+    return float(np.median(acc[span][ok[span]]))
+
+
+def quiet_windows(t, acc, ok, first: int, last: int, level: float, settings) -> int:
+    """Windows of the detector lying wholly inside samples first … last that the quiet
+    test passes (zupt_smoother's: the acceleration less the level moves the velocity by
+    at most floor / DECISIVE_SIGMAS anywhere inside, the mean within Student's t bound):
+    the stops a causal detector can see there."""
+    from gateway.core.zupt_smoother import DECISIVE_SIGMAS, stdtrit_two_sided
+
+    w = settings.window_samples
+    nu = settings.window_dof
+    mean_max = stdtrit_two_sided(settings.standstill_false_motion_prob, max(nu - 1.0, 1.0)) \
+        * settings.sample_noise_std_mps2 / np.sqrt(nu)
+    resolution = settings.standstill_speed_floor_mps / DECISIVE_SIGMAS
+    count = 0
+    for i in range(first, last - w + 2):
+        span = slice(i, i + w)
+        a = np.where(ok[span], acc[span] - level, 0.0)
+        swing = np.max(np.abs(np.cumsum(a[:-1] * np.diff(t[span]))))
+        if swing <= resolution and abs(np.mean(a[ok[span]])) <= mean_max:
+            count += 1
+    return count
+
+
+def level_wander(t, acc, ok, first: int, last: int, noise_std: float) -> float:
+    """The standard deviation of the rest's BLOCK_S medians, the white noise's share
+    (median of n: ≈ 1.25·σ/√n) removed; NaN with fewer than 3 blocks."""
+    edges = np.arange(t[first], t[last], BLOCK_S)[:-1]
+    meds, counts = [], []
+    for e in edges:
+        sel = (t >= e) & (t < e + BLOCK_S) & ok
+        sel[:first] = False
+        sel[last + 1:] = False
+        if sel.sum() >= 3:
+            meds.append(np.median(acc[sel]))
+            counts.append(sel.sum())
+    if len(meds) < 3:
+        return float("nan")
+    noise_var = (1.2533 * noise_std) ** 2 / float(np.mean(counts))
+    return float(np.sqrt(max(np.var(meds, ddof=1) - noise_var, 0.0)))
+
+
+def move_rows(case) -> list[dict]:
+    """One row per move of the case (see the module's doc)."""
+    t, acc, ok = case.t_s, case.acc_mps2, np.asarray(case.valid, dtype=bool)
+    s = case.settings
+    first_of_rest = {stop - 1: start for start, stop in true_runs(case.rest)}  # last sample → first
+    rows = []
+    for move in move_errors(np.zeros(t.size), case.ref_m, case.rest):
+        a, b = move.start, move.end  # last samples of the rest before and of the rest after
+        wander = level_wander(t, acc, ok, first_of_rest[a], a, s.sample_noise_std_mps2)
+        duration_s = float(t[first_of_rest[b]] - t[a])
+        end_rest_s = float(t[b] - t[first_of_rest[b]])
+        rows.append({"move_m": move.ref_m, "duration_s": duration_s, "end_rest_s": end_rest_s,
+                     "end_rest_windows": end_rest_s / s.standstill_window_s,
+                     "quiet_windows_in_end_rest": quiet_windows(t, acc, ok, first_of_rest[b], b,
+                                                                 rest_level(acc, ok, first_of_rest[b], b), s),
+                     "level_wander_mps2": wander,
+                     "offset_position_std_pct": 100.0 * 0.5 * wander * duration_s ** 2 / abs(move.ref_m)})
+    return rows
+
+
+def main() -> int:
+    parser = harness.parser(__doc__)
+    args = parser.parse_args()
+    run = harness.stamp(__spec__.name)
+    print()
+    print("| file | move | duration | end rest | quiet windows in it | level wander | its position σ |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    results = {}
+    for name in ROBOT_FILES:
+        case = robot_case(name, "sensor")
+        if case.error:
+            print(f"| {name} | {case.error} | | | | | |")
+            continue
+        results[name] = rows = move_rows(case)
+        for r in rows:
+            wander, sigma = ("—", "—") if np.isnan(r["level_wander_mps2"]) else (
+                f"{r['level_wander_mps2'] * 1e3:.0f} mm/s²", f"{r['offset_position_std_pct']:.1f} %")
+            print(f"| {name.removesuffix('.csv')} | {r['move_m']:+.3f} m | {r['duration_s']:.2f} s | "
+                  f"{r['end_rest_s']:.2f} s ({r['end_rest_windows']:.1f} windows) | "
+                  f"{r['quiet_windows_in_end_rest']} | {wander} | {sigma} |")
+    harness.write_json(args, results, run)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
