@@ -67,6 +67,23 @@ def backward_may_decide(flags) -> bool:
                 and (last & K.F_STANDSTILL or last & K.F_UNTRUSTED))
 
 
+def ends_at_rest(t, z, ok, settings: EstimatorSettings, min_rest_s: float = 0.2, k_sigma: float = 8.0) -> bool:
+    """The recording's last min_rest_s (find_initial_rest's shortest rest) stays within
+    k_sigma (its bound) of their median on the recording's own noise
+    (EstimatorSettings.sample_noise_std_mps2, measured at its initial rest).
+
+    Why: find_initial_rest measures a rest's noise on its own first samples; read from the
+    end of a recording scored a tenth of a second into its last rest, those hold the
+    sensor's deceleration, the measured spread is the motion's, and the whole recording
+    passes for its "final rest" — the backward run then starts inside the last cruise and
+    takes it for a stop (the horizontal robot runs: the smoothed estimate's worst move 91 %)."""
+    last = np.asarray(z, dtype=float)[t >= t[-1] - min_rest_s]
+    last = last[np.asarray(ok, dtype=bool)[t >= t[-1] - min_rest_s]]
+    if last.size < 2:
+        return False
+    return bool(np.all(np.abs(last - np.median(last)) <= k_sigma * settings.sample_noise_std_mps2))
+
+
 def stops_seen_from_the_end(t, z, ok, lost, hint, settings: EstimatorSettings, forward_flags,
                             cols) -> np.ndarray | None:
     """Stops the forward pass could not decide that the same filter, run backward in time
@@ -94,6 +111,8 @@ def stops_seen_from_the_end(t, z, ok, lost, hint, settings: EstimatorSettings, f
     back_prm = replace(settings, drift_c1_mps2=0.0, sensor_lag_s=0.0).kernel_params()
     n = t.size
     ok_back = np.ascontiguousarray(ok[::-1])
+    if not ends_at_rest(t, z, ok, settings):
+        return None  # the recording does not end at rest as the detector sees one
     try:
         # on the readings as they are: a quantised logger's rest is one value with a
         # flicker (find_initial_rest reads its step), which the drift's removal would blur

@@ -64,3 +64,24 @@ def test_lost_samples_read_backward_are_the_same_gaps():
     lost = lost_from_times(t)
     assert lost.sum() > 0
     np.testing.assert_array_equal(lost_from_times(t[-1] - t[::-1]), lost_before_reversed(lost))
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_recording_scored_a_tenth_of_a_second_into_its_last_rest_is_not_read_backward(seed):
+    """The horizontal robot runs end 0.11–0.16 s into their last rest: the last 0.2 s hold
+    the deceleration, so the recording does not end at a rest the backward run could start
+    from (estimator_passes.ends_at_rest). Measured on the record's own first samples, that
+    deceleration's spread passed for the rest's noise and the whole record for its "final
+    rest": the backward run started inside the last cruise and took it for a stop."""
+    t, z, ref, resting, settings = robot_case(seed, 5.0)
+    last_rest = int(np.flatnonzero(np.diff(resting.astype(int)) == 1)[-1]) + 1  # the final rest's first sample
+    cut = int(np.searchsorted(t, t[last_rest] + 0.13))
+    t, z, ref, resting = t[:cut], z[:cut], ref[:cut], resting[:cut]
+    realtime = estimate_series(t, z, method="realtime", settings=settings)
+    smoothed = estimate_series(t, z, method="smoothed", settings=settings)
+    assert not any("running backward" in n for n in smoothed.notes), smoothed.notes
+    assert not realtime.standstill[-1]
+    # no stop inside the last move: the smoothed velocity there is not zeroed
+    moving = np.flatnonzero(np.abs(np.gradient(ref, t)) > 0.15)
+    last_move = moving[moving > int(np.flatnonzero(np.diff(resting.astype(int)) == -1)[-1])]
+    assert not smoothed.standstill[last_move].any()
