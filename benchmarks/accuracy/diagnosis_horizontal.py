@@ -149,21 +149,30 @@ def tilt_evidence(rec: Path, out: Path) -> str:
     from gateway.offline.recording import read_recording as read
 
     raw = read(rec)
-    data = build_input(str(rec), raw, to_acceleration(raw), [])
-    prep = prepare(data)
-    base = fit_model(prep, ())
-    prep.noise = fit_noise_model(prep.noise_series(base.residual))
-    base = fit_model(prep, ())
+    full = build_input(str(rec), raw, to_acceleration(raw), [])
     tilt = Tilt()
 
-    def kappa(mask) -> tuple[float, float]:
+    def prepared(data):
+        prep = prepare(data)
+        base = fit_model(prep, ())
+        prep.noise = fit_noise_model(prep.noise_series(base.residual))
+        return prep, fit_model(prep, ())
+
+    def kappa(prep, mask) -> tuple[float, float]:
         prep.fit_mask = mask
         fit = fit_model(prep, (tilt,), start={"tilt": np.array([0.0])})
         value, std = fit.effect_theta(tilt)
         return float(value[0]), float(std[0])
 
+    # the comparison's blocks are laid from the record's first sample and a last partial
+    # block is not compared; laid from its last sample instead (the first samples, in the
+    # long first rest, left out), the move's end is compared too
+    data = full
+    prep, base = prepared(data)
+    from_end, _ = prepared(_from_sample(data, len(data) % prep.block))
+    k_end = kappa(from_end, from_end.data.valid.copy())[0]
     valid = data.valid.copy()
-    k_all, s_all = kappa(valid)
+    k_all, s_all = kappa(prep, valid)
     # the criterion's blocks (criterion.block_ids over the compared values), each left out in turn
     first = prep.compared_index(valid)
     ids = block_ids(first, prep.rest)
@@ -173,9 +182,10 @@ def tilt_evidence(rec: Path, out: Path) -> str:
         rows = first[ids == b]
         mask = valid.copy()
         mask[rows.min():rows.max() + prep.block] = False
-        left_out.append((kappa(mask)[0], data.t_s[rows.min()] - t0, bool(prep.rest[rows.min()])))
+        end = min(rows.max() + prep.block, len(data)) - 1
+        left_out.append((kappa(prep, mask)[0], data.t_s[rows.min()] - t0, data.t_s[end] - t0))
     prep.fit_mask = valid
-    ks = np.array([k for k, _, _ in left_out])
+    ks = np.array([k for k, *_ in left_out])
     worst = left_out[int(np.argmax(np.abs(ks - k_all)))]
     # the baseline residual's block means: in motion against at rest
     r = prep.blocks(np.nan_to_num(base.residual), valid)
@@ -194,14 +204,31 @@ def tilt_evidence(rec: Path, out: Path) -> str:
                                      "--out", str(track), *hint_args])
         moved = unsettled_mm(notes)
         response.append(f"{final_error_mm(rec, track) - before:+.1f} mm"
-                        + (f" (did not settle: ±{moved:.0f})" if moved is not None else ""))
+                        + (f" (did not settle: ±{moved:.1f})" if moved is not None else ""))
     oracle = _hinted_response_with_reference_position(rec, PROBE_TILT_RAD_PER_M)
+    moving = np.abs(data.ref_vel_mps) > 1e-6
+    move_end = data.t_s[np.flatnonzero(moving)[-1]] - t0
+    in_move = sum(1 for _, a, e in left_out if e > 0 and a < move_end)
+    compared_to = data.t_s[min(first[-1] + prep.block, len(data)) - 1] - t0
     return (f"{rec.name.split('.')[0]}: κ {k_all:.4f} ± {s_all:.4f} rad/m (the fit's own σ); one of "
-            f"{len(left_out)} blocks left out: {ks.min():.4f} … {ks.max():.4f} (most: the block at "
-            f"{worst[1]:+.2f} s from the move's start, {'at rest' if worst[2] else 'in motion'}: {worst[0]:.4f}); "
+            f"{len(left_out)} blocks ({in_move} over the move, which ends at {move_end:+.2f} s; compared up to "
+            f"{compared_to:+.2f} s) left out: {ks.min():.4f} … {ks.max():.4f} (most: the block "
+            f"{worst[1]:+.2f} … {worst[2]:+.2f} s from the move's start: {worst[0]:.4f}); with the blocks laid from "
+            f"the record's end (its first {len(full) % prep.block} samples left out): {k_end:.4f}; "
             f"baseline residual's block means in motion spread {spread:.1f}× the rests'; a tilt of "
             f"{PROBE_TILT_RAD_PER_M} rad/m moves the final error by {response[0]} hinted ({oracle:+.1f} mm with "
             f"the reference's position in place of the estimate's), {response[1]} unhinted")
+
+
+ARRAY_FIELDS = ("t_s", "acc_mps2", "valid", "lost_before", "ref_pos_m", "ref_vel_mps", "ref_acc_mps2",
+                "other_mps2", "temp_c", "t_host_s", "standstill_hint")
+
+
+def _from_sample(data, first: int):
+    """The diagnosis input without its first `first` samples."""
+    from dataclasses import replace
+
+    return replace(data, **{f: getattr(data, f)[first:] for f in ARRAY_FIELDS if getattr(data, f) is not None})
 
 
 def _hinted_response_with_reference_position(rec: Path, tilt_rad_per_m: float) -> float:
@@ -249,7 +276,7 @@ def _error_table(recs: dict, models: dict, out: Path, hinted: bool) -> None:
             err = final_error_mm(rec, track)
             moved = unsettled_mm(notes)
             row.append(f"{err:+.1f}" + (" (own)" if fit_on == name else "")
-                       + (f" (did not settle: ±{moved:.0f})" if moved is not None else ""))
+                       + (f" (did not settle: ±{moved:.1f})" if moved is not None else ""))
             # a pass that did not settle is one of the answers the model allows: its gain is
             # not determined (None)
             if fit_on != name:
