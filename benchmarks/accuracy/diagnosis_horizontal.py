@@ -27,6 +27,9 @@ other axis = acc_cross_g, t_host_s = arrival_time_s, ref_pos_m = ref_m (the robo
    against the rests' (the noise model knows only the rests); and how far the hinted and
    the unhinted final error move for a tilt of 0.01 rad/m (`estimate --model`, the
    estimate's own position).
+4. One tilt for the whole run (what a joint fit of the four sensors would give, at
+   best): the hinted final error of every file for each of a few κ, and on how many
+   files it improves.
 """
 from __future__ import annotations
 
@@ -132,6 +135,7 @@ def run(args, out: Path) -> int:
     print("why the fitted tilt does not carry: κ per file, its spread, the hinted estimate's response")
     for rec in recs.values():
         print(tilt_evidence(rec, out))
+    common_tilt_table(recs, out)
     return 0
 
 
@@ -192,9 +196,7 @@ def tilt_evidence(rec: Path, out: Path) -> str:
     at_rest = prep.rest[first]
     spread = float(np.std(r[~at_rest])) / max(float(np.std(r[at_rest])), 1e-12)
     # the final error's response to a tilt of PROBE_TILT_RAD_PER_M, through estimate --model
-    probe = out / "probe_tilt.model.json"
-    probe.write_text(json.dumps({"format": "adxlgw-sensor-model", "version": 1, "source": "probe", "effects": [
-        {"name": "tilt", "params": {"tilt_gradient_rad_per_m": PROBE_TILT_RAD_PER_M}}]}))
+    probe = _tilt_model_file(out, PROBE_TILT_RAD_PER_M)
     response = []
     for hint_args in ([], ["--ignore-hint"]):
         track = out / "track.csv"
@@ -251,6 +253,47 @@ def _hinted_response_with_reference_position(rec: Path, tilt_rad_per_m: float) -
                                 standstill_hint=series.standstill_hint)
         final.append(float(track.pos_m[-1]))
     return (final[1] - final[0]) * 1e3
+
+
+def _tilt_model_file(out: Path, tilt_rad_per_m: float) -> Path:
+    """A model file with one tilt term, as `diagnose --model-out` writes it."""
+    path = out / f"tilt_{tilt_rad_per_m:+.4f}.model.json"
+    path.write_text(json.dumps({"format": "adxlgw-sensor-model", "version": 1, "source": "a tilt given",
+                                "effects": [{"name": "tilt", "params": {"tilt_gradient_rad_per_m": tilt_rad_per_m}}]}))
+    return path
+
+
+# one tilt for the whole run, tried on every file: the range the files' own fits span
+# (0.02-0.03 rad/m as the diagnosis fits, 0.005-0.02 with the grid laid from the end) and
+# its sign reversed: the best any joint fit of one kappa could give
+COMMON_TILTS_RAD_PER_M = (-0.01, 0.0025, 0.005, 0.01, 0.02, 0.03)
+
+
+def common_tilt_table(recs: dict, out: Path) -> None:
+    """The hinted final error of every file with one tilt for the run: how many files a
+    single kappa, however it were fitted, improves."""
+    print()
+    print("one tilt for the run, applied to every file: final error, mm (hinted, as adxlgw estimate runs)")
+    print(" | ".join(["κ (rad/m)"] + [n.split("_y605")[0] for n in recs] + ["files improved"]))
+    print(" | ".join("---" for _ in range(len(recs) + 2)))
+    base = {}
+    for name, rec in recs.items():
+        track = out / "track.csv"
+        quiet(["estimate", str(rec), "--method", "smoothed", "--out", str(track)])
+        base[name] = final_error_mm(rec, track)
+    print(" | ".join(["0 (no model)"] + [f"{v:+.1f}" for v in base.values()] + ["–"]))
+    for kappa in COMMON_TILTS_RAD_PER_M:
+        model = _tilt_model_file(out, kappa)
+        row, improved = [f"{kappa:g}"], 0
+        for name, rec in recs.items():
+            track = out / "track.csv"
+            _, notes = quiet_with_notes(["estimate", str(rec), "--method", "smoothed", "--model", str(model),
+                                         "--out", str(track)])
+            err = final_error_mm(rec, track)
+            moved = unsettled_mm(notes)
+            row.append(f"{err:+.1f}" + (f" (did not settle: ±{moved:.1f})" if moved is not None else ""))
+            improved += int(moved is None and abs(err) < abs(base[name]))
+        print(" | ".join(row + [f"{improved} of {len(recs)}"]))
 
 
 def _error_table(recs: dict, models: dict, out: Path, hinted: bool) -> None:
