@@ -27,9 +27,9 @@ def estimate_with_model(path: str, series, settings, form: str, run):
         settings = settings_with_model_lag(settings, model, nominal)
     rest = series.standstill_hint > 0.5 if series.standstill_hint is not None else None
     ctx = SampleContext(series.t_s, series.other_axis_mps2, series.temp_c, rest=rest)
-    track, _, passes = compensated_estimate(model, np.asarray(series.acc_mps2, float), ctx,
-                                            lambda acc: run(acc, settings))
+    result = compensated_estimate(model, np.asarray(series.acc_mps2, float), ctx, lambda acc: run(acc, settings))
     names = ", ".join(t.name for t in model.terms) or "no terms"
-    notes.append(f"model {path}: {names}" + (f" ({passes} passes with the estimate's position)" if passes > 1 else "")
+    passes = result.describe()
+    notes.append(f"model {path}: {names}" + (f" ({passes})" if passes else "")
                  + (f"; not compensated: {', '.join(model.not_compensated)}" if model.not_compensated else ""))
-    return track, notes
+    return result.track, notes

@@ -20,7 +20,9 @@ Each term undoes what its effect adds to the reading:
 
 What needs the estimate (position, standstill) is corrected with the estimate's own,
 re-estimated until it settles (`compensated_estimate`): the estimate without the
-correction can be metres off, and one pass from there overshoots. Terms with no
+correction can be metres off, and one pass from there overshoots. Where the passes do
+not settle (the estimate's own standstill decisions flip with the correction) the
+result says so: its last pass is one of the answers the model allows, not the answer. Terms with no
 correction (a ringing that integrates to nothing, clipped samples, a reference delay)
 are kept in the file for the record and listed as `not_compensated`.
 
@@ -170,16 +172,47 @@ def compensate(model: SensorModel, acc: np.ndarray, ctx: SampleContext) -> np.nd
     return out
 
 
+@dataclass
+class CompensatedEstimate:
+    """The estimate on the corrected measurement, and whether the correction settled.
+
+    A term that needs the estimate (the tilt's position, the motion offset's flags) is
+    corrected with the previous pass's estimate; the passes need not converge. Where the
+    estimate's own standstill decisions flip with the correction, the passes can
+    alternate between two estimates (seen on the Leiria robot's horizontal moves without
+    the hint: final positions 186 mm apart, pass after pass). Then the last pass is one
+    of several answers the model gives, not the model's answer: `settled` is False and
+    `last_step_m` says by how much the position still moved (docs/diagnosis.md §6)."""
+
+    track: object
+    acc_mps2: np.ndarray
+    passes: int
+    last_step_m: float  # the largest change of the position in the last pass (0: one pass was enough)
+
+    @property
+    def settled(self) -> bool:
+        return self.last_step_m < SETTLED_M
+
+    def describe(self) -> str:
+        """One line for the user: the passes made, and a correction that did not settle."""
+        if self.passes == 1:
+            return ""
+        if self.settled:
+            return f"{self.passes} passes with the estimate's position"
+        return (f"did not settle after {self.passes} passes with the estimate's position: the last pass still "
+                f"moved the position by up to {self.last_step_m * 1e3:.1f} mm, so the result is one of the "
+                "estimates the model allows, not a determined one")
+
+
 def compensated_estimate(model: SensorModel, acc: np.ndarray, ctx: SampleContext,
-                         run: Callable[[np.ndarray], object]):
-    """(the estimate on the corrected acceleration, that acceleration, passes). run(acc)
-    returns a track with pos_m and standstill; terms that need the estimate take it from
-    the previous pass until the position settles (SETTLED_M, MAX_PASSES)."""
+                         run: Callable[[np.ndarray], object]) -> CompensatedEstimate:
+    """The estimate on the corrected acceleration. run(acc) returns a track with pos_m and
+    standstill; terms that need the estimate take it from the previous pass until the
+    position settles (SETTLED_M) or MAX_PASSES are made (then `settled` is False)."""
     track = run(compensate(model, acc, ctx))
-    passes = 1
     if not model.uses_estimate:
-        return track, compensate(model, acc, ctx), passes
-    corrected = acc
+        return CompensatedEstimate(track, compensate(model, acc, ctx), 1, 0.0)
+    corrected, step, passes = acc, math.inf, 1
     for passes in range(2, MAX_PASSES + 1):  # noqa: B007 — the number of passes made is returned
         ctx.pos_m = np.asarray(track.pos_m, dtype=float)
         ctx.moving = ~np.asarray(track.standstill, dtype=bool)
@@ -189,7 +222,7 @@ def compensated_estimate(model: SensorModel, acc: np.ndarray, ctx: SampleContext
         track = new
         if step < SETTLED_M:
             break
-    return track, corrected, passes
+    return CompensatedEstimate(track, corrected, passes, step)
 
 
 NEEDS_ESTIMATE = ("tilt", "motion_offset")

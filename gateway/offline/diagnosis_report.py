@@ -102,8 +102,10 @@ def distance_text(dist: dict | None) -> str:
     interval = dist.get("interval_mm")
     within = (f", interval {_num(interval[0], '+.2f')} … {_num(interval[1], '+.2f')} mm over the stops"
               if interval and interval[0] != interval[1] else "")
+    unsettled = (f"; the correction's passes did not settle: the last moved the position by up to "
+                 f"{_num(dist['unsettled_mm'], '.1f')} mm" if dist.get("unsettled_mm") else "")
     return (f"distance error ({key}): {_num(b, '.3f')} → {_num(a, '.3f')} mm "
-            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{within})")
+            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{within}{unsettled})")
 
 
 def summary_lines(result: DiagnosisResult, path: str) -> list[str]:

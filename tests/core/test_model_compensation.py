@@ -60,9 +60,27 @@ def test_terms_that_need_the_estimate_are_iterated_until_it_settles():
 
     model = SensorModel((ModelTerm("tilt", {"tilt_gradient_rad_per_m": 0.01}),))
     acc = np.r_[np.ones(50), -np.ones(50), np.zeros(50)]
-    track, corrected, passes = compensated_estimate(model, acc, SampleContext(np.arange(150) * 0.002), Track)
-    assert 1 < passes <= 12
-    assert np.allclose(corrected, acc - 0.01 * G * track.pos_m, atol=1e-6)
+    result = compensated_estimate(model, acc, SampleContext(np.arange(150) * 0.002), Track)
+    assert 1 < result.passes <= 12 and result.settled
+    assert np.allclose(result.acc_mps2, acc - 0.01 * G * result.track.pos_m, atol=1e-6)
+    assert "passes with the estimate's position" in result.describe()
+
+
+def test_a_correction_that_does_not_settle_says_so():
+    """An estimate whose standstill decisions flip with the correction alternates between
+    two answers pass after pass (the robot's horizontal moves without the hint): the last
+    pass is not the model's answer, and the result says the passes did not settle."""
+    class Track:
+        def __init__(self, acc):
+            # the estimator's own decision flips with the sign of what it is fed
+            self.pos_m = np.full(acc.size, 0.1 if acc.mean() > 0 else -0.1)
+            self.standstill = np.zeros(acc.size, bool)
+
+    model = SensorModel((ModelTerm("tilt", {"tilt_gradient_rad_per_m": 0.01}),))
+    result = compensated_estimate(model, np.zeros(100), SampleContext(np.arange(100) * 0.002), Track)
+    assert result.passes == 12 and not result.settled
+    assert result.last_step_m == pytest.approx(0.2)
+    assert "did not settle after 12 passes" in result.describe() and "200.0 mm" in result.describe()
 
 
 def _write(path, seed, terms):

@@ -38,6 +38,9 @@ class EstimatePlan:
     lost_before: np.ndarray | None = None
     ref_shift_s: float = 0.0
     standstill_hint: np.ndarray | None = None  # per sample, as DiagnosisInput.standstill_hint
+    # how far the last pass of a correction that needs the estimate still moved the
+    # position when its passes did not settle (0: settled, or no such correction)
+    unsettled_m: float = 0.0
     _cache: dict = field(default_factory=dict, repr=False)
 
     def run(self, t_s, acc, valid, lost) -> EstimateTrack:
@@ -87,6 +90,11 @@ class EstimatePlan:
             new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
             if step < POSITION_SETTLED_M:
                 break
+        else:
+            # the passes alternate or creep (the estimate's own standstill decisions flip
+            # with the correction): the distance is one of the answers, and says so
+            # (model_compensation.CompensatedEstimate does the same for estimate --model)
+            new.unsettled_m = max(new.unsettled_m, step)
         return new
 
     @staticmethod
@@ -168,5 +176,7 @@ def distance_gain(prep: Prepared, before: EstimatePlan, after: EstimatePlan) -> 
                else "the estimator found no standstill to start from")
         return {"available": False, "why": why}
     key = "stop_rms_mm" if "stop_rms_mm" in b and math.isfinite(b["stop_rms_mm"]) else "final_mm"
-    return {"available": True, "metric": key, "before": b, "after": a,
-            "improvement_mm": abs(b[key]) - abs(a[key])}
+    out = {"available": True, "metric": key, "before": b, "after": a, "improvement_mm": abs(b[key]) - abs(a[key])}
+    if after.unsettled_m:
+        out["unsettled_mm"] = after.unsettled_m * 1e3
+    return out
