@@ -27,7 +27,8 @@ FW_VERSION = (1, 0)
 
 @dataclass(frozen=True)
 class FaultSettings:
-    """Each period in seconds of board time; 0 disables the fault."""
+    """Each period (and the cut's start and length) in seconds of board time; 0 disables
+    the fault."""
 
     garbage_every_s: float = 0.0  # random bytes between frames
     burst_every_s: float = 0.0  # hold frames back for 50 ms, then send them at once
@@ -35,11 +36,10 @@ class FaultSettings:
     reopen_every_s: float = 0.0  # the port vanishes for reopen_gap_s, then a new one appears
     reopen_gap_s: float = 0.5
     drop_every_s: float = 0.0  # a sample lost on the line (never sent)
-    # The line cut for cut_for_s: nothing the board writes meanwhile arrives, while its
-    # seq and clock run on (a UART wire pulled and put back, unlike a board that stalls
-    # and then writes what it owes). The first cut starts at cut_every_s; cut_for_s <
-    # cut_every_s (adxlgw emulate checks it).
-    cut_every_s: float = 0.0
+    # Once, cut_after_s into the board's run (0: never), the line is cut for cut_for_s:
+    # nothing the board writes meanwhile arrives, while its seq and clock run on (a UART
+    # wire pulled and put back, unlike a board that stalls and then writes what it owes).
+    cut_after_s: float = 0.0
     cut_for_s: float = 1.0
 
 
@@ -78,10 +78,9 @@ def board_schedule(settings: EmulatorSettings) -> Iterator[Chunk]:
 
 
 def in_line_cut(due_s: float, faults: FaultSettings) -> bool:
-    """True for board times inside a cut of the line: [k·cut_every_s, k·cut_every_s +
-    cut_for_s) for k ≥ 1."""
-    every = faults.cut_every_s
-    return every > 0.0 and due_s >= every and due_s % every < faults.cut_for_s
+    """True for board times inside the line's cut: [cut_after_s, cut_after_s + cut_for_s)."""
+    start = faults.cut_after_s
+    return start > 0.0 and start <= due_s < start + faults.cut_for_s
 
 
 def _cut_line(chunks: Iterator[Chunk], faults: FaultSettings) -> Iterator[Chunk]:
