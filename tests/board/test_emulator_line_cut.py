@@ -12,7 +12,7 @@ from gateway.core.sensor_model import BOARD_SENSOR
 from gateway.emulator import EmulatorSettings, FaultSettings, board_schedule, in_line_cut
 from tests.daemon_helpers import CLI
 
-PERIOD_S = BOARD_SENSOR.rset_ohm / 125e6  # T2 = RSET / 125 MΩ (ADXL202 data sheet)
+PERIOD_S = BOARD_SENSOR.t2_s  # T2 = RSET / 125 MΩ (ADXL202 data sheet), with the part's error
 
 
 def schedule(faults: FaultSettings, seconds: float, seed: int = 4):

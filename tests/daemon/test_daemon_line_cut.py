@@ -12,14 +12,15 @@ from pymodbus.client import AsyncModbusTcpClient
 from drivers.published_values import StatusBits
 from gateway.core.estimator_settings import EstimatorSettings
 from gateway.core.motion_profiles import StrokeSettings
+from gateway.core.sensor_model import BOARD_SENSOR
 from gateway.daemon.sample_loop import OUTAGE_S
 from tests.daemon_helpers import Emulator, gateway_config, read_inputs, running_gateway, wait_for
 
 pytestmark = pytest.mark.slow
 
-# the emulated board's sample period: T2 = RSET / 125 MΩ with its 250 kΩ, and the part's
-# +0.5 % T2 error (adxlgw emulate's defaults)
-BOARD_PERIOD_S = 250e3 / 125e6 * 1.005
+# the emulated board's sample period: T2 = RSET / 125 MΩ with the board's RSET and the
+# part's T2 error (adxlgw emulate's defaults)
+BOARD_PERIOD_S = BOARD_SENSOR.t2_s
 # the emulated axis strokes between 0 and this (the paper's 30 cm)
 STROKE_M = StrokeSettings().stroke_m
 # at rest this long before the first stroke: the estimate is VALID long before the cut
