@@ -2,7 +2,8 @@
 
 HELLO first, SAMPLE frames paced by the board's own clock (each sent when its sensor
 period ends), STATUS once a second. Optional faults for tests and demos: garbage
-bytes, bursts, board resets, and the port vanishing and coming back.
+bytes, bursts, single samples lost, the line cut for a while, board resets, and the
+port vanishing and coming back.
 """
 from __future__ import annotations
 
@@ -26,7 +27,8 @@ FW_VERSION = (1, 0)
 
 @dataclass(frozen=True)
 class FaultSettings:
-    """Each period in seconds of board time; 0 disables the fault."""
+    """Each period (and the cut's start and length) in seconds of board time; 0 disables
+    the fault."""
 
     garbage_every_s: float = 0.0  # random bytes between frames
     burst_every_s: float = 0.0  # hold frames back for 50 ms, then send them at once
@@ -34,6 +36,11 @@ class FaultSettings:
     reopen_every_s: float = 0.0  # the port vanishes for reopen_gap_s, then a new one appears
     reopen_gap_s: float = 0.5
     drop_every_s: float = 0.0  # a sample lost on the line (never sent)
+    # Once, cut_after_s into the board's run (0: never), the line is cut for cut_for_s:
+    # nothing the board writes meanwhile arrives, while its seq and clock run on (a UART
+    # wire pulled and put back, unlike a board that stalls and then writes what it owes).
+    cut_after_s: float = 0.0
+    cut_for_s: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -66,7 +73,31 @@ def _runs(settings: EmulatorSettings) -> Iterator[SimulatedRun]:
 
 
 def board_schedule(settings: EmulatorSettings) -> Iterator[Chunk]:
-    """The board's output as timed chunks, in order; infinite with loop=True."""
+    """What reaches the line's far end, as timed chunks, in order; infinite with loop=True."""
+    return _cut_line(_board_output(settings), settings.faults)
+
+
+def in_line_cut(due_s: float, faults: FaultSettings) -> bool:
+    """True for board times inside the line's cut: [cut_after_s, cut_after_s + cut_for_s)."""
+    start = faults.cut_after_s
+    return start > 0.0 and start <= due_s < start + faults.cut_for_s
+
+
+def _cut_line(chunks: Iterator[Chunk], faults: FaultSettings) -> Iterator[Chunk]:
+    """The chunks less those written while the line was cut: the board does not know,
+    so its seq, clock and STATUS reports run on as if they had arrived."""
+    cut = False
+    for chunk in chunks:
+        now_cut = in_line_cut(chunk.due_s, faults)
+        if now_cut != cut:
+            cut = now_cut
+            log.info("line %s at board time %.3f s", "cut" if cut else "back", chunk.due_s)
+        if not cut:
+            yield chunk
+
+
+def _board_output(settings: EmulatorSettings) -> Iterator[Chunk]:
+    """The board's output as timed chunks, in order, as it writes them."""
     faults = settings.faults
     rng = np.random.default_rng([settings.seed, 0xE3])
     tick_hz = int(round(settings.sensor.tick_hz))

@@ -22,7 +22,7 @@ from gateway.commands.common import (
 )
 from gateway.core.sensor_model import BOARD_SENSOR
 from gateway.emulator import EmulatorSettings, FaultSettings, Pacer, board_schedule
-from gateway.errors import DeviceError
+from gateway.errors import DeviceError, InputError
 
 log = logging.getLogger("adxlgw.emulate")
 
@@ -59,6 +59,13 @@ def add_parser(sub) -> None:
     f.add_argument("--drop-every", type=non_negative_float, default=0.0, help="lose one sample on the line")
     f.add_argument("--reopen-every", type=non_negative_float, default=0.0,
                    help="the pty vanishes for 0.5 s and a new one appears (use with --link)")
+    cut = p.add_argument_group("a line cut (once)")
+    cut.add_argument("--cut-after", type=non_negative_float, default=0.0,
+                     help="this long into the board's run, s, the line is cut for --cut-for seconds: nothing "
+                          "arrives while the board's seq and clock run on, so the samples are lost (unlike a board "
+                          "that stalls and then writes what it owes); 0: never (default)")
+    cut.add_argument("--cut-for", type=positive_float,
+                     help=f"how long the line stays cut, s (default: {FaultSettings.cut_for_s:g})")
     p.set_defaults(run=run)
 
 
@@ -100,6 +107,8 @@ def rset_kohm(text: str) -> float:
 
 
 def _settings(args: argparse.Namespace) -> EmulatorSettings:
+    if args.cut_for is not None and not args.cut_after:
+        raise InputError("--cut-for without --cut-after: the line is never cut")
     return EmulatorSettings(
         scenario=scenario_from_args(args),
         sensor=dataclasses.replace(BOARD_SENSOR, rset_ohm=args.rset_kohm * 1e3),
@@ -111,6 +120,8 @@ def _settings(args: argparse.Namespace) -> EmulatorSettings:
             reset_every_s=args.reset_every,
             reopen_every_s=args.reopen_every,
             drop_every_s=args.drop_every,
+            cut_after_s=args.cut_after,
+            cut_for_s=FaultSettings.cut_for_s if args.cut_for is None else args.cut_for,
         ),
     )
 
