@@ -22,18 +22,16 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
-import socket
-import struct
 import tempfile
 import time
 from pathlib import Path
 
 from benchmarks import harness
 from benchmarks.daemon.daemon_benchmark import (
-    SAMPLE_COUNTER_ADDR,
-    _read_request,
     board_frames,
+    counter_socket,
     free_port,
+    read_sample_counter,
     start_gateway,
     writer,
 )
@@ -46,18 +44,12 @@ AFTER_S = 2.0  # polled after the resume
 
 def poll(port: int, until_ns: int, conn) -> None:
     """Back-to-back reads of SAMPLE_COUNTER: (sent ns, answered ns, counter) of each."""
-    s = socket.create_connection(("127.0.0.1", port))
-    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    s = counter_socket(port)
     rows = []
     tid = 0
     while time.monotonic_ns() < until_ns:
         tid += 1
-        t0 = time.monotonic_ns()
-        s.sendall(_read_request(tid, SAMPLE_COUNTER_ADDR, 2))
-        reply = b""
-        while len(reply) < 13:
-            reply += s.recv(64)
-        rows.append((t0, time.monotonic_ns(), struct.unpack(">I", reply[9:13])[0]))
+        rows.append(read_sample_counter(s, tid))
     s.close()
     conn.send(rows)
 

@@ -119,23 +119,33 @@ def _read_request(tid: int, address: int, count: int) -> bytes:
     return struct.pack(">HHHBBHH", tid & 0xFFFF, 0, 6, 1, 4, address, count)
 
 
-def poll_sample_counter(port: int, until_ns: int, conn) -> None:
-    """Back-to-back reads of SAMPLE_COUNTER: (time seen, counter) whenever it changes."""
+def counter_socket(port: int) -> socket.socket:
+    """A raw Modbus TCP connection to the daemon (no client library in the timed loop)."""
     s = socket.create_connection(("127.0.0.1", port))
     s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return s
+
+
+def read_sample_counter(s: socket.socket, tid: int) -> tuple[int, int, int]:
+    """One read of SAMPLE_COUNTER: (sent ns, answered ns, counter)."""
+    t0 = time.monotonic_ns()
+    s.sendall(_read_request(tid, SAMPLE_COUNTER_ADDR, 2))
+    reply = b""
+    while len(reply) < 13:
+        reply += s.recv(64)
+    return t0, time.monotonic_ns(), struct.unpack(">I", reply[9:13])[0]
+
+
+def poll_sample_counter(port: int, until_ns: int, conn) -> None:
+    """Back-to-back reads of SAMPLE_COUNTER: (time seen, counter) whenever it changes."""
+    s = counter_socket(port)
     seen, rtts = [], []
     last = -1
     tid = 0
     while time.monotonic_ns() < until_ns:
         tid += 1
-        t0 = time.monotonic_ns()
-        s.sendall(_read_request(tid, SAMPLE_COUNTER_ADDR, 2))
-        reply = b""
-        while len(reply) < 13:
-            reply += s.recv(64)
-        t1 = time.monotonic_ns()
+        t0, t1, counter = read_sample_counter(s, tid)
         rtts.append(t1 - t0)
-        counter = struct.unpack(">I", reply[9:13])[0]
         if counter != last:
             seen.append((t1, counter))
             last = counter
