@@ -11,10 +11,11 @@ scored at the last sample of the rest that ends it):
 - `end rest`: how long the robot stands before the move is scored, in seconds and in
   detector windows (`standstill_window_s`); the machine's "at rest" may lead the sensor's
   stop by tens of ms;
-- `quiet windows in it`: windows of the detector wholly inside that end rest that the
-  quiet test passes (`zupt_smoother`'s tests, against that end rest's own median: as
-  generous to a detector as it can be) — 0: no stop can be seen before the move is
-  scored, and a causal estimate there is dead reckoning from the rest before;
+- `quiet samples in it`: samples of that end rest covered by a window of the detector
+  lying wholly inside it that the quiet test passes (`zupt_smoother.quiet_samples` on the
+  end rest alone, against its own level: as generous to a detector as it can be) — 0: no
+  stop can be seen before the move is scored, and a causal estimate there is dead
+  reckoning from the rest before;
 - `level wander`: how much the axis's reading at rest moves from one half-second to the
   next in the rest before the move (the standard deviation of its 0.5 s medians, the
   white noise's share removed; — when that rest holds fewer than three) — the offset a
@@ -46,32 +47,15 @@ from gateway.core.runs import true_runs
 BLOCK_S = 0.5  # the level's blocks: long against the noise (√n), short against a move
 
 
-def rest_level(acc, ok, first: int, last: int) -> float:
-    """The rest's level: the median of its valid samples first … last."""
+def quiet_samples_in(case, first: int, last: int) -> int:
+    """Samples first … last that a quiet window lying wholly inside them covers, by the
+    quiet test of the offline ZUPT smoother (`zupt_smoother.quiet_samples` on that stretch
+    alone, its rest level the stretch's own): the stops a detector can see there."""
+    from gateway.core.zupt_smoother import quiet_samples
+
     span = slice(first, last + 1)
-    return float(np.median(acc[span][ok[span]]))
-
-
-def quiet_windows(t, acc, ok, first: int, last: int, level: float, settings) -> int:
-    """Windows of the detector lying wholly inside samples first … last that the quiet
-    test passes (zupt_smoother's: the acceleration less the level moves the velocity by
-    at most floor / DECISIVE_SIGMAS anywhere inside, the mean within Student's t bound):
-    the stops a causal detector can see there."""
-    from gateway.core.zupt_smoother import DECISIVE_SIGMAS, stdtrit_two_sided
-
-    w = settings.window_samples
-    nu = settings.window_dof
-    mean_max = stdtrit_two_sided(settings.standstill_false_motion_prob, max(nu - 1.0, 1.0)) \
-        * settings.sample_noise_std_mps2 / np.sqrt(nu)
-    resolution = settings.standstill_speed_floor_mps / DECISIVE_SIGMAS
-    count = 0
-    for i in range(first, last - w + 2):
-        span = slice(i, i + w)
-        a = np.where(ok[span], acc[span] - level, 0.0)
-        swing = np.max(np.abs(np.cumsum(a[:-1] * np.diff(t[span]))))
-        if swing <= resolution and abs(np.mean(a[ok[span]])) <= mean_max:
-            count += 1
-    return count
+    return int(quiet_samples(case.t_s[span], case.acc_mps2[span], np.asarray(case.valid, dtype=bool)[span],
+                             case.settings).sum())
 
 
 def level_wander(t, acc, ok, first: int, last: int, noise_std: float) -> float:
@@ -130,8 +114,7 @@ def move_rows(case) -> list[dict]:
                      "hinted_error_pct": 100.0 * float(hinted_error) / abs(move.ref_m),
                      "move_m": move.ref_m, "duration_s": duration_s, "end_rest_s": end_rest_s,
                      "end_rest_windows": end_rest_s / s.standstill_window_s,
-                     "quiet_windows_in_end_rest": quiet_windows(t, acc, ok, first_of_rest[b], b,
-                                                                 rest_level(acc, ok, first_of_rest[b], b), s),
+                     "quiet_samples_in_end_rest": quiet_samples_in(case, first_of_rest[b], b),
                      "level_wander_mps2": wander,
                      "offset_position_std_pct": 100.0 * 0.5 * wander * duration_s ** 2 / abs(move.ref_m)})
     return rows
@@ -142,7 +125,7 @@ def main() -> int:
     args = parser.parse_args()
     run = harness.stamp(__spec__.name)
     print()
-    print("| file | move | duration | end rest | quiet windows in it | level wander | its position σ "
+    print("| file | move | duration | end rest | quiet samples in it | level wander | its position σ "
           "| hinted stop: v found | its correction | error after |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     results = {}
@@ -159,7 +142,7 @@ def main() -> int:
                 f"{r['hinted_stop_v_mps']:+.3f} m/s | {r['hinted_correction_m'] * 1e3:+.0f} mm")
             print(f"| {name.removesuffix('.csv')} | {r['move_m']:+.3f} m | {r['duration_s']:.2f} s | "
                   f"{r['end_rest_s']:.2f} s ({r['end_rest_windows']:.1f} windows) | "
-                  f"{r['quiet_windows_in_end_rest']} | {wander} | {sigma} | {stop} | "
+                  f"{r['quiet_samples_in_end_rest']} | {wander} | {sigma} | {stop} | "
                   f"{r['hinted_error_pct']:+.1f} % |")
     harness.write_json(args, results, run)
     return 0
