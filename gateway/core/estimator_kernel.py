@@ -36,6 +36,7 @@ from gateway.core.kernel_layout import (
     F_FAULT,
     F_GAP,
     F_HINT_CONFLICT,
+    F_HINT_IN_MOTION,
     F_HINT_REST,
     F_HINT_SOFT,
     F_INITIALISED,
@@ -167,6 +168,7 @@ from gateway.core.kernel_standstill_judge import (
     StandstillDecision,
     hint_as_taken,
     hint_gate,
+    hinted_entry_in_motion,
     judge_standstill,
     offset_step_hypotheses,
     open_offset_step,
@@ -176,6 +178,7 @@ from gateway.core.kernel_standstill_judge import (
     window_tests,
 )
 from gateway.core.kernel_update import (
+    SoftUpdate,
     UpdateRecord,
     apply_updates,
     rest_velocity_update,
@@ -188,6 +191,7 @@ from gateway.core.kernel_update import (
 # the one public entry: every caller imports the kernel from here (layout, records, phases)
 __all__ = [
     'DIVERGED_SPEED_MPS', 'F_BIAS_ESTIMATING', 'F_ENTRY', 'F_FAULT', 'F_GAP', 'F_HINT_CONFLICT', 'F_HINT_REST',
+    'F_HINT_IN_MOTION',
     'F_HINT_SOFT', 'F_INITIALISED', 'F_INPUT_INVALID', 'F_OFFSET_STEP', 'F_ROLLBACK', 'F_STANDSTILL',
     'F_TIME_ERROR', 'F_UNDECIDED', 'F_UNTRUSTED', 'KernelState', 'MOTION', 'M_BIAS_REQUESTED', 'M_COUNT',
     'M_DISAGREE_VAR', 'M_HAVE_PREV', 'M_HAVE_U', 'M_HINT', 'M_HINT_RUN', 'M_LAST_REST_HINT_T', 'M_LAST_STILL_T',
@@ -200,9 +204,11 @@ __all__ = [
     'O_ZUPT_K1', 'O_ZUPT_K2', 'O_ZUPT_NIS', 'O_ZUPT_S', 'O_ZUPT_Y', 'P_BIAS0_VAR', 'P_DRIFT_C1', 'P_DRIFT_T',
     'P_DRIFT_T0', 'P_HINT_LATENCY', 'P_LAG', 'P_MEAN_SIGMAS', 'P_MISSING_VAR', 'P_QB', 'P_QUIET_STOP_S', 'P_QV',
     'P_R', 'P_READING_INSTANT', 'P_RESTART_VEL_VAR', 'P_R_ZUPT', 'P_SCALE_VAR', 'P_SPEED_FLOOR', 'P_STEP_MAX',
-    'P_VAR_MAX', 'P_VEL_SIGMAS', 'P_VIBRATION', 'P_WINDOW', 'P_ZUPT_CHI2', 'STANDSTILL', 'StandstillDecision',
+    'P_VAR_MAX', 'P_VEL_SIGMAS', 'P_VIBRATION', 'P_WINDOW', 'P_ZUPT_CHI2', 'STANDSTILL', 'SoftUpdate',
+    'StandstillDecision',
     'T_MOTION', 'T_NONE', 'T_RESET', 'T_STANDSTILL', 'UNINITIALISED', 'UpdateRecord', 'add_reading_instant_error',
     'add_scale_error', 'apply_updates', 'disagreement_var', 'drift_at', 'hint_as_taken', 'hint_code', 'hint_gate',
+    'hinted_entry_in_motion',
     'judge_standstill', 'lag_undone_position_var', 'mark_velocity_unknown', 'new_state', 'offset_step_hypotheses',
     'open_offset_step',
     'pack_cov', 'pack_state', 'propagate', 'propagate_motion', 'propagate_standstill', 'reading_instant_var',
@@ -238,14 +244,20 @@ def step(state, prm, t_s, z, z_valid, lost_before):
     flags |= upd.flags
     if upd.transition != T_NONE:
         transition = upd.transition
-    soft, soft_y, soft_s = soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, decision)
-    if soft:
+    soft = soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, decision)
+    if soft.refused:
+        flags |= F_HINT_CONFLICT
+    if soft.applied:
         flags |= F_HINT_SOFT
-        if zupt_beyond_chance(soft_y, soft_s, prm[P_SCALE_VAR], prm[P_ZUPT_CHI2]):
-            # the machine's "at rest" against a velocity beyond chance: σ covers both answers
-            m[M_DISAGREE_VAR] += disagreement_var(gain[0], soft_y)
-        upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft_y, soft_s, gain[0], gain[1],
-                           gain[2], upd.flags, transition)
+        if soft.in_motion:
+            flags |= F_HINT_IN_MOTION
+        if soft.in_motion or zupt_beyond_chance(soft.innovation, soft.innovation_var, prm[P_SCALE_VAR],
+                                                prm[P_ZUPT_CHI2]):
+            # the machine's "at rest" against a velocity beyond chance, or on samples that
+            # hold part of a motion: σ covers both answers
+            m[M_DISAGREE_VAR] += disagreement_var(gain[0], soft.innovation)
+        upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft.innovation, soft.innovation_var, gain[0],
+                           gain[1], gain[2], upd.flags, transition)
     else:
         upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, upd.zupt_innovation, upd.zupt_var, upd.gain_p,
                            upd.gain_v, upd.gain_b, upd.flags, transition)

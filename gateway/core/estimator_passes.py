@@ -159,16 +159,18 @@ def _smooth_pass(prm, t, acc, valid, flags, cols, stores) -> None:
 
 def _add_disagreement(pos_var, flags, zupt_index, zupt_data, prm) -> None:
     """The realtime estimate's disagreement term (kernel_output.disagreement_var) over a
-    smoothed track: from each stop taken on the hint against the integrated velocity, and
-    each stop or soft hinted update whose velocity innovation is beyond chance
-    (kernel_output.zupt_beyond_chance), on: the square of the position its update moved —
-    σ covers both answers."""
+    smoothed track: from each stop taken on the hint against the integrated velocity, each
+    stop or soft hinted update whose velocity innovation is beyond chance
+    (kernel_output.zupt_beyond_chance), and each taken on the machine's word on samples that
+    still change the velocity (F_HINT_IN_MOTION), on: the square of the position its
+    update moved — σ covers both answers."""
     entry = (flags[zupt_index] & K.F_ENTRY) != 0
     soft = (flags[zupt_index] & K.F_HINT_SOFT) != 0
     hint_conflict = (flags[zupt_index] & K.F_HINT_CONFLICT) != 0
+    in_motion = (flags[zupt_index] & K.F_HINT_IN_MOTION) != 0
     y, s = zupt_data[:, 0], zupt_data[:, 1]
     beyond = K.zupt_beyond_chance(y, s, prm[K.P_SCALE_VAR], prm[K.P_ZUPT_CHI2])
-    conflicted = (entry & hint_conflict) | ((entry | soft) & beyond)
+    conflicted = (entry & hint_conflict) | ((entry | soft) & (beyond | in_motion))
     if not conflicted.any():
         return
     step = np.zeros(pos_var.size)

@@ -149,6 +149,10 @@ F_HINT_REST = 2048  # this sample's standstill was accepted on the machine's hin
 F_FAULT = 4096  # the state is not finite or has diverged: the numbers mean nothing (reset it)
 F_BIAS_ESTIMATING = 8192  # the bias is not measured yet (before the first standstill, or asked anew)
 F_HINT_SOFT = 16384  # in motion, hinted at rest: a soft v = 0 within the hinted samples' swing (soft_hinted_update)
+# a velocity update on the machine's word (a hinted stop, a soft hinted update) taken on samples whose
+# acceleration still changes the velocity beyond the noise: when the axis stood still is not known from
+# them, and σ covers the position with and without the update (standstill.velocity_changes_beyond_noise)
+F_HINT_IN_MOTION = 32768
 
 # a velocity beyond this is no motion of any machine the sensor rides on: the filter diverged
 DIVERGED_SPEED_MPS = 1000.0

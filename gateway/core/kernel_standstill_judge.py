@@ -54,6 +54,8 @@ from gateway.core.standstill import (
     hint_gate_open,
     standstill_tests,
     stopping_within_a_window,
+    true_velocity_swing,
+    velocity_changes_beyond_noise,
     velocity_consistent_with_rest,
     velocity_decidable,
     velocity_swing,
@@ -84,6 +86,9 @@ class StandstillDecision(NamedTuple):
     hint: float  # the machine's word as taken: +1 at rest, −1 moving, 0 unknown (or inside its latency)
     flags: int  # the health flags this judgement raised
     transition: int  # T_RESET when a restart's first quiet window started the filter, else T_NONE
+    # a stop entered on the machine's word whose window still changes the velocity beyond the noise
+    # (hinted_entry_in_motion): σ will cover the position with and without its ZUPT
+    hinted_in_motion: bool
 
 
 @jit
@@ -261,6 +266,23 @@ def hint_gate(x, P, m, prm, z, ok, regime_prev, hint, n_valid, mean, var_raw, st
 
 
 @jit_inline
+def hinted_entry_in_motion(x, m, ring_z, ring_ok, prm, fill):
+    """A stop entered on the machine's "at rest" whose window's acceleration (the bias
+    removed) still swings the velocity beyond the noise (velocity_changes_beyond_noise).
+    The gate lets such a window through when its mean sits at the bias within its spread
+    (a ringing mount), and a window holding the last of a deceleration can look the same
+    (the deceleration widens the spread it is judged against). When the axis stood still
+    is then not known from the window: the word may lead the stop by more than a window
+    (a controller's "in position" before the servo settles), and the ZUPT's position
+    correction, Cov(p, v)/Var(v) times a velocity that may still be real, is one answer
+    of two — the reported σ covers both (kernel_update.apply_updates)."""
+    w = int(prm[P_WINDOW])
+    oldest = int(m[M_RING_POS]) % w if fill >= w else 0
+    swing = true_velocity_swing(ring_z, ring_ok, oldest, fill, x[2], m[M_PERIOD], prm[P_LAG])
+    return velocity_changes_beyond_noise(swing, fill, prm[P_R], m[M_PERIOD], prm[P_MEAN_SIGMAS])
+
+
+@jit_inline
 def undecidable_quiet(x, m, prm, t_s, regime_prev, hint, mean, vibrating, var_ok, mean_ok, decidable, still):
     """What a quiet stretch in motion that no test accepts as a stop makes of the position.
     Returns (still, flags).
@@ -364,5 +386,8 @@ def judge_standstill(x, P, m, ring_z, ring_ok, prm, t_s, z, ok, regime_prev):
         flags |= F_UNDECIDED
     if regime == MOTION and not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR]):
         m[M_UNTRUSTED] = 1.0  # the velocity is no longer known well enough to recognise a stop
+    hinted_in_motion = regime == STANDSTILL and regime_prev == MOTION and hint > 0.0 and hinted_entry_in_motion(
+        x, m, ring_z, ring_ok, prm, fill)
     return StandstillDecision(decided, regime, n_valid, mean, var_raw, prm[P_VAR_MAX], var_ok, mean_ok, vel_ok,
-                              decidable, trusted_entry, disagrees, zaru_ok, hint, flags, transition)
+                              decidable, trusted_entry, disagrees, zaru_ok, hint, flags, transition,
+                              hinted_in_motion)

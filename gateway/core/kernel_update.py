@@ -9,6 +9,7 @@ from typing import NamedTuple
 from gateway.core.jit import jit, jit_inline
 from gateway.core.kernel_layout import (
     F_ENTRY,
+    F_HINT_IN_MOTION,
     F_HINT_REST,
     M_BIAS_REQUESTED,
     M_DISAGREE_VAR,
@@ -38,7 +39,6 @@ from gateway.core.kernel_layout import (
     P_SPEED_FLOOR,
     P_STEP_MAX,
     P_VAR_MAX,
-    P_VEL_SIGMAS,
     P_WINDOW,
     P_ZUPT_CHI2,
     STANDSTILL,
@@ -51,7 +51,14 @@ from gateway.core.kernel_layout import (
 )
 from gateway.core.kernel_output import disagreement_var, zupt_beyond_chance
 from gateway.core.kernel_propagate import drift_at, propagate_motion, within_period_position_var
-from gateway.core.standstill import MIN_WINDOW_SAMPLES, hinted_rest_fits, mean_velocity_offset, velocity_decidable
+from gateway.core.standstill import (
+    MIN_WINDOW_SAMPLES,
+    hinted_rest_fits,
+    mean_velocity_offset,
+    true_velocity_swing,
+    velocity_changes_beyond_noise,
+    velocity_consistent_with_rest,
+)
 
 
 class UpdateRecord(NamedTuple):
@@ -227,11 +234,15 @@ def apply_updates(x, P, m, gain, prm, t_s, z, ok, d, regime_prev, count):
             m[M_ZUPT_INNOV] = zupt_y
             m[M_ZUPT_NIS] = zupt_y * zupt_y / zupt_s
             m[M_BIAS_REQUESTED] = 0.0  # this standstill measures the bias anew
-            if d.hint_disagrees or zupt_beyond_chance(zupt_y, zupt_s, prm[P_SCALE_VAR], prm[P_ZUPT_CHI2]):
+            if d.hint_disagrees or d.hinted_in_motion or zupt_beyond_chance(zupt_y, zupt_s, prm[P_SCALE_VAR],
+                                                                            prm[P_ZUPT_CHI2]):
                 # the two answers — the stop and the integrated motion — differ by the
                 # position this update moved: the reported σ covers both (disagreement_var;
-                # a hinted stop that disagrees is also flagged, by hint_gate)
+                # a hinted stop that disagrees is also flagged, by hint_gate; one whose
+                # window still changes the velocity may have come before the axis stood)
                 m[M_DISAGREE_VAR] += disagreement_var(gain[0], zupt_y)
+            if d.hinted_in_motion:
+                flags |= F_HINT_IN_MOTION
             flags |= F_ENTRY
             # a move closed: its displacement for the sensitivity's share (scale_position_var)
             move = x[0] - m[M_LAST_STOP_POS]
@@ -258,6 +269,16 @@ def apply_updates(x, P, m, gain, prm, t_s, z, ok, d, regime_prev, count):
     return UpdateRecord(zaru_y, zaru_s, zupt_y, zupt_s, 0.0, 0.0, 0.0, flags, transition)
 
 
+class SoftUpdate(NamedTuple):
+    """What soft_hinted_update did at one sample."""
+
+    applied: bool
+    innovation: float  # the velocity innovation (m/s)
+    innovation_var: float  # its variance S
+    in_motion: bool  # the hinted samples hold part of a motion: σ covers the update and its absence
+    refused: bool  # the accelerometer contradicts the machine beyond chance: no update, flags 512 and 256
+
+
 @jit_inline
 def soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, d):
     """Phase 3c. Hinted at rest, yet no standstill: the rest is shorter than the window, or
@@ -275,30 +296,43 @@ def soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, d):
       swing then carries) to a window of them: from there the detector judges the hinted
       rest itself (the hinted standstill, or flag 512), and the looks stay bounded, in
       information and in the smoother's records (at most a window's per hinted rest);
-    - not when contradicted: the filter decisively knows it moves above the floor (a
-      cruise, as for the hinted standstill), or the hinted samples show an acceleration
-      of the machine (hinted_rest_fits: mean off the bias beyond an offset step and
-      their spread, or a swing beyond the floor);
+    - not when the hinted samples show an acceleration of the machine (hinted_rest_fits:
+      mean off the bias beyond an offset step and their spread, or a swing beyond the
+      floor);
+    - not when the accelerometer contradicts it: its velocity innovation beyond χ²₁ at
+      the detector's false-alarm rate (velocity_consistent_with_rest, its variance the
+      filter's σ_v², the sensitivity's share and the update's own noise) — a cruise the
+      filter knows, slow or fast, hinted at rest. The machine and the integrated
+      accelerometer then disagree beyond chance: no update, flag 512 and the position
+      untrusted (256) until a stop both agree on, as for a hinted stop that disagrees;
     - the k-th look at the same rest shares its error with the others (one mount's
       ringing, the samples correlated): it counts with k·σ², so the looks weigh
-      together as ~ln k + 0.6 measurements of that σ, not as k independent ones.
-    Returns (applied, innovation, its variance S); the gain is in `gain`."""
+      together as ~ln k + 0.6 measurements of that σ, not as k independent ones;
+    - hinted samples whose velocity range is beyond their noise
+      (velocity_changes_beyond_noise) hold part of a motion: the update is one answer of
+      two, and σ covers both (in_motion; estimator_kernel.step).
+    Returns a SoftUpdate; the gain is in `gain`."""
     w = int(prm[P_WINDOW])
     floor = prm[P_SPEED_FLOOR]
     hint_run = int(m[M_HINT_RUN])
-    if not (d.regime == MOTION and d.hint > 0.0 and MIN_WINDOW_SAMPLES <= hint_run <= w) or (
-            velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], floor) and abs(x[1]) > floor):
-        return False, 0.0, 0.0
+    if not (d.regime == MOTION and d.hint > 0.0 and MIN_WINDOW_SAMPLES <= hint_run <= w):
+        return SoftUpdate(False, 0.0, 0.0, False, False)
     n_hinted = min(hint_run, int(m[M_RING_FILL]))
     oldest = (int(m[M_RING_POS]) - n_hinted + w) % w
     if not hinted_rest_fits(ring_z, ring_ok, oldest, n_hinted, x[2], P[2, 2], prm[P_R], prm[P_STEP_MAX],
                             prm[P_MEAN_SIGMAS], floor, m[M_PERIOD]):
-        return False, 0.0, 0.0
+        return SoftUpdate(False, 0.0, 0.0, False, False)
     looks = hint_run - MIN_WINDOW_SAMPLES + 1
     offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD])
-    y, s = rest_velocity_update(x, P, z, ok, prm[P_LAG], offset,
-                                looks * max(half_range * half_range, prm[P_R_ZUPT]), gain)
-    return True, y, s
+    noise_var = looks * max(half_range * half_range, prm[P_R_ZUPT])
+    innovation = offset - (x[1] + prm[P_LAG] * (z - x[2]) if ok else x[1])
+    if not velocity_consistent_with_rest(innovation, P[1, 1], prm[P_SCALE_VAR], noise_var, prm[P_ZUPT_CHI2]):
+        m[M_UNTRUSTED] = 1.0
+        return SoftUpdate(False, 0.0, 0.0, False, True)
+    y, s = rest_velocity_update(x, P, z, ok, prm[P_LAG], offset, noise_var, gain)
+    swing = true_velocity_swing(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD], prm[P_LAG])
+    in_motion = velocity_changes_beyond_noise(swing, n_hinted, prm[P_R], m[M_PERIOD], prm[P_MEAN_SIGMAS])
+    return SoftUpdate(True, y, s, in_motion, False)
 
 
 @jit

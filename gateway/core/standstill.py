@@ -99,6 +99,41 @@ def velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s):
 
 
 @jit
+def true_velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s, lag_s):
+    """Largest |change of the true velocity| along `count` slots of the ring in time order
+    (from slot `oldest` on), the sensor's lag undone: the true acceleration is u = y + τẏ
+    (y = z − bias), so the true velocity since the first valid slot is Σ y·Ts + τ·(y_k − y_0).
+    A sensor's filter settling after a stop (y decaying with τ) changes the true velocity
+    by nothing; velocity_swing would count τ·y_0 of it."""
+    size = ring_z.size
+    c = 0.0
+    peak = 0.0
+    y0 = math.nan
+    for i in range(count):
+        j = (oldest + i) % size
+        if ring_ok[j] > 0.0:
+            y = ring_z[j] - bias
+            if math.isnan(y0):
+                y0 = y
+            v = c + lag_s * (y - y0)
+            if abs(v) > peak:
+                peak = abs(v)
+            c += y * period_s
+    return peak
+
+
+@jit
+def velocity_changes_beyond_noise(swing, n, sample_var_white, period_s, sigmas):
+    """The velocity swing of n samples' acceleration (true_velocity_swing) is beyond what
+    their white noise integrates to: more than sigmas
+    standard deviations of the sum of n samples' noise, √(n·σ²)·Ts (σ²: one sample's
+    white-equivalent variance, the ZARU's R). Then the samples hold part of a motion —
+    the end of a deceleration, a start —, not the rest alone: a stop the machine's word
+    puts among them may lie anywhere in them, or after them."""
+    return swing > sigmas * math.sqrt(max(sample_var_white * n, 0.0)) * period_s
+
+
+@jit
 def velocity_decidable(vel_var, vel_sigmas, speed_floor):
     """The filter knows its velocity well enough to tell a stop from a cruise at the floor
     speed: vel_sigmas·σ_v ≤ v_floor (test 3)."""

@@ -1,5 +1,7 @@
 """The machine's standstill hint (1 at rest, 0 moving, unknown), offline and in the class,
 and the "position not trustworthy" flag when the accelerometer alone cannot decide."""
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -293,3 +295,98 @@ def test_a_rest_hint_in_a_cruise_or_a_deceleration_gets_no_soft_update(strokes):
     hint[braking] = 1.0
     told = estimate_series(t, z, method="realtime", settings=SETTINGS, standstill_hint=hint)
     assert braking.size >= 20 and not np.any(told.flags & K.F_HINT_SOFT)
+
+
+def _soft_update_on(vel_mps, vel_std_mps):
+    """The kernel's soft hinted update (phase 3c) alone, in motion at vel_mps known to
+    vel_std_mps, the machine's "at rest" over the last MIN_WINDOW_SAMPLES samples, their
+    acceleration at the bias (a cruise, or a stop: the accelerometer alone cannot tell)."""
+    from gateway.core.standstill import MIN_WINDOW_SAMPLES
+
+    prm = SETTINGS.kernel_params()
+    state = K.new_state(prm)
+    x, P, m = state.x, state.P, state.misc
+    w = int(prm[K.P_WINDOW])
+    x[:] = (0.5, vel_mps, 0.0)
+    P[:] = np.diag([0.01**2, vel_std_mps**2, 1e-8])
+    P[0, 1] = P[1, 0] = 0.5 * 0.01 * vel_std_mps
+    m[K.M_REGIME], m[K.M_PERIOD] = K.MOTION, 0.002
+    m[K.M_HINT], m[K.M_HINT_RUN] = 1.0, MIN_WINDOW_SAMPLES
+    m[K.M_RING_FILL], m[K.M_RING_POS] = w, 0
+    state.ring_z[:] = np.random.default_rng(1).normal(0.0, 0.02, w)
+    state.ring_ok[:] = 1.0
+    decision = K.StandstillDecision(True, K.MOTION, w, 0.0, 0.0, 0.0, True, True, False, False, False, False,
+                                    True, 1.0, 0, K.T_NONE, False)
+    before = x.copy()
+    soft = K.soft_hinted_update(x, P, m, state.ring_z, state.ring_ok, np.zeros(3), prm, 0.0, True, decision)
+    return soft, before, x.copy(), m[K.M_UNTRUSTED]
+
+
+def test_a_soft_hinted_update_the_integrated_velocity_contradicts_is_refused_and_flagged():
+    """The soft update is evidence tested like a hinted stop: its velocity innovation
+    against χ²₁ at the detector's false-alarm rate (15.1: 3.9 σ). At 150 mm/s known to
+    35 mm/s (4.3 σ: beyond chance, though 5σ_v is above the speed floor, so a bound on
+    "decisively moving" would let it through) the machine and the integrated accelerometer
+    disagree: no update, the position untrusted (the step raises 512, the daemon's
+    HINT_CONFLICT). At 100 mm/s (2.9 σ) the update is made."""
+    soft, before, after, untrusted = _soft_update_on(0.15, 0.035)
+    assert soft.refused and not soft.applied
+    np.testing.assert_array_equal(after, before)
+    assert untrusted == 1.0
+    soft, before, after, untrusted = _soft_update_on(0.10, 0.035)
+    assert soft.applied and not soft.refused
+    assert abs(after[1]) < 0.5 * abs(before[1]) and after[0] < before[0]
+    assert untrusted == 0.0
+
+
+def test_the_velocity_swing_test_has_the_false_alarm_rate_of_its_sigmas_on_white_noise():
+    """standstill.velocity_changes_beyond_noise: the swing of n white samples' running sum
+    beyond 5σ of their sum. By the reflection principle P(max |S_k| > c) ≤ 4·P(S_n > c):
+    ~1e-6 per window at 5σ — 0 expected in 20 000 windows; the last 60 ms of a 1 m/s²
+    deceleration (60 mm/s) in a 0.1 s window at the ADXL's noise is far beyond it."""
+    from gateway.core.standstill import velocity_changes_beyond_noise
+
+    rng = np.random.default_rng(20261128)
+    period, n, sigma = 0.002, 50, 0.023  # the board: 500 samples/s, a 0.1 s window, 2.3 mg
+    alarms = 0
+    for _ in range(20000):
+        swing = np.max(np.abs(np.cumsum(sigma * rng.standard_normal(n)))) * period
+        alarms += bool(velocity_changes_beyond_noise(swing, n, sigma**2, period, 5.0))
+    assert alarms == 0
+    braking = np.where(np.arange(n) >= n - 30, -1.0, 0.0) + sigma * rng.standard_normal(n)
+    swing = np.max(np.abs(np.cumsum(braking))) * period
+    assert velocity_changes_beyond_noise(swing, n, sigma**2, period, 5.0)
+
+
+ROBOT_VERTICAL = Path(__file__).resolve().parents[2] / "datasets" / "leiria-robot" / "eV50p_MPU6050RM3100.csv"
+
+
+def test_a_hint_50_ms_early_on_the_real_robot_leaves_no_rest_end_confidently_wrong(tmp_path):
+    """The robot's "in position" already leads the sensor's stop by ~60 ms; 50 ms earlier
+    still, the gate's window holds the cruise's end and part of the deceleration, whose
+    spread lets its mean pass, and the stop's ZUPT takes a velocity that is still real for
+    an error (3.3 σ_v: inside χ²). That window still changes the velocity beyond its noise
+    (F_HINT_IN_MOTION): the reported σ covers the position with and without the ZUPT's
+    correction. Every rest end is inside ±3σ or flagged, realtime and smoothed."""
+    from gateway.commands.estimate import settings_for
+    from gateway.core.evaluation import move_errors
+    from gateway.offline.recording import open_recording, read_all, to_acceleration
+
+    d = np.genfromtxt(ROBOT_VERTICAL, delimiter=",", names=True)
+    t = d["sensor_time_s"] - d["sensor_time_s"][0]
+    at_rest = d["robot_at_rest"].astype(float)
+    early = at_rest[np.clip(np.searchsorted(t, t + 0.05, side="right") - 1, 0, t.size - 1)]  # the word 50 ms sooner
+    rec = tmp_path / "robot.csv"
+    write_recording(rec, {"source": "test"}, {"t_s": t, "acc_x_mps2": d["acc_z_g"] * STANDARD_GRAVITY_MPS2,
+                                              "standstill_hint": early})
+    series = to_acceleration(read_all(open_recording(str(rec))))
+    settings = settings_for(series, "acceleration", "auto", None)
+    ref = d["ref_z_m"] - d["ref_z_m"][0]
+    ends = np.array([m.end for m in move_errors(np.zeros(t.size), ref, at_rest)])
+    assert ends.size == 3
+    for method in ("realtime", "smoothed"):
+        track = estimate_series(series.t_s, series.acc_mps2, series.valid, method=method, settings=settings,
+                                standstill_hint=series.standstill_hint)
+        err = np.abs(track.pos_m[ends] - ref[ends])
+        assert np.any(track.flags & K.F_HINT_IN_MOTION), method
+        assert np.all((err <= 3 * track.pos_std_m[ends]) | track.untrusted[ends]), (method, err, track.pos_std_m[ends])
