@@ -61,3 +61,35 @@ def test_the_report_says_the_distance_did_not_settle():
     assert "did not settle" in distance_text(dist) and "16.4 mm" in distance_text(dist)
     del dist["unsettled_mm"]
     assert "did not settle" not in distance_text(dist)
+
+
+def test_the_diagnosis_and_estimate_model_make_the_same_passes():
+    """The re-estimation is written once (model_compensation.settle_correction): the
+    diagnosis's gain and `adxlgw estimate --model` run the estimator as often, stop at the
+    same settle limit and end on the same corrected acceleration."""
+    from gateway.core.model_compensation import ModelTerm, SampleContext, SensorModel, compensated_estimate
+
+    n, kappa = 100, 0.01
+    runs = {"diagnosis": 0, "estimate": 0}
+
+    def contracting(acc, who):
+        # each pass moves the position by ~κ·g = 0.098 of the last pass's move: the passes
+        # settle after a few, and a settle limit ten times finer takes one pass more
+        runs[who] += 1
+        return SimpleNamespace(pos_m=np.full(acc.size, float(acc.mean())), standstill=np.zeros(acc.size, bool))
+
+    class Contracting(EstimatePlan):
+        def run(self, t_s, acc, valid, lost):
+            return contracting(acc, "diagnosis")
+
+    acc = np.ones(n)
+    plan = Contracting(settings=None, t_s=np.arange(n) * 0.002, acc_mps2=acc, valid=np.ones(n, bool),
+                       lost_before=np.zeros(n, np.int64))
+    corrected = plan._compensated(_prep(n), plan, Tilt(), np.array([kappa]))
+    corrected.track(_prep(n))  # the last pass's track is the plan's: no further run
+    model = SensorModel((ModelTerm("tilt", {"tilt_gradient_rad_per_m": kappa}),))
+    result = compensated_estimate(model, acc, SampleContext(np.arange(n) * 0.002),
+                                  lambda a: contracting(a, "estimate"))
+    assert result.settled and corrected.unsettled_m == 0.0
+    assert runs["diagnosis"] == runs["estimate"] == result.passes
+    assert np.array_equal(corrected.acc_mps2, result.acc_mps2)

@@ -21,11 +21,8 @@ from gateway.core.diagnosis.reading import shifted
 from gateway.core.estimator import EstimateTrack, estimate_series
 from gateway.core.estimator_settings import EstimatorSettings
 from gateway.core.evaluation import summarise_errors
-from gateway.core.model_compensation import SampleContext
+from gateway.core.model_compensation import SampleContext, settle_correction
 from gateway.core.reference_point import NoRestError
-
-POSITION_ITERATIONS = 12
-POSITION_SETTLED_M = 1e-5
 
 
 @dataclass
@@ -73,28 +70,22 @@ class EstimatePlan:
     def _compensated(self, prep: Prepared, plan: EstimatePlan, effect, theta) -> EstimatePlan:
         """The plan corrected for one effect. An effect that needs the estimate (tilt: its
         position; motion_offset: where it moves) is corrected with the estimate's own,
-        re-estimated until it settles: the estimate without the correction can be metres
-        off, and one pass from there overshoots (model_compensation.compensated_estimate
-        does the same for `adxlgw estimate --model`)."""
-        track = plan.track(prep)
-        est = self._context(prep, track)
-        new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
+        re-estimated until it settles (model_compensation.settle_correction: the one loop,
+        `adxlgw estimate --model` runs the same): the estimate without the correction can
+        be metres off, and one pass from there overshoots. Where the passes do not settle
+        (they alternate or creep: the estimate's own standstill decisions flip with the
+        correction) the plan carries `unsettled_m`: the distance is one of the answers."""
         if not getattr(effect, "uses_position", False):
-            return new
-        for _ in range(POSITION_ITERATIONS):
-            track = new.track(prep)
-            if track is None:
-                break
-            step = float(np.max(np.abs(track.pos_m - est.pos_m)))
-            est = self._context(prep, track)
-            new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
-            if step < POSITION_SETTLED_M:
-                break
-        else:
-            # the passes alternate or creep (the estimate's own standstill decisions flip
-            # with the correction): the distance is one of the answers, and says so
-            # (model_compensation.CompensatedEstimate does the same for estimate --model)
-            new.unsettled_m = max(new.unsettled_m, step)
+            return plan.apply(effect.compensate(prep, theta, plan.acc_mps2, self._context(prep, plan.track(prep))))
+
+        def correct(track) -> np.ndarray:
+            return effect.compensate(prep, theta, plan.acc_mps2, self._context(prep, track)).acc_mps2
+
+        result = settle_correction(correct, lambda acc: plan._copy(acc_mps2=acc).track(prep), start=plan.track(prep))
+        new = plan._copy(acc_mps2=result.acc_mps2)
+        new._cache["track"] = result.track
+        if result.track is not None and not result.settled:
+            new.unsettled_m = max(new.unsettled_m, result.last_step_m)
         return new
 
     @staticmethod
