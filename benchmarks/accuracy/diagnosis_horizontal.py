@@ -182,9 +182,10 @@ def tilt_evidence(rec: Path, out: Path) -> str:
         value, std = fit.effect_theta(tilt)
         return float(value[0]), float(std[0])
 
-    # the comparison's blocks are laid from the record's first sample and a last partial
-    # block is not compared; laid from its last sample instead (the first samples, in the
-    # long first rest, left out), the move's end is compared too
+    # the comparison's blocks are laid from the record's first sample (the last one partial,
+    # weighted by its samples: context.Prepared.whiten_masked); laid from its last sample
+    # instead (the first samples, in the long first rest, left out), every block is whole
+    # and the move's end falls in other blocks: how much κ depends on where the grid falls
     data = full
     prep, base = prepared(data)
     from_end, _ = prepared(_from_sample(data, len(data) % prep.block))
