@@ -19,7 +19,8 @@ other axis = acc_cross_g, t_host_s = arrival_time_s, ref_pos_m = ref_m (the robo
    default, and what the diagnosis's own gains are of) and with `--ignore-hint` (where the
    model is the only information on the move: the hinted end rest already measures the
    velocity error). Both tables are printed; neither is picked. A cell whose correction did
-   not settle (`estimate --model`'s passes alternate) is marked and its gain not counted.
+   not settle (`estimate --model`'s passes alternate) is one of several answers: marked
+   "not determined", its gain counted neither for nor against (`predictive_gain_mm`).
 3. Why the fitted tilt does not carry (docs/diagnosis.md §8), per file: κ as the
    diagnosis fits it (the baseline + tilt, the noise model from the rests) with its own σ;
    κ refitted with each of the criterion's blocks left out in turn (its range, and the
@@ -80,6 +81,19 @@ def unsettled_mm(notes: str) -> float | None:
     did not settle (model_compensation.CompensatedEstimate.describe); None when they did."""
     m = re.search(r"did not settle .*? by up to ([\d.]+) mm", notes)
     return float(m.group(1)) if m else None
+
+
+def predictive_gain_mm(without_mm: float, with_mm: float, moved_mm: float | None) -> float | None:
+    """|error| without − with the model, where the model gives one answer; None (not
+    determined: counted neither for nor against) where its passes did not settle — the
+    rule of gain.distance_gain for the diagnosis's own gains."""
+    return None if moved_mm is not None else abs(without_mm) - abs(with_mm)
+
+
+def with_model_cell(err_mm: float, moved_mm: float | None, own: bool = False) -> str:
+    """A table cell: the error with the model, and whether it is one answer."""
+    return (f"{err_mm:+.1f}" + (" (own)" if own else "")
+            + (f" (not determined: passes differ by {moved_mm:.1f} mm)" if moved_mm is not None else ""))
 
 
 def final_error_mm(rec: Path, track_csv: Path) -> float:
@@ -168,9 +182,10 @@ def tilt_evidence(rec: Path, out: Path) -> str:
         value, std = fit.effect_theta(tilt)
         return float(value[0]), float(std[0])
 
-    # the comparison's blocks are laid from the record's first sample and a last partial
-    # block is not compared; laid from its last sample instead (the first samples, in the
-    # long first rest, left out), the move's end is compared too
+    # the comparison's blocks are laid from the record's first sample (the last one partial,
+    # weighted by its samples: context.Prepared.whiten_masked); laid from its last sample
+    # instead (the first samples, in the long first rest, left out), every block is whole
+    # and the move's end falls in other blocks: how much κ depends on where the grid falls
     data = full
     prep, base = prepared(data)
     from_end, _ = prepared(_from_sample(data, len(data) % prep.block))
@@ -206,7 +221,7 @@ def tilt_evidence(rec: Path, out: Path) -> str:
                                      "--out", str(track), *hint_args])
         moved = unsettled_mm(notes)
         response.append(f"{final_error_mm(rec, track) - before:+.1f} mm"
-                        + (f" (did not settle: ±{moved:.1f})" if moved is not None else ""))
+                        + (f" (not determined: passes differ by {moved:.1f} mm)" if moved is not None else ""))
     oracle = _hinted_response_with_reference_position(rec, PROBE_TILT_RAD_PER_M)
     moving = np.abs(data.ref_vel_mps) > 1e-6
     move_end = data.t_s[np.flatnonzero(moving)[-1]] - t0
@@ -291,8 +306,9 @@ def common_tilt_table(recs: dict, out: Path) -> None:
                                          "--out", str(track)])
             err = final_error_mm(rec, track)
             moved = unsettled_mm(notes)
-            row.append(f"{err:+.1f}" + (f" (did not settle: ±{moved:.1f})" if moved is not None else ""))
-            improved += int(moved is None and abs(err) < abs(base[name]))
+            row.append(with_model_cell(err, moved))
+            gain = predictive_gain_mm(base[name], err, moved)
+            improved += int(gain is not None and gain > 0)
         print(" | ".join(row + [f"{improved} of {len(recs)}"]))
 
 
@@ -318,12 +334,9 @@ def _error_table(recs: dict, models: dict, out: Path, hinted: bool) -> None:
                                          "--out", str(track), *hint_args])
             err = final_error_mm(rec, track)
             moved = unsettled_mm(notes)
-            row.append(f"{err:+.1f}" + (" (own)" if fit_on == name else "")
-                       + (f" (did not settle: ±{moved:.1f})" if moved is not None else ""))
-            # a pass that did not settle is one of the answers the model allows: its gain is
-            # not determined (None)
+            row.append(with_model_cell(err, moved, own=fit_on == name))
             if fit_on != name:
-                gains.setdefault(name, []).append(abs(base) - abs(err) if moved is None else None)
+                gains.setdefault(name, []).append(predictive_gain_mm(base, err, moved))
         print(" | ".join(row))
     print()
     verdicts = {}
@@ -332,8 +345,8 @@ def _error_table(recs: dict, models: dict, out: Path, hinted: bool) -> None:
         verdicts[name] = median_is_positive(g)
         print(f"{name}: predictive gain (|error| without − with, models of the other sensors): "
               + (f"median {np.median(g):+.1f} mm, worst {min(g):+.1f} mm" if len(known) == len(g) else
-                 f"settled {', '.join(f'{x:+.1f}' for x in known) or 'none'} mm, {len(g) - len(known)} of "
-                 f"{len(g)} did not settle") + f": median > 0 {verdicts[name]}")
+                 f"determined {', '.join(f'{x:+.1f}' for x in known) or 'none'} mm, {len(g) - len(known)} of "
+                 f"{len(g)} not determined (passes did not settle)") + f": median > 0 {verdicts[name]}")
     counts = {v: sum(x == v for x in verdicts.values()) for v in ("yes", "no", "not determined")}
     print(f"files with a positive median predictive gain ({'hinted' if hinted else 'unhinted'}): "
           f"{counts['yes']} of {len(verdicts)} (no: {counts['no']}, not determined: {counts['not determined']})")

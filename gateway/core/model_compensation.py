@@ -48,8 +48,13 @@ from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
 
 MODEL_FORMAT = "adxlgw-sensor-model"
 MODEL_VERSION = 1
-# re-estimate with the corrected measurement until the position moves less than this
-# (a tenth of the millimetre the distances are reported in) or this many passes
+# A correction that needs the estimate is re-estimated until a pass moves the position by
+# less than SETTLED_M anywhere: a tenth of the millimetre every distance table prints
+# (`estimate`, the diagnosis's gains, docs/diagnosis.md), so a further pass changes no
+# printed digit beyond its rounding. MAX_PASSES bounds the work where the passes do not
+# settle (they alternate: more passes only repeat the answers, and the result says so):
+# passes that at least halve each time settle within it from a first move of up to
+# 2¹¹ × 0.1 mm = 0.2 m; slower ones are reported as not settled, not waited for.
 SETTLED_M = 1e-4
 MAX_PASSES = 12
 
@@ -204,25 +209,62 @@ class CompensatedEstimate:
                 "estimates the model allows, not a determined one")
 
 
+def _largest_move_m(before, after) -> float:
+    """How far the position moved from one pass to the next, at most, over the record."""
+    a, b = np.asarray(after.pos_m, dtype=float), np.asarray(before.pos_m, dtype=float)
+    return float(np.max(np.abs(a - b))) if a.size else 0.0
+
+
+def settle_correction(correct: Callable[[object | None], np.ndarray], run: Callable[[np.ndarray], object | None],
+                      start: object | None = None) -> CompensatedEstimate:
+    """The one loop for a correction that needs the estimate it corrects (written once:
+    `compensated_estimate` for `estimate --model`, the diagnosis's gain.EstimatePlan).
+
+    correct(track) returns the corrected acceleration given the previous pass's estimate
+    (None: no estimate yet); run(acc) returns the estimate (pos_m, standstill),
+    or None where the estimator cannot make one. `start` is the estimate before any
+    correction when the caller has it (then the first pass corrects with it). Pass k
+    corrects with pass k−1's estimate and runs it, until a pass moves the position by less
+    than SETTLED_M or MAX_PASSES passes are made (then `settled` is False: the passes
+    alternate or creep, and the last is one of the answers the model allows). The
+    acceleration returned is the one the returned track was run on. A run that fails
+    ends the passes (track None, last_step_m NaN: neither settled nor an answer)."""
+    previous = start
+    acc = correct(previous)
+    track = run(acc)
+    passes, step = 1, math.inf
+    while track is not None:
+        if previous is not None:
+            step = _largest_move_m(previous, track)
+            if step < SETTLED_M:
+                break
+        if passes == MAX_PASSES:
+            break
+        previous = track
+        acc = correct(previous)
+        track = run(acc)
+        passes += 1
+    if track is None:
+        step = math.nan
+    return CompensatedEstimate(track, acc, passes, step)
+
+
 def compensated_estimate(model: SensorModel, acc: np.ndarray, ctx: SampleContext,
                          run: Callable[[np.ndarray], object]) -> CompensatedEstimate:
     """The estimate on the corrected acceleration. run(acc) returns a track with pos_m and
-    standstill; terms that need the estimate take it from the previous pass until the
-    position settles (SETTLED_M) or MAX_PASSES are made (then `settled` is False)."""
-    track = run(compensate(model, acc, ctx))
+    standstill; terms that need the estimate take it from the previous pass
+    (`settle_correction`); a model without such terms is one pass."""
     if not model.uses_estimate:
-        return CompensatedEstimate(track, compensate(model, acc, ctx), 1, 0.0)
-    corrected, step, passes = acc, math.inf, 1
-    for passes in range(2, MAX_PASSES + 1):  # noqa: B007 — the number of passes made is returned
-        ctx.pos_m = np.asarray(track.pos_m, dtype=float)
-        ctx.moving = ~np.asarray(track.standstill, dtype=bool)
         corrected = compensate(model, acc, ctx)
-        new = run(corrected)
-        step = float(np.max(np.abs(np.asarray(new.pos_m) - ctx.pos_m))) if len(ctx.pos_m) else 0.0
-        track = new
-        if step < SETTLED_M:
-            break
-    return CompensatedEstimate(track, corrected, passes, step)
+        return CompensatedEstimate(run(corrected), corrected, 1, 0.0)
+
+    def correct(track) -> np.ndarray:
+        if track is not None:
+            ctx.pos_m = np.asarray(track.pos_m, dtype=float)
+            ctx.moving = ~np.asarray(track.standstill, dtype=bool)
+        return compensate(model, acc, ctx)
+
+    return settle_correction(correct, run)
 
 
 NEEDS_ESTIMATE = ("tilt", "motion_offset")

@@ -95,6 +95,11 @@ def gain_lines(effect) -> list[str]:
 def distance_text(dist: dict | None) -> str:
     if not dist:
         return "distance error: not computed"
+    if "unsettled_mm" in dist:  # gain.distance_gain: measured, but one of several answers
+        key = dist["metric"]
+        b, a = dist["before"].get(key), dist["after"].get(key)
+        return (f"distance error ({key}): {_num(b, '.3f')} → {_num(a, '.3f')} mm in the last pass: gain "
+                f"{dist['why']}, counted neither for nor against")
     if not dist.get("available"):
         return f"distance error: not available ({dist.get('why', 'no reason given')})"
     key = dist["metric"]
@@ -102,10 +107,8 @@ def distance_text(dist: dict | None) -> str:
     interval = dist.get("interval_mm")
     within = (f", interval {_num(interval[0], '+.2f')} … {_num(interval[1], '+.2f')} mm over the stops"
               if interval and interval[0] != interval[1] else "")
-    unsettled = (f"; the correction's passes did not settle: the last moved the position by up to "
-                 f"{_num(dist['unsettled_mm'], '.1f')} mm" if dist.get("unsettled_mm") else "")
     return (f"distance error ({key}): {_num(b, '.3f')} → {_num(a, '.3f')} mm "
-            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{within}{unsettled})")
+            f"(improvement {_num(dist.get('improvement_mm'), '+.3f')} mm{within})")
 
 
 def summary_lines(result: DiagnosisResult, path: str) -> list[str]:

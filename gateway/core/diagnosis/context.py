@@ -192,28 +192,51 @@ class Prepared:
     def compare_period_s(self) -> float:
         return self.data.period_s * self.block
 
-    def blocks(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """Means of x over the comparison blocks whose samples all lie in mask (in order)."""
+    def _block_means(self, x: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean, first sample, samples) of each comparison block whose samples all lie in
+        mask, in order. Blocks of `block` samples are laid from the record's first sample;
+        when the record is not a whole number of blocks its last block is partial (its
+        samples are often the final rest, where the distance is scored): compared too, as
+        the mean of its own samples (its weight: whiten_masked)."""
         b = self.block
-        n = x.size // b * b
-        xb = np.where(mask, x, 0.0)[:n].reshape(-1, b).mean(axis=1)
-        full = mask[:n].reshape(-1, b).all(axis=1)
-        return xb[full]
+        starts = np.arange(0, x.size, b)
+        if starts.size == 0:
+            return np.zeros(0), starts, starts
+        counts = np.minimum(b, x.size - starts)
+        sums = np.add.reduceat(np.where(mask, x, 0.0), starts)
+        inside = np.add.reduceat(np.asarray(mask, dtype=np.int64), starts) == counts
+        return (sums / counts)[inside], starts[inside], counts[inside]
+
+    def blocks(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Means of x over the comparison blocks whose samples all lie in mask (in order),
+        the record's last partial block included (`_block_means`)."""
+        return self._block_means(x, mask)[0]
 
     def compared_index(self, mask: np.ndarray) -> np.ndarray:
         """The sample index of each value whiten_masked returns (a block's first sample)."""
         if self.block == 1:
             return np.flatnonzero(mask)
-        b = self.block
-        n = mask.size // b * b
-        return np.flatnonzero(mask[:n].reshape(-1, b).all(axis=1)) * b
+        return self._block_means(np.zeros(mask.size), mask)[1]
 
     def whiten_masked(self, x: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """x over mask, as the models are compared: whitened by the noise model, per sample
-        or per comparison block."""
+        or per comparison block.
+
+        A partial block's mean averages m < b samples: its noise variance is b/m times a
+        full block's where the sensor's noise is white within a block, and less where the
+        sensor's low-pass correlates it from sample to sample (a mean of fewer samples
+        then loses less to averaging). So its whitened value is weighted by √(m/b): a
+        full block's variance for white noise, never more for positively correlated
+        noise — the likelihood's one variance holds, and a short block never counts above
+        what it knows (tests/diagnosis/test_diagnosis_partial_block.py). The weight
+        multiplies the block's innovation under the noise model; with an ARMA model the
+        part carried from the block before is weighted with it (the model is fitted on
+        full blocks' means).
+        """
         if self.block == 1:
             return self.noise.whiten(np.where(mask, x, 0.0))[mask]
-        return self.noise.whiten(self.blocks(np.nan_to_num(x), mask))
+        means, _, counts = self._block_means(np.nan_to_num(x), mask)
+        return self.noise.whiten(means) * np.sqrt(counts / self.block)
 
     def noise_series(self, residual: np.ndarray) -> np.ndarray:
         """The residual over the rests, at the comparison's rate, each rest less its own

@@ -21,11 +21,8 @@ from gateway.core.diagnosis.reading import shifted
 from gateway.core.estimator import EstimateTrack, estimate_series
 from gateway.core.estimator_settings import EstimatorSettings
 from gateway.core.evaluation import summarise_errors
-from gateway.core.model_compensation import SampleContext
+from gateway.core.model_compensation import SampleContext, settle_correction
 from gateway.core.reference_point import NoRestError
-
-POSITION_ITERATIONS = 12
-POSITION_SETTLED_M = 1e-5
 
 
 @dataclass
@@ -73,28 +70,22 @@ class EstimatePlan:
     def _compensated(self, prep: Prepared, plan: EstimatePlan, effect, theta) -> EstimatePlan:
         """The plan corrected for one effect. An effect that needs the estimate (tilt: its
         position; motion_offset: where it moves) is corrected with the estimate's own,
-        re-estimated until it settles: the estimate without the correction can be metres
-        off, and one pass from there overshoots (model_compensation.compensated_estimate
-        does the same for `adxlgw estimate --model`)."""
-        track = plan.track(prep)
-        est = self._context(prep, track)
-        new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
+        re-estimated until it settles (model_compensation.settle_correction: the one loop,
+        `adxlgw estimate --model` runs the same): the estimate without the correction can
+        be metres off, and one pass from there overshoots. Where the passes do not settle
+        the plan carries `unsettled_m`, and its distance gain is not determined
+        (distance_gain)."""
         if not getattr(effect, "uses_position", False):
-            return new
-        for _ in range(POSITION_ITERATIONS):
-            track = new.track(prep)
-            if track is None:
-                break
-            step = float(np.max(np.abs(track.pos_m - est.pos_m)))
-            est = self._context(prep, track)
-            new = plan.apply(effect.compensate(prep, theta, plan.acc_mps2, est))
-            if step < POSITION_SETTLED_M:
-                break
-        else:
-            # the passes alternate or creep (the estimate's own standstill decisions flip
-            # with the correction): the distance is one of the answers, and says so
-            # (model_compensation.CompensatedEstimate does the same for estimate --model)
-            new.unsettled_m = max(new.unsettled_m, step)
+            return plan.apply(effect.compensate(prep, theta, plan.acc_mps2, self._context(prep, plan.track(prep))))
+
+        def correct(track) -> np.ndarray:
+            return effect.compensate(prep, theta, plan.acc_mps2, self._context(prep, track)).acc_mps2
+
+        result = settle_correction(correct, lambda acc: plan._copy(acc_mps2=acc).track(prep), start=plan.track(prep))
+        new = plan._copy(acc_mps2=result.acc_mps2)
+        new._cache["track"] = result.track
+        if result.track is not None and not result.settled:
+            new.unsettled_m = max(new.unsettled_m, result.last_step_m)
         return new
 
     @staticmethod
@@ -169,14 +160,24 @@ def _errors(prep: Prepared, plan: EstimatePlan) -> dict | None:
 
 
 def distance_gain(prep: Prepared, before: EstimatePlan, after: EstimatePlan) -> dict:
+    """The distance error before and after a change, and the improvement (mm) — measured
+    only where each side is one answer. A correction that needs the estimate and did not
+    settle (`unsettled_m`, either side: a chain carries it on) leaves the distance one of
+    the answers its passes alternate between; a gain taken from it would be chance, so it
+    is "not determined" (`determined: false`, `available: false`, `unsettled_mm`): every
+    reader of `available` (judgement.matters, the report, the benchmarks) counts it
+    neither for nor against (docs/diagnosis.md §6)."""
     b, a = _errors(prep, before), _errors(prep, after)
     if b is None or a is None:
         why = ("no reference and not known to return to its start (--returns-to-start)"
                if prep.data.reference != "recorded" and not before.returns_to_start
                else "the estimator found no standstill to start from")
-        return {"available": False, "why": why}
+        return {"available": False, "determined": False, "why": why}
     key = "stop_rms_mm" if "stop_rms_mm" in b and math.isfinite(b["stop_rms_mm"]) else "final_mm"
-    out = {"available": True, "metric": key, "before": b, "after": a, "improvement_mm": abs(b[key]) - abs(a[key])}
-    if after.unsettled_m:
-        out["unsettled_mm"] = after.unsettled_m * 1e3
-    return out
+    unsettled_m = max(before.unsettled_m, after.unsettled_m)
+    if unsettled_m > 0:
+        return {"available": False, "determined": False, "metric": key, "before": b, "after": a,
+                "unsettled_mm": unsettled_m * 1e3,
+                "why": f"not determined (the correction's passes differ by {unsettled_m * 1e3:.1f} mm)"}
+    return {"available": True, "determined": True, "metric": key, "before": b, "after": a,
+            "improvement_mm": abs(b[key]) - abs(a[key])}
