@@ -32,6 +32,7 @@ from gateway.core.estimator import estimate_series
 from gateway.core.evaluation import summarise_errors
 from gateway.core.sensor_model import DCM_READINGS
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
+from gateway.offline.diagnosis_report import distance_text
 from testing import diagnosis_cases as own
 from testing.diagnosis_cases import estimator_settings
 from testing.independent_generator import cases as independent
@@ -66,10 +67,7 @@ def report(effect: str | None, seed: int, args) -> list[str]:
         rms = e.gain.get("residual_rms_mps2")
         share = f"{100 * residual_share(*rms):.2f} %" if rms and rms[0] > 0 else "n/a"
         dist = e.gain.get("distance", {})
-        out.append(f"- named: {e.name} {e.params}; residual share {share}; distance improvement "
-                   f"{dist.get('improvement_mm', float('nan')):+.2f} mm"
-                   + (f" (interval {dist['interval_mm'][0]:+.2f} … {dist['interval_mm'][1]:+.2f} mm)"
-                      if dist.get("interval_mm") else ""))
+        out.append(f"- named: {e.name} {e.params}; residual share {share}; {distance_text(dist)}")
     for title, items in (("setup", result.setup), ("negligible", result.negligible),
                          ("not physical", result.not_physical)):
         for item in items:
