@@ -101,24 +101,33 @@ def velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s):
 @jit
 def true_velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s, lag_s):
     """Largest |change of the true velocity| along `count` slots of the ring in time order
-    (from slot `oldest` on), the sensor's lag undone: the true acceleration is u = y + τẏ
-    (y = z − bias), so the true velocity since the first valid slot is Σ y·Ts + τ·(y_k − y_0).
-    A sensor's filter settling after a stop (y decaying with τ) changes the true velocity
-    by nothing; velocity_swing would count τ·y_0 of it."""
+    (from slot `oldest` on), the sensor's lag undone. The true acceleration is u = y + τẏ
+    (y = z − bias), so between two instants the true velocity changes by ∫y dt + τ·Δy. A
+    sample is its period's mean, so the instants taken are the boundaries between valid
+    slots, y there the mean of the two slots around it (a slot's own mean stands for its
+    middle, not its start: with τ about one period, as the board's 3.2 ms at 2 ms, the
+    decay inside the first slot would otherwise read as a swing of τ·(y(start) − ȳ)).
+    A sensor's filter settling after a stop (y decaying with τ) then changes the true
+    velocity by nothing, to second order; velocity_swing would count τ·y_0 of it."""
     size = ring_z.size
     c = 0.0
     peak = 0.0
-    y0 = math.nan
+    first = math.nan
+    prev = math.nan
     for i in range(count):
         j = (oldest + i) % size
         if ring_ok[j] > 0.0:
             y = ring_z[j] - bias
-            if math.isnan(y0):
-                y0 = y
-            v = c + lag_s * (y - y0)
-            if abs(v) > peak:
-                peak = abs(v)
-            c += y * period_s
+            if not math.isnan(prev):
+                at_boundary = 0.5 * (prev + y)
+                if math.isnan(first):
+                    first = at_boundary
+                else:
+                    c += prev * period_s  # the slot between the previous boundary and this one
+                v = c + lag_s * (at_boundary - first)
+                if abs(v) > peak:
+                    peak = abs(v)
+            prev = y
     return peak
 
 
