@@ -134,9 +134,10 @@ def true_velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s, lag_s):
 @jit
 def velocity_changes_beyond_noise(swing, n, sample_var_white, period_s, sigmas):
     """The velocity swing of n samples' acceleration (true_velocity_swing) is beyond what
-    their white noise integrates to: more than sigmas
-    standard deviations of the sum of n samples' noise, √(n·σ²)·Ts (σ²: one sample's
-    white-equivalent variance, the ZARU's R). Then the samples hold part of a motion —
+    their white noise integrates to: more than sigmas standard deviations of the sum of n
+    samples' noise, √(n·σ²)·Ts (σ²: one sample's white-equivalent variance, the ZARU's R;
+    the largest partial sum of a white walk passes sigmas·σ_n with at most 4·P(Z > sigmas),
+    the reflection principle). Then the samples hold part of a motion —
     the end of a deceleration, a start —, not the rest alone: a stop the machine's word
     puts among them may lie anywhere in them, or after them."""
     return swing > sigmas * math.sqrt(max(sample_var_white * n, 0.0)) * period_s
