@@ -69,7 +69,7 @@ class StatusBits(enum.IntFlag):
     #: axis cruises or stands (a long quiet stretch the velocity test cannot decide,
     #: after a gap, a restart or a board reset mid-move, a possible offset step). Held
     #: until a stop is accepted on evidence (a decisive velocity test, the machine's rest
-    #: hint, or a quiet stretch longer than estimator quiet_stop_s). VALID is clear.
+    #: hint, or a quiet stretch longer than any cruise within estimator.travel_m). VALID is clear.
     POSITION_UNTRUSTED = 1 << 14
     #: Set by the Modbus server, never by the daemon, and only in the Modbus registers:
     #: Modbus RTU is configured but its serial port is missing or lost; the server keeps

@@ -223,7 +223,8 @@ SCHEMA: tuple[Key, ...] = (
         "resting axis), so the first quiet window is taken as a rest. Believed only on a first start (no "
         "state file) or after an orderly stop at a trusted standstill: after a crash, kill -9, watchdog "
         "abort or a board reset the axis may be mid-move, and the position is POSITION_UNTRUSTED until a "
-        "stop is seen on evidence (the machine's rest hint, or quiet_stop_s of quiet). false: never "
+        "stop is seen on evidence (the machine's rest hint, or a quiet stretch longer than any cruise "
+        "within travel_m). false: never "
         "believed (a gateway that may be started mid-move) (docs/decisions/0001-start-at-rest.md)."),
     Key("estimator", "hint_timeout_ms", 1000, int,
         "How long the machine's standstill hint (Modbus CMD_HINT_*, CAN command codes 3-5) stays in "
@@ -232,7 +233,9 @@ SCHEMA: tuple[Key, ...] = (
         "The axis's travel, [lowest, highest] published position in m (from the tare point). A saved "
         "position outside it is refused at start (the state file is then moved aside), a restored "
         "position is never less uncertain than the travel allows, and no POSITION_STD is more than the "
-        "distance to the farther end of the travel. Default: 10 m either way, 30 times the "
+        "distance to the farther end of the travel; with the velocity lost, a quiet stretch is a stop only "
+        "once it outlasts a cruise at the estimator's speed floor (0.1 m/s) across the travel (10 s per "
+        "metre). Default: 10 m either way, 30 times the "
         "paper's 0.3 m stroke and 12 times the robot's 0.8 m move; set your machine's.", _travel),
     Key("estimator", "still_while_down", False, bool,
         "true: nothing moves the axis while the gateway is down (it is locked, or the gateway's stop stops "

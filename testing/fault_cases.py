@@ -40,8 +40,12 @@ class Case:
     rest_s: float = STROKE.dwell_s  # the first true stop after the fault lasts this long
 
 
-#: the rests after a fault: the paper's 1 s dwell, a PLC's pause, and one longer than the
-#: estimator's quiet_stop_s (10 s), where a stop is accepted on quiet alone
+#: the machine's travel as its integrator configures it (estimator.travel_m): the long
+#: stroke's 0–0.8 m with 0.2 m to spare. A cruise at the estimator's speed floor (0.1 m/s)
+#: lasts at most 12 s within it (EstimatorSettings.quiet_stop_s)
+TRAVEL_M = (-0.2, LONG_STROKE.stroke_m + 0.2)
+#: the rests after a fault: the paper's 1 s dwell, a PLC's pause, and one longer than any
+#: cruise within the travel, where a stop is accepted on quiet alone
 RESTS_S = (1.0, 5.0, 20.0)
 #: the hostile state file: a number within the state file's own limits, the orderly-stop mark
 HOSTILE_POSITION_M = 9999.0

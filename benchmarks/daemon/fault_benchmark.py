@@ -14,8 +14,9 @@ same state file (with start_at_rest false on the restart — what a restart can 
 promise — and with the same config); a board reset mid-cruise (a HELLO, seq from 0); a
 5 mg offset step mid-cruise; 2 s and 8 s outages from mid-cruise (nothing on the line).
 The restarts, the board reset and the outages each with the first true stop after the
-fault lasting 1, 5 or 20 s (the paper's dwell, a PLC's pause, and longer than the
-estimator's quiet_stop_s, where a stop is accepted on quiet alone). Two more: an orderly
+fault lasting 1, 5 or 20 s (the paper's dwell, a PLC's pause, and longer than any
+cruise can last within the machine's travel, `estimator.travel_m` = TRAVEL_M: a stop is
+then accepted on quiet alone). Two more: an orderly
 stop (SIGTERM) at rest at +0.3 m, the axis moved back to 0 while the gateway is down,
 a start again with start_at_rest = true; and a hostile but plausible state file (9999 m
 with the orderly-stop mark) before the first start.
@@ -66,6 +67,7 @@ from testing.fault_cases import (
     HOSTILE_POSITION_M,
     SLOT_S,
     STOPS_SCORED,
+    TRAVEL_M,
     BoardScript,
     Case,
     all_cases,
@@ -84,7 +86,7 @@ START_LIMIT_S = 300
 def write_config(path: Path, link: Path, port: int, state: Path, start_at_rest: bool) -> None:
     path.write_text(
         f'[serial]\nport = "{link}"\n[modbus]\nport = {port}\n[can]\nenabled = false\n'
-        f'[estimator]\nstart_at_rest = {"true" if start_at_rest else "false"}\n'
+        f'[estimator]\nstart_at_rest = {"true" if start_at_rest else "false"}\ntravel_m = {list(TRAVEL_M)}\n'
         f'[state]\npath = "{state}"\n[service]\nlog_level = "warning"\n')
 
 

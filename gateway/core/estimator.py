@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import operator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -152,7 +152,7 @@ class RealtimeEstimator:
         the first quiet window is not taken as a rest (it may be a cruise). The filter starts
         in motion with the velocity unknown (restart_speed_std_mps) and the position flagged
         not trustworthy until a stop is recognised on evidence: the machine's rest hint, or a
-        quiet stretch longer than quiet_stop_s."""
+        quiet stretch longer than any cruise can last (EstimatorSettings.quiet_stop_s)."""
         self.reset()
         K.mark_velocity_unknown(self.state)
 
@@ -160,6 +160,13 @@ class RealtimeEstimator:
         valid = acc_mps2 is not None
         K.step(self.state, self.params, float(t_s), float(acc_mps2) if valid else 0.0, valid, int(lost_before))
         return Estimate.from_kernel(t_s, self.state.out)
+
+    def set_travel_span(self, travel_span_m: float) -> None:
+        """The axis's travel from now on (highest − lowest position, m): it bounds how long a
+        cruise can last, so how long an undecidable quiet stretch must be to be a stop
+        (EstimatorSettings.quiet_stop_s). The state is kept."""
+        self.settings = replace(self.settings, travel_span_m=float(travel_span_m))
+        self.params[:] = self.settings.kernel_params()
 
     def set_hint(self, hint: float | None) -> None:
         """The machine's standstill hint from now on: 1 at rest, 0 moving, None unknown

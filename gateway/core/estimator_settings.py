@@ -85,12 +85,10 @@ class EstimatorSettings:
     # twice the largest of issue 13's cases. A hinted rest whose window mean is further off
     # the bias is an axis still decelerating: the hint is flagged, not obeyed.
     offset_step_max_mps2: float = 0.02 * G
-    # Application choice: no constant-velocity stretch of the machine lasts this long. When
-    # the filter no longer knows its velocity (a gap, an outage, a restart) a quiet stretch
-    # may be a cruise or a stop; only one longer than this is taken as a stop, and the
-    # position stays flagged untrusted. 10 s: twice the robot's longest cruise (5 s,
-    # datasets/leiria-robot), fifty times the paper's (0.2 s).
-    quiet_stop_s: float = 10.0
+    # The axis's travel: highest − lowest position it can reach (a plant fact: its soft
+    # limits; the daemon's estimator.travel_m). It bounds how long a cruise can last (see
+    # quiet_stop_s). 20 m: the daemon's default travel, ±10 m.
+    travel_span_m: float = 20.0
     # After a restart or a board reset that may come mid-move (RealtimeEstimator.restart):
     # the velocity is unknown within the machine's speed. 2 m/s: twice the paper's cruise
     # and the robot's fastest programmed speed.
@@ -130,7 +128,7 @@ class EstimatorSettings:
 
     def __post_init__(self) -> None:
         positive = ("sample_period_s", "accel_white_density_mps2_per_rthz", "sample_noise_std_mps2",
-                    "standstill_window_s", "drift_time_constant_s", "zupt_velocity_std_mps", "quiet_stop_s")
+                    "standstill_window_s", "drift_time_constant_s", "zupt_velocity_std_mps", "travel_span_m")
         for name in positive:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -178,6 +176,18 @@ class EstimatorSettings:
         """Reject standstill above this window variance: σ²·χ²_ν(1 − p)/ν."""
         nu = self.window_dof
         return self.sample_noise_std_mps2**2 * chi2_isf(self.standstill_false_motion_prob, nu) / nu
+
+    @property
+    def quiet_stop_s(self) -> float:
+        """How long a quiet stretch the velocity test cannot decide (the filter lost its
+        velocity: an outage, a restart) must last to be a stop. A cruise is at least the
+        speed floor (the slowest motion that must never be called a standstill), so a
+        cruise longer than travel / floor would leave the axis's travel: a quiet stretch
+        longer than that is no cruise. A physical bound from what the plant knows, not a
+        time taken from one machine; no floor (0): never."""
+        if self.standstill_speed_floor_mps <= 0.0:
+            return math.inf
+        return self.travel_span_m / self.standstill_speed_floor_mps
 
     @property
     def zupt_chi2_threshold(self) -> float:
@@ -234,7 +244,8 @@ class EstimatorSettings:
             f"the velocity ≤ {self.standstill_vibration_mps * 1e3:g} mm/s), "
             f"|v| ≤ {self.standstill_speed_floor_mps:g} m/s "
             f"known to {self.standstill_velocity_sigmas:g} σ_v ≤ {self.standstill_speed_floor_mps:g} m/s (else "
-            f"undecidable: flag 256; a stop after {self.quiet_stop_s:g} s of quiet)",
+            f"undecidable: flag 256; a stop after {self.quiet_stop_s:g} s of quiet: the travel "
+            f"{self.travel_span_m:g} m at the floor speed)",
             f"sensitivity known to {self.sensitivity_std_frac * 100:.3g} % (1σ): carried in the reported σ",
         ] + ([
             "duty-cycle reading's instant in its period not known: up to (S·T2/2g)·∫a² dt of position per move "

@@ -289,7 +289,7 @@ def undecidable_quiet(x, m, prm, t_s, regime_prev, hint, mean, vibrating, var_ok
 
     - the velocity test cannot decide (the filter lost its velocity: a gap, an outage, a
       long time since the latest stop): a stop only once the stretch has lasted longer than
-      any cruise of the machine (P_QUIET_STOP_S); the position untrusted;
+      any cruise within the travel (P_QUIET_STOP_S: travel / speed floor); the position untrusted;
     - quiet, off the bias (beyond any step), slow, after a move: not a stop we can accept
       (flag 1024, untrusted) — unless it is the last part of a deceleration into a stop, as
       quiet in variance and as far off the bias (stopping_within_a_window)."""

@@ -125,8 +125,10 @@ class SamplePipeline:
                  travel_m: tuple[float, float] | None = None, model_terms: np.ndarray = NO_MODEL_TERMS):
         self.estimator = RealtimeEstimator(settings)
         #: the axis's travel, [lowest, highest] published position (estimator.travel_m):
-        #: bounds the published σ (see _build_latest); None: no bound
-        self.travel_m = travel_m
+        #: bounds the published σ (see _build_latest) and how long a cruise can last (the
+        #: estimator's quiet stop); None: no bound, the settings' own travel
+        self.travel_m = None
+        self.set_travel(travel_m)
         self._latest: Estimate | None = None  # latest()'s cache, None: build anew
         if not start_at_rest:
             self.estimator.restart()
@@ -311,8 +313,11 @@ class SamplePipeline:
         self._latest = None
 
     def set_travel(self, travel_m: tuple[float, float] | None) -> None:
-        """The axis's travel from now on (a reload of estimator.travel_m): it bounds the published σ."""
+        """The axis's travel from now on (estimator.travel_m, at start and at a reload): it
+        bounds the published σ and, in the estimator, how long a cruise can last."""
         self.travel_m = travel_m
+        if travel_m is not None:
+            self.estimator.set_travel_span(travel_m[1] - travel_m[0])
         self._latest = None
 
     def reset(self) -> None:

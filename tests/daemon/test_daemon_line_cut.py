@@ -5,14 +5,15 @@ its seq runs on, so the daemon judges the gap by the board's seq and period
 emulated board on a pty. No wall-clock asserts: every wait polls the status with a
 generous limit, the board's timeline is its own clock, the board seeded."""
 import asyncio
+from dataclasses import replace
 
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
 from drivers.published_values import StatusBits
-from gateway.core.estimator_settings import EstimatorSettings
+from gateway.core.estimator_settings import from_sensor_model
 from gateway.core.motion_profiles import StrokeSettings
-from gateway.core.sensor_model import BOARD_SENSOR
+from gateway.core.sensor_model import BOARD_SENSOR, SensorParams
 from gateway.daemon.sample_loop import OUTAGE_S
 from tests.daemon_helpers import Emulator, gateway_config, read_inputs, running_gateway, wait_for
 
@@ -25,6 +26,11 @@ BOARD_PERIOD_S = BOARD_SENSOR.t2_s
 STROKE_M = StrokeSettings().stroke_m
 # at rest this long before the first stroke: the estimate is VALID long before the cut
 REST_S = 4.0
+# the axis's travel as its integrator would configure it: the stroke with 0.2 m to spare
+TRAVEL_M = [-0.2, STROKE_M + 0.2]
+# with the velocity lost, a quiet stretch this long is a stop: no cruise at the speed floor
+# lasts longer within the travel (EstimatorSettings.quiet_stop_s)
+QUIET_STOP_S = replace(from_sensor_model(SensorParams()), travel_span_m=TRAVEL_M[1] - TRAVEL_M[0]).quiet_stop_s
 
 
 def lost_in(cut_s: float) -> int:
@@ -33,7 +39,7 @@ def lost_in(cut_s: float) -> int:
 
 async def with_gateway(tmp_path, emulator_args, body) -> None:
     board = Emulator(tmp_path, "--seed", "21", "--rest-s", f"{REST_S:g}", *emulator_args)
-    cfg = gateway_config(tmp_path, str(board.link))
+    cfg = gateway_config(tmp_path, str(board.link), estimator={"start_at_rest": True, "travel_m": TRAVEL_M})
     try:
         async with running_gateway(cfg) as gw:
             client = AsyncModbusTcpClient("127.0.0.1", port=gw.modbus.tcp_port)
@@ -61,11 +67,11 @@ def test_a_cut_longer_than_an_outage_starts_over_untrusted_until_a_stop_is_seen(
     unseen. The daemon must not go on as if nothing happened: the estimator starts over at
     the gap — POSITION_UNTRUSTED, not VALID, the loss counted on the wire — and is VALID
     again only after a stop seen on evidence. After an outage the velocity is unknown, and
-    a quiet stretch is a stop or a cruise until it outlasts the estimator's quiet_stop_s;
-    the dwells here outlast it, so the board's next stroke ends at a stop the estimator
-    can decide."""
+    a quiet stretch is a stop or a cruise until it outlasts any cruise the travel allows
+    (QUIET_STOP_S); the dwells here outlast it, so the board's next stroke ends at a stop
+    the estimator can decide."""
     cut_s = 4 * OUTAGE_S
-    dwell_s = EstimatorSettings.quiet_stop_s + 3.0  # (the daemon runs with the default)
+    dwell_s = QUIET_STOP_S + 3.0
     # from 0.2 s before the first stroke (0.4 s long) to well after it
     args = ["--strokes", "2", "--dwell-s", f"{dwell_s:g}",
             "--cut-after", f"{REST_S - 0.2:g}", "--cut-for", f"{cut_s:g}"]
@@ -108,7 +114,7 @@ def test_a_cut_shorter_than_an_outage_is_bridged_and_stays_valid(tmp_path):
         assert gw.intake.events.outage_at_s is None  # bridged: no start-over
         # VALID and trusted (polled: a host that lagged shows STALE meanwhile). Had the gap
         # cost the velocity, this could not pass: no quiet stretch of this scenario outlasts
-        # quiet_stop_s (rests of 4 + 1 s, dwells of 1 s), so untrusted would stay
+        # QUIET_STOP_S (rests of 4 + 1 s, dwells of 1 s), so untrusted would stay
         await wait_for(lambda: StatusBits.VALID in status(gw) and StatusBits.POSITION_UNTRUSTED not in status(gw), 30,
                        what="VALID and trusted after a bridged gap")
         assert gw.intake.events.outage_at_s is None

@@ -389,7 +389,7 @@ def test_the_published_sigma_never_exceeds_the_distance_to_the_farther_end_of_th
         seq = accelerate(p, accelerate(p, seq, 0.3, 50), -0.3, 50)
         at_rest(p, seq, 100)
         p.feed(encode_hello(uptime_s=0, **REPORT))  # a board reset: the velocity is lost
-        at_rest(p, 0, 2500)  # 5 s the filter cannot tell from a cruise
+        at_rest(p, 0, 2000)  # 4 s it cannot tell from a cruise (one at the floor speed lasts 5 s on 0.5 m)
 
     unbounded = pipeline()
     reset_then_quiet(unbounded)
@@ -447,3 +447,27 @@ def test_a_backlog_read_late_keeps_the_estimate_a_silence_the_seq_cannot_account
         assert intake.drain()
         assert p.referenced is not starts_over
         assert (intake.events.outage_at_s is not None) is starts_over
+
+
+def test_the_travel_bounds_how_long_a_quiet_stretch_may_be_a_cruise():
+    """With the velocity lost (a board reset) a quiet stretch is a stop only once no cruise
+    at the speed floor could have lasted that long within the axis's travel: the travel
+    given at start and at a reload reaches the estimator."""
+    def quiet_after_a_reset(p: SamplePipeline, samples: int) -> bool:
+        p.feed(encode_hello(uptime_s=0, **REPORT))
+        at_rest(p, 0, 200)
+        p.feed(encode_hello(uptime_s=0, **REPORT))  # a board reset: the velocity is lost
+        at_rest(p, 0, samples)
+        return p.latest().standstill
+
+    floor = from_sensor_model().standstill_speed_floor_mps
+    short = pipeline()
+    short.set_travel((-0.2, 0.2))  # a cruise at the floor lasts ≤ 4 s
+    assert short.estimator.settings.quiet_stop_s == pytest.approx(0.4 / floor)
+    assert quiet_after_a_reset(short, 2500)  # 5 s of quiet: a stop
+    long = pipeline()
+    long.set_travel((-0.5, 0.5))  # ≤ 10 s: 5 s of quiet may still be a cruise
+    assert not quiet_after_a_reset(long, 2500)
+    long.set_travel((-0.1, 0.1))  # a reload: from now on ≤ 2 s
+    at_rest(long, 2500, 1500)
+    assert long.latest().standstill

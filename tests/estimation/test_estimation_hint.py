@@ -1,5 +1,6 @@
 """The machine's standstill hint (1 at rest, 0 moving, unknown), offline and in the class,
 and the "position not trustworthy" flag when the accelerometer alone cannot decide."""
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -152,16 +153,20 @@ def test_a_hint_cell_other_than_0_1_or_empty_is_exit_2(tmp_path, capsys):
     assert len(err) == 1 and "standstill_hint" in err[0] and "bad_hint.csv:10:" in err[0]
 
 
-def test_a_restart_mid_cruise_does_not_take_the_cruise_for_a_rest():
+@pytest.mark.parametrize("travel_span_m", [0.7, 1.5])
+def test_a_restart_mid_cruise_does_not_take_the_cruise_for_a_rest(travel_span_m):
     """Restarted (board reset, daemon restart) in the first cruise: today's reset() would take
     the quiet cruise as the reference rest. restart() starts in motion with the velocity
     unknown: flagged not trustworthy at once, no stop on the 1 s dwells, the error inside
-    the 3σ band; a quiet stretch longer than quiet_stop_s (the final 12 s rest) is a stop."""
+    the 3σ band. A quiet stretch is a stop only once it outlasts any cruise at the speed
+    floor within the axis's travel: the final 12 s rest is one on a 0.7 m travel (7 s), not
+    on a 1.5 m one (15 s)."""
+    settings = replace(SETTINGS, travel_span_m=travel_span_m)
     run = simulate(reciprocating_strokes(StrokeSettings(strokes=2, rest_end_s=12.0)), SensorParams(), seed=141)
     t = sample_times_s(run.t2, run.tick_hz)
     z = acceleration_mps2(run.t1x, run.t2, AxisCalibration())
     k0 = np.searchsorted(t, 2.15)  # mid-cruise of the first stroke (2.1–2.3 s)
-    est = RealtimeEstimator(SETTINGS)
+    est = RealtimeEstimator(settings)
     for k in range(k0):
         est.step(t[k], z[k])
     est.restart()
@@ -180,8 +185,8 @@ def test_a_restart_mid_cruise_does_not_take_the_cruise_for_a_rest():
     ref = run.ref_pos_m[k0:] - run.ref_pos_m[k0 + first]  # the restart's origin
     still = (flags & K.F_STANDSTILL) != 0
     last_move = t[np.flatnonzero(run.ref_vel_mps != 0.0)[-1]]
-    assert not still[t[k0:] < last_move + SETTINGS.quiet_stop_s].any()
-    assert still[-1]
+    assert not still[t[k0:] < last_move + settings.quiet_stop_s].any()
+    assert still[-1] == (t[-1] - last_move > settings.quiet_stop_s + settings.standstill_window_s)
     err = np.abs(pos - ref)[first:]
     assert np.all(err <= 3 * std[first:] + 1e-4)
 
