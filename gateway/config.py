@@ -65,7 +65,9 @@ def _addresses(v):
     return None
 
 
-def _travel(v):
+def travel_problem(v) -> str | None:
+    """What is wrong with an axis's travel [lowest, highest] (m), or None: the config's
+    estimator.travel_m and `adxlgw estimate --travel-m` check it here."""
     if len(v) != 2 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
         return "must be two numbers, [lowest, highest]"
     lo, hi = (float(x) for x in v)
@@ -236,7 +238,7 @@ SCHEMA: tuple[Key, ...] = (
         "distance to the farther end of the travel; with the velocity lost, a quiet stretch is a stop only "
         "once it outlasts a cruise at the estimator's speed floor (0.1 m/s) across the travel (10 s per "
         "metre). Default: 10 m either way, 30 times the "
-        "paper's 0.3 m stroke and 12 times the robot's 0.8 m move; set your machine's.", _travel),
+        "paper's 0.3 m stroke and 12 times the robot's 0.8 m move; set your machine's.", travel_problem),
     Key("estimator", "still_while_down", False, bool,
         "true: nothing moves the axis while the gateway is down (it is locked, or the gateway's stop stops "
         "the machine), so a position saved by an orderly stop is restored as exact. false (safe): the "

@@ -4,11 +4,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from gateway.commands.model_option import add_model_argument, estimate_with_model
+from gateway.config import travel_problem
 from gateway.core.drift_fit import FittedDrift
 from gateway.core.estimator import COMPARED_METHODS, METHODS, EstimateTrack, estimate_series
 from gateway.core.estimator_settings import EstimatorSettings, from_rest, from_sensor_model
@@ -89,9 +91,24 @@ def add_parser(sub) -> None:
     p.add_argument("--skip-s", type=_seconds, default=0.0, metavar="SECONDS",
                    help="leave out the recording's first SECONDS (e.g. a sensor settling at power-up, a "
                         "logger's first rows); the estimate and the reference's position begin after them")
+    p.add_argument("--travel-m", type=float, nargs=2, metavar=("LOWEST", "HIGHEST"),
+                   help="the axis's travel in m from the start (its soft limits), as the daemon's "
+                        "estimator.travel_m: with the velocity lost, a quiet stretch is a stop only once it "
+                        "outlasts a cruise at the speed floor across it (default: the daemon's ±10 m)")
     p.add_argument("--returns-to-start", action="store_true",
                    help="the motion ends where it began (net displacement zero): print the final position as its error")
     p.set_defaults(run=run)
+
+
+def with_travel(settings: EstimatorSettings, args: argparse.Namespace) -> EstimatorSettings:
+    """The settings with the axis's travel from --travel-m (checked as the daemon's config is)."""
+    travel_m = getattr(args, "travel_m", None)
+    if travel_m is None:
+        return settings
+    problem = travel_problem(travel_m)
+    if problem:
+        raise InputError(f"--travel-m {travel_m[0]:g} {travel_m[1]:g}: {problem}")
+    return replace(settings, travel_span_m=travel_m[1] - travel_m[0])
 
 
 def _seconds(text: str) -> float:
@@ -311,7 +328,7 @@ def _estimated(args: argparse.Namespace, series: AccelerationSeries, form: str):
     settings = None
     try:
         if args.method in FILTER_METHODS:
-            settings = settings_for(series, form, args.noise_from, drift)
+            settings = with_travel(settings_for(series, form, args.noise_from, drift), args)
         hints = HintUse(args)
         hint = hints.of(series)
 
@@ -407,7 +424,7 @@ class _Streamed:
         self.last_track = None
 
     def _start(self, series: AccelerationSeries) -> None:
-        self.settings = settings_for(series, self._form, self._args.noise_from, self._drift)
+        self.settings = with_travel(settings_for(series, self._form, self._args.noise_from, self._drift), self._args)
         self.runner = RealtimeChunks(self.settings)
         self.ref_names = [k for k, v in series.reference.items() if not np.all(np.isnan(v))]
         if "ref_pos_m" in self.ref_names:
