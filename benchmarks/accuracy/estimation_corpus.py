@@ -37,7 +37,7 @@ import multiprocessing
 import os
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -184,13 +184,41 @@ def shifted(rest: np.ndarray, t_s: np.ndarray, shift_s: float) -> np.ndarray:
 ALIGN_HINT = os.environ.get("ADXLGW_CORPUS_ALIGN_HINT") == "1"  # --align-hint (set before the workers spawn)
 
 
-def score(case: Case, method: str, hint: np.ndarray | None) -> dict:
-    """One estimate of one case, scored."""
+def settings_overrides(text: str) -> dict[str, float]:
+    """--set NAME=VALUE,…: EstimatorSettings fields (numbers) replaced on every case's own
+    settings — to judge a setting on the whole corpus, side by side with the shipped one."""
+    from dataclasses import fields
+
+    from gateway.core.estimator_settings import EstimatorSettings
+
+    numeric = {f.name for f in fields(EstimatorSettings) if f.type in ("float", "int")}
+    out = {}
+    for item in filter(None, text.split(",")):
+        name, _, value = item.partition("=")
+        if name not in numeric:
+            raise ValueError(f"--set {item}: not a numeric EstimatorSettings field ({', '.join(sorted(numeric))})")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise ValueError(f"--set {item}: {value!r} is not a number") from None
+    return out
+
+
+SETTINGS_OVERRIDES = settings_overrides(os.environ.get("ADXLGW_CORPUS_SET", ""))  # --set (as --align-hint)
+
+
+def score(case: Case, method: str, hint: np.ndarray | None, overrides: dict | None = None) -> dict:
+    """One estimate of one case, scored; the case's settings with `overrides` replaced
+    (by default --set's)."""
     from gateway.core.estimator import estimate_series
     from gateway.core.evaluation import move_errors
 
+    settings = case.settings
+    overrides = SETTINGS_OVERRIDES if overrides is None else overrides
+    if overrides and settings is not None:
+        settings = replace(settings, **overrides)
     try:
-        track = estimate_series(case.t_s, case.acc_mps2, case.valid, method=method, settings=case.settings,
+        track = estimate_series(case.t_s, case.acc_mps2, case.valid, method=method, settings=settings,
                                 lost_before=case.lost_before,
                                 standstill_hint=None if hint is None else hint.astype(float),
                                 align_hint=ALIGN_HINT)
@@ -311,13 +339,21 @@ def main() -> int:
     parser.add_argument("--align-hint", action="store_true",
                         help="shift the machine's hint by its latency measured on each recording "
                              "(gateway/core/hint_latency.py) before the estimator sees it")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="replace an estimator setting (a numeric EstimatorSettings field) on every case, "
+                             "e.g. --set standstill_window_s=0.05 (repeatable)")
     args = parser.parse_args()
+    try:
+        settings_overrides(",".join(args.set))
+    except ValueError as err:
+        parser.error(str(err))
+    os.environ["ADXLGW_CORPUS_SET"] = ",".join(args.set)  # the pool's spawned workers read it
     if args.align_hint:
         os.environ["ADXLGW_CORPUS_ALIGN_HINT"] = "1"  # the pool's spawned workers read it
     compare = tuple(args.compare)
     print(f"command: python -m benchmarks.accuracy.estimation_corpus --seeds {args.seeds}"
           + (" --no-perturbations" if args.no_perturbations else "") + (" --align-hint" if args.align_hint else "")
-          + "".join(f" --compare {m}" for m in compare))
+          + "".join(f" --compare {m}" for m in compare) + "".join(f" --set {s}" for s in args.set))
     print(f"date:    {datetime.datetime.now().astimezone().isoformat(timespec='seconds')}")
     print(f"machine: {machine()}")
     cases = build_cases(args.seeds)
