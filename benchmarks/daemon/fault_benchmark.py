@@ -6,7 +6,7 @@
 Each case is one board script: the paper's strokes (30 cm, 1 m/s, 1 s dwells, 2 s rest
 first) simulated with the project's simulator (the truth), encoded as the board's
 frames and written by daemon_benchmark's writer at 500 frames/s in real time into a pty
-that `adxlgw run` (a child process, CAN off, estimator.start_at_rest = true) reads. The
+that `adxlgw run` (a child process, CAN off, estimator.start_at_rest = true, travel_m = TRAVEL_M) reads. The
 fault hits the third stroke at a phase: acceleration, cruise, deceleration or rest (mid
 dwell). Cases: no fault (the control); gaps of 5/10/20/50 ms (slots with no bytes, seq
 keeps its gap) at each phase; kill -9 of the daemon mid-cruise and a start again on the
