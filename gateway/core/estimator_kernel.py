@@ -148,6 +148,7 @@ from gateway.core.kernel_output import (
     add_scale_error,
     add_scale_position_error,
     disagreement_var,
+    exact_update_gain_pos,
     lag_undone_position_var,
     reading_instant_var,
     remember_sample,
@@ -207,7 +208,8 @@ __all__ = [
     'P_VAR_MAX', 'P_VEL_SIGMAS', 'P_VIBRATION', 'P_WINDOW', 'P_ZUPT_CHI2', 'STANDSTILL', 'SoftUpdate',
     'StandstillDecision',
     'T_MOTION', 'T_NONE', 'T_RESET', 'T_STANDSTILL', 'UNINITIALISED', 'UpdateRecord', 'add_reading_instant_error',
-    'add_scale_error', 'apply_updates', 'disagreement_var', 'drift_at', 'hint_as_taken', 'hint_code', 'hint_gate',
+    'add_scale_error', 'apply_updates', 'disagreement_var', 'drift_at', 'exact_update_gain_pos', 'hint_as_taken',
+    'hint_code', 'hint_gate',
     'hinted_entry_in_motion',
     'judge_standstill', 'lag_undone_position_var', 'mark_velocity_unknown', 'new_state', 'offset_step_hypotheses',
     'open_offset_step',
@@ -254,8 +256,10 @@ def step(state, prm, t_s, z, z_valid, lost_before):
         if soft.in_motion or zupt_beyond_chance(soft.innovation, soft.innovation_var, prm[P_SCALE_VAR],
                                                 prm[P_ZUPT_CHI2]):
             # the machine's "at rest" against a velocity beyond chance, or on samples that
-            # hold part of a motion: σ covers both answers
-            m[M_DISAGREE_VAR] += disagreement_var(gain[0], soft.innovation)
+            # hold part of a motion: σ covers both answers — on samples in motion, the word
+            # made exact (the axis stopped among them: v = 0 now) and no update
+            m[M_DISAGREE_VAR] += disagreement_var(
+                exact_update_gain_pos(gain[0], gain[1]) if soft.in_motion else gain[0], soft.innovation)
         upd = UpdateRecord(upd.zaru_innovation, upd.zaru_var, soft.innovation, soft.innovation_var, gain[0],
                            gain[1], gain[2], upd.flags, transition)
     else:

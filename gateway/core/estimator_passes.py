@@ -174,5 +174,9 @@ def _add_disagreement(pos_var, flags, zupt_index, zupt_data, prm) -> None:
     if not conflicted.any():
         return
     step = np.zeros(pos_var.size)
-    np.add.at(step, zupt_index[conflicted], K.disagreement_var(zupt_data[conflicted, 2], zupt_data[conflicted, 0]))
+    # a soft hinted update in motion: the word made exact (kernel_output.exact_update_gain_pos)
+    gain_pos = np.array([K.exact_update_gain_pos(k0, k1) if soft_in_motion else k0 for k0, k1, soft_in_motion in
+                         zip(zupt_data[conflicted, 2], zupt_data[conflicted, 3], (soft & in_motion)[conflicted],
+                             strict=True)])
+    np.add.at(step, zupt_index[conflicted], K.disagreement_var(gain_pos, zupt_data[conflicted, 0]))
     pos_var += np.cumsum(step)

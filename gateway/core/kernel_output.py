@@ -89,9 +89,22 @@ def disagreement_var(gain_pos, innovation):
     hint against the integrated velocity, or a quiet window after a move whose integrated
     velocity the model's noise cannot explain): the position with the stop and without it
     differ by the update's position correction K_p·y; the reported variance adds its square,
-    so that σ covers both answers."""
+    so that σ covers both answers. gain_pos is the exact update's (exact_update_gain_pos)."""
     d = gain_pos * innovation
     return d * d
+
+
+@jit
+def exact_update_gain_pos(gain_pos, gain_vel):
+    """The position an exact velocity update (noise 0) moves per unit of innovation,
+    P_pv/P_vv, from a made update's gains K_p = P_pv/S and K_v = P_vv/S. A stop's ZUPT is
+    exact to 10 µm/s (K_v ≈ 1: the same); a soft hinted update is not — its noise is the
+    hinted samples' velocity range, a ringing's partial period —, so it moves the position
+    by a fraction K_v of what an exact one would. On samples that hold part of a motion
+    (F_HINT_IN_MOTION) that range is the deceleration's, not a ringing's: if the word is
+    right the axis stopped among them and its velocity is 0 now, exactly; if it came early,
+    no update is right. σ covers those two answers."""
+    return gain_pos / gain_vel if gain_vel > 0.0 else gain_pos
 
 
 @jit
