@@ -58,6 +58,7 @@ from gateway.core.standstill import (
     velocity_changes_beyond_noise,
     velocity_consistent_with_rest,
     velocity_decidable,
+    velocity_swing,
     window_statistics,
 )
 
@@ -140,7 +141,7 @@ def window_of(x, P, m, ring_z, ring_ok, prm, z, ok, regime_prev):
     if regime_prev != UNINITIALISED and fill >= w and n_valid >= 2 and var > prm[P_VAR_MAX] and (
             regime_prev == STANDSTILL or abs(x[1]) <= prm[P_SPEED_FLOOR] or m[M_HINT] > 0.0
             or not velocity_decidable(P[1, 1], prm[P_VEL_SIGMAS], prm[P_SPEED_FLOOR])):
-        swing = true_velocity_swing(ring_z, ring_ok, (pos + 1) % w, w, x[2], m[M_PERIOD], prm[P_LAG])
+        swing = velocity_swing(ring_z, ring_ok, (pos + 1) % w, w, x[2], m[M_PERIOD])
         if swing <= prm[P_VIBRATION]:
             var = prm[P_VAR_MAX]
             vibrating = True

@@ -320,7 +320,7 @@ def soft_hinted_update(x, P, m, ring_z, ring_ok, gain, prm, z, ok, d):
     n_hinted = min(hint_run, int(m[M_RING_FILL]))
     oldest = (int(m[M_RING_POS]) - n_hinted + w) % w
     if not hinted_rest_fits(ring_z, ring_ok, oldest, n_hinted, x[2], P[2, 2], prm[P_R], prm[P_STEP_MAX],
-                            prm[P_MEAN_SIGMAS], floor, m[M_PERIOD], prm[P_LAG]):
+                            prm[P_MEAN_SIGMAS], floor, m[M_PERIOD]):
         return SoftUpdate(False, 0.0, 0.0, False, False)
     looks = hint_run - MIN_WINDOW_SAMPLES + 1
     offset, half_range = mean_velocity_offset(ring_z, ring_ok, oldest, n_hinted, x[2], m[M_PERIOD])

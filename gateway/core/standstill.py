@@ -82,6 +82,23 @@ def window_statistics(ring_z, ring_ok, oldest, count):
 
 
 @jit
+def velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s):
+    """Largest |Σ (z − bias)·Ts| along `count` slots of the ring in time order (from slot
+    `oldest` on, wrapping around): how far their acceleration moves the velocity. Vibration
+    of a mount at rest swings it by mm/s; the start of a motion by far more."""
+    size = ring_z.size
+    c = 0.0
+    peak = 0.0
+    for i in range(count):
+        j = (oldest + i) % size
+        if ring_ok[j] > 0.0:
+            c += (ring_z[j] - bias) * period_s
+            if abs(c) > peak:
+                peak = abs(c)
+    return peak
+
+
+@jit
 def true_velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s, lag_s):
     """Largest |change of the true velocity| along `count` slots of the ring in time order
     (from slot `oldest` on), the sensor's lag undone. The true acceleration is u = y + τẏ
@@ -91,9 +108,7 @@ def true_velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s, lag_s):
     middle, not its start: with τ about one period, as the board's 3.2 ms at 2 ms, the
     decay inside the first slot would otherwise read as a swing of τ·(y(start) − ȳ)).
     A sensor's filter settling after a stop (y decaying with τ) then changes the true
-    velocity by nothing, to second order (a sum of the measured y would count τ·y_0 of
-    it). Vibration of a mount at rest swings the velocity by mm/s; the start of a motion
-    by far more."""
+    velocity by nothing, to second order; velocity_swing would count τ·y_0 of it."""
     size = ring_z.size
     c = 0.0
     peak = 0.0
@@ -168,7 +183,7 @@ def stopping_within_a_window(mean_off_bias, vel, window_s):
 
 @jit
 def hinted_rest_fits(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var_white, step_max,
-                     mean_sigmas, speed_floor, period_s, lag_s):
+                     mean_sigmas, speed_floor, period_s):
     """The `count` hinted samples of the ring from slot `oldest` on do not contradict the
     machine's "at rest":
     - at least MIN_WINDOW_SAMPLES valid ones;
@@ -177,8 +192,7 @@ def hinted_rest_fits(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var_
       their own spread (at least the noise's). A steady deceleration sits off the bias by
       more than its spread; a ringing mount swings about the bias, its spread covering how
       far a partial period's mean strays;
-    - a swing of their true velocity (bias removed, the sensor's lag undone:
-      true_velocity_swing) no larger than the speed floor:
+    - a velocity swing of their acceleration (bias removed) no larger than the speed floor:
       a velocity change beyond the slowest cruise the application must tell from a stop is
       a move, not a ringing mount."""
     n, mean, var = window_statistics(ring_z, ring_ok, oldest, count)
@@ -187,7 +201,7 @@ def hinted_rest_fits(ring_z, ring_ok, oldest, count, bias, bias_var, sample_var_
     spread = max(var, sample_var_white)
     if abs(mean - bias) > step_max + mean_sigmas * math.sqrt(spread / n + bias_var):
         return False
-    return true_velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s, lag_s) <= speed_floor
+    return velocity_swing(ring_z, ring_ok, oldest, count, bias, period_s) <= speed_floor
 
 
 @jit
