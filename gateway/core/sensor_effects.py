@@ -57,12 +57,18 @@ class CrossAxisTerm(ErrorTerm):
 
 @dataclass
 class TemperatureTerm(ErrorTerm):
-    """Offset k·(T − 25 °C) with a board temperature that swings (a fan cycling, the robot's duty)."""
+    """Offset k·(T_die − 25 °C) with a board temperature that swings (a fan cycling, the robot's duty).
+
+    The board's thermometer reads the board; the accelerometer's die follows it through its
+    package, a thermal RC: die_lag_s is that time constant (the die's temperature is the
+    board's through a one-pole low-pass at 1/(2π·die_lag_s), settled at the start; 0: the
+    die at the board's temperature)."""
 
     offset_g_per_c: float
     swing_c: float = 4.0
     cycle_s: float = 6.0
     phase_rad: float | None = None  # the swing's phase at t = 0; None: drawn per recording
+    die_lag_s: float = 0.0
     name = "temperature_offset"
 
     def _temp(self, ctx, t):
@@ -73,6 +79,8 @@ class TemperatureTerm(ErrorTerm):
 
     def acceleration_g(self, ctx, ax, ay):
         temp = self._temp(ctx, ctx.t_s)
+        if self.die_lag_s > 0.0:
+            temp = one_pole_lowpass(temp, ctx.sensor.t2_s, 1.0 / (2.0 * math.pi * self.die_lag_s))
         # the recording's temp_c is the board's latest STATUS value (recording format):
         # the temperature measured once per second (at a phase of the board's own), in
         # 0.01 °C, held until the next report
