@@ -117,8 +117,15 @@ def other_axis_motion(other: np.ndarray, rest: np.ndarray | None) -> np.ndarray:
 def die_temperature_c(t_s: np.ndarray, temp_c: np.ndarray, lag_s: float) -> np.ndarray:
     """The accelerometer die's temperature from the board's thermometer: the board's
     temperature through a first-order thermal lag τ = lag_s (the package's heat capacity
-    behind its thermal resistance to the board; the range: judgement.MAX_DIE_LAG_S),
-    started settled at the first reading. τ = 0: the reading itself.
+    behind its thermal resistance to the board; the range: judgement.MAX_DIE_LAG_S);
+    τ = 0: the reading itself.
+
+    The board's history before the record is not in it: the die is taken as settled at
+    the board's first reading (a machine that starts from rest). Where the board was
+    already swinging, the start is wrong for the record's first few τ: on the own
+    simulator's 6 s swing with the die 2 s behind in its periodic steady state, the fit
+    then trades k against τ while the die's offset swing itself is found (docs/diagnosis.md
+    §3; why not a fitted start: decisions/0192).
 
     Exact for a temperature linear between samples (first-order hold on a uniform grid
     of the record's median interval; the samples' own times read back by interpolation,

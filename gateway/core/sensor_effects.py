@@ -60,9 +60,9 @@ class TemperatureTerm(ErrorTerm):
     """Offset k·(T_die − 25 °C) with a board temperature that swings (a fan cycling, the robot's duty).
 
     The board's thermometer reads the board; the accelerometer's die follows it through its
-    package, a thermal RC: die_lag_s is that time constant (the die's temperature is the
-    board's through a one-pole low-pass at 1/(2π·die_lag_s), settled at the start; 0: the
-    die at the board's temperature)."""
+    package, a thermal RC of time constant die_lag_s (0: the die at the board's
+    temperature). The swing has gone on before the record: the die is in its periodic
+    steady state, the board's swing scaled by 1/√(1 + (ωτ)²) and delayed by atan(ωτ)/ω."""
 
     offset_g_per_c: float
     swing_c: float = 4.0
@@ -71,16 +71,16 @@ class TemperatureTerm(ErrorTerm):
     die_lag_s: float = 0.0
     name = "temperature_offset"
 
-    def _temp(self, ctx, t):
+    def _temp(self, ctx, t, lag_s=0.0):
         phase = float(ctx.rng("temperature").uniform(0.0, 2.0 * math.pi))
         if self.phase_rad is not None:
             phase = self.phase_rad
-        return 25.0 + self.swing_c * np.sin(2.0 * math.pi * t / self.cycle_s + phase)
+        wt = 2.0 * math.pi / self.cycle_s * lag_s
+        return 25.0 + self.swing_c / math.hypot(1.0, wt) * np.sin(2.0 * math.pi * t / self.cycle_s + phase
+                                                                 - math.atan(wt))
 
     def acceleration_g(self, ctx, ax, ay):
-        temp = self._temp(ctx, ctx.t_s)
-        if self.die_lag_s > 0.0:
-            temp = one_pole_lowpass(temp, ctx.sensor.t2_s, 1.0 / (2.0 * math.pi * self.die_lag_s))
+        temp = self._temp(ctx, ctx.t_s, self.die_lag_s)  # the die's
         # the recording's temp_c is the board's latest STATUS value (recording format):
         # the temperature measured once per second (at a phase of the board's own), in
         # 0.01 °C, held until the next report

@@ -69,7 +69,7 @@ MAX_OFFSET_MG_PER_C = 10.0  # data sheet: order of mg/°C
 # the die's thermal lag behind the board's thermometer (first order): the ADXL202E's
 # ceramic LCC (5 × 5 × 2 mm, ≤ 0.2 g of alumina at 0.88 J/(g·K): ≤ 0.17 J/K) behind its
 # pads' thermal resistance to the board (small packages' junction-to-board resistances
-# in manufacturers' tables: 5–95 K/W; ≤ 100 K/W) gives τ ≤ 17 s, rounded up to 20 s; a
+# in manufacturers' tables: 5–93 K/W; ≤ 100 K/W) gives τ ≤ 17 s, rounded up to 20 s; a
 # small plastic package on a board is specified at about 2 s (TI TMP401/TMP464 data
 # sheets: "thermal time constant approximately two seconds"); 0: no lag
 MAX_DIE_LAG_S = 20.0
