@@ -10,7 +10,7 @@ diagnosis's verdict on every candidate (accepted / rejected and why, ΔBIC), its
 effects, setup properties, negligible and not-physical lists. With `--clean-twin` (own
 simulator only): the smoothed estimate's error at each stop of the reference for the
 recording as it is, for its clean twin (the same seed, part and noise without the hidden
-effect) and, for temperature_offset, for the recording less the fitted k·(T − T̄) — whether
+effect) and, for temperature_offset, for the recording less the fitted k·(T_die − T̄_die) — whether
 a compensation that "makes the distance worse" in fact makes it what it would be without
 the effect (the effect had cancelled other errors there). A reading aid for a
 benchmark row that is not met: it changes nothing, and what it shows about the
@@ -30,6 +30,7 @@ from gateway.core.diagnosis import diagnose
 from gateway.core.diagnosis.judgement import residual_share
 from gateway.core.estimator import estimate_series
 from gateway.core.evaluation import summarise_errors
+from gateway.core.model_compensation import die_temperature_c
 from gateway.core.sensor_model import DCM_READINGS
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
 from gateway.offline.diagnosis_report import distance_text
@@ -99,8 +100,9 @@ def clean_twin_lines(effect, seed, args, data, result) -> list[str]:
     fitted.update({e.name: e.params for e in result.effects})
     if effect == "temperature_offset" and effect in fitted:
         k = fitted[effect]["offset_mg_per_c"][0] * 1e-3 * G
-        temp = data.temperature_c
-        rows.append((f"less the fitted {fitted[effect]['offset_mg_per_c'][0]:+.3f} mg/°C",
+        lag_s = fitted[effect].get("die_lag_s", (0.0, 0.0))[0]
+        temp = die_temperature_c(data.t_s, data.temperature_c, lag_s)  # the die's, as the candidate fits it
+        rows.append((f"less the fitted {fitted[effect]['offset_mg_per_c'][0]:+.3f} mg/°C, die lag {lag_s:.2f} s",
                      stop_errors_mm(data, data.acc_mps2 - k * (temp - np.nanmean(temp)))))
     out = ["", "| smoothed estimate | error at each stop (mm) | RMS (mm) |", "| --- | --- | --- |"]
     for name, err in rows:

@@ -14,7 +14,7 @@ Each term undoes what its effect adds to the reading:
 | scale_factor | reads (1 + s)·a | a / (1 + s) | – |
 | tilt | + g·κ·x (tilt varying along the path) | − g·κ·x̂ | the position |
 | motion_offset | + b while the axis moves | − b where the estimate moves | the standstill flags |
-| temperature_offset | + k·(T − T_ref) | − k·(T − T_ref) | the temperature |
+| temperature_offset | + k·(T_die − T_ref), T_die: T lagged by τ | − k·(T_die − T_ref) | the temperature |
 | cross_talk | + c·(other axis's motion) | − c·(other − its level at rest) | the other axis |
 | bandwidth, output_filter | an extra pole | the estimator's sensor lag + Δτ | – (a setting) |
 
@@ -30,7 +30,9 @@ The daemon corrects one sample at a time, as it arrives (`sample_terms` +
 `term_correction`, called by gateway/daemon/sample_loop.py's compiled loop): only
 terms whose correction needs nothing from the future. Scale, temperature (the board's
 latest report) and the motion offset (the filter's own standstill flag of the previous
-sample) qualify; `term_correction` is the one formula for both paths. The tilt needs
+sample) qualify; `term_correction` is the one formula for both paths. A temperature
+term with a die lag (τ > 0) is causal too, but the compiled loop keeps no state for the
+lag's filter: refused there, applied offline (`estimate --model`). The tilt needs
 the position along the path from the recording's origin (the daemon's origin moves with
 every tare and start-over) and the cross-talk the other axis's level over all the
 recording's rests: neither is known causally, and a model with them is refused
@@ -43,6 +45,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.signal import lfilter, lfilter_zi
 
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
 
@@ -111,9 +114,46 @@ def other_axis_motion(other: np.ndarray, rest: np.ndarray | None) -> np.ndarray:
     return np.where(ok, o - level, 0.0)
 
 
-def _temperature_term(temp: np.ndarray, ref_c: float) -> np.ndarray:
-    t = np.asarray(temp, dtype=float)
-    return np.nan_to_num(t - ref_c, nan=0.0)
+def die_temperature_c(t_s: np.ndarray, temp_c: np.ndarray, lag_s: float) -> np.ndarray:
+    """The accelerometer die's temperature from the board's thermometer: the board's
+    temperature through a first-order thermal lag τ = lag_s (the package's heat capacity
+    behind its thermal resistance to the board; the range: judgement.MAX_DIE_LAG_S);
+    τ = 0: the reading itself.
+
+    The board's history before the record is not in it: the die is taken as settled at
+    the board's first reading (a machine that starts from rest). Where the board was
+    already swinging, the start is wrong for the record's first few τ: on the own
+    simulator's 6 s swing with the die 2 s behind in its periodic steady state, the fit
+    then trades k against τ while the die's offset swing itself is found (docs/diagnosis.md
+    §3; why not a fitted start: decisions/0192).
+
+    Exact for a temperature linear between samples (first-order hold on a uniform grid
+    of the record's median interval; the samples' own times read back by interpolation,
+    so gaps and uneven times are followed). NaN where temp_c is NaN."""
+    temp = np.asarray(temp_c, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    ok = np.isfinite(temp) & np.isfinite(t)
+    if lag_s <= 0.0 or np.count_nonzero(ok) < 2:
+        return temp.copy()
+    tk, xk = t[ok], temp[ok]
+    step = float(np.median(np.diff(tk)))
+    if not step > 0.0:
+        return temp.copy()
+    grid = tk[0] + step * np.arange(int(math.floor((tk[-1] - tk[0]) / step)) + 2)
+    x = np.interp(grid, tk, xk)
+    # y' = (x − y)/τ with x linear over a step h: y₊ = a·y + (1 − c)·x₊ + (c − a)·x,
+    # a = e^(−h/τ), c = τ(1 − a)/h
+    a = math.exp(-step / lag_s)
+    c = lag_s * (1.0 - a) / step
+    b_coef, a_coef = [1.0 - c, c - a], [1.0, -a]
+    y, _ = lfilter(b_coef, a_coef, x, zi=lfilter_zi(b_coef, a_coef) * x[0])
+    out = np.full(temp.shape, np.nan)
+    out[ok] = np.interp(tk, grid, y)
+    return out
+
+
+def _temperature_term(t_s: np.ndarray, temp: np.ndarray, ref_c: float, lag_s: float) -> np.ndarray:
+    return np.nan_to_num(die_temperature_c(t_s, temp, lag_s) - ref_c, nan=0.0)
 
 
 # the terms a sample can be corrected for as it arrives (the daemon's compiled loop):
@@ -149,8 +189,10 @@ def compensate_term(name: str, params: dict[str, float], acc: np.ndarray, ctx: S
     if name == "temperature_offset":
         if ctx.temp_c is None:
             raise ModelError("temperature_offset: the recording has no temperature (temp_c) to correct with")
+        # a file written before the die's lag was fitted has none: the board's reading
         return term_correction(TERM_TEMPERATURE, params["offset_mps2_per_c"], acc, 0.0,
-                               _temperature_term(ctx.temp_c, params.get("reference_c", 0.0)))
+                               _temperature_term(ctx.t_s, ctx.temp_c, params.get("reference_c", 0.0),
+                                                 params.get("die_lag_s", 0.0)))
     if name == "cross_talk":
         if ctx.other_mps2 is None:
             raise ModelError("cross_talk: the recording has no other axis to correct with")
@@ -321,6 +363,8 @@ def physical_ranges() -> dict[str, tuple[str, float, float, str]]:
 def check_terms(model: SensorModel, where: str) -> None:
     """Every term known, its parameters present and within its physical range (checked
     once, when the file is read); ModelError naming the file, the term and the key."""
+    from gateway.core.diagnosis.judgement import MAX_DIE_LAG_S  # (as physical_ranges: imported here)
+
     ranges = physical_ranges()
     for i, t in enumerate(model.terms):
         if t.name not in ranges:
@@ -332,6 +376,10 @@ def check_terms(model: SensorModel, where: str) -> None:
         if not lo <= t.params[key] <= hi:
             raise ModelError(f"{where}: effects[{i}] ({t.name}): {key} = {t.params[key]:g} is outside its "
                              f"physical range [{lo:g}, {hi:g}] ({source})")
+        lag = t.params.get("die_lag_s", 0.0) if t.name == "temperature_offset" else 0.0
+        if not 0.0 <= lag <= MAX_DIE_LAG_S:
+            raise ModelError(f"{where}: effects[{i}] ({t.name}): die_lag_s = {lag:g} is outside its physical "
+                             f"range [0, {MAX_DIE_LAG_S:g}] (a ceramic package's thermal time constant)")
         try:
             compensate_term(t.name, t.params, np.zeros(2), SampleContext(np.zeros(2), np.zeros(2), np.zeros(2)))
         except KeyError as err:
@@ -355,6 +403,9 @@ def sample_path_refusal(model: SensorModel, where: str) -> str | None:
         if t.name in NOT_CAUSAL:
             return (f"{where}: {t.name}: cannot be applied as samples arrive: {NOT_CAUSAL[t.name]} "
                     "(apply it offline: adxlgw estimate --model)")
+        if t.name == "temperature_offset" and t.params.get("die_lag_s", 0.0) > 0.0:
+            return (f"{where}: {t.name}: its die lag ({t.params['die_lag_s']:g} s) needs a filter state the "
+                    "daemon's sample loop does not keep (apply it offline: adxlgw estimate --model)")
     return None
 
 

@@ -57,22 +57,30 @@ class CrossAxisTerm(ErrorTerm):
 
 @dataclass
 class TemperatureTerm(ErrorTerm):
-    """Offset k·(T − 25 °C) with a board temperature that swings (a fan cycling, the robot's duty)."""
+    """Offset k·(T_die − 25 °C) with a board temperature that swings (a fan cycling, the robot's duty).
+
+    The board's thermometer reads the board; the accelerometer's die follows it through its
+    package, a thermal RC of time constant die_lag_s (0: the die at the board's
+    temperature). The swing has gone on before the record: the die is in its periodic
+    steady state, the board's swing scaled by 1/√(1 + (ωτ)²) and delayed by atan(ωτ)/ω."""
 
     offset_g_per_c: float
     swing_c: float = 4.0
     cycle_s: float = 6.0
     phase_rad: float | None = None  # the swing's phase at t = 0; None: drawn per recording
+    die_lag_s: float = 0.0
     name = "temperature_offset"
 
-    def _temp(self, ctx, t):
+    def _temp(self, ctx, t, lag_s=0.0):
         phase = float(ctx.rng("temperature").uniform(0.0, 2.0 * math.pi))
         if self.phase_rad is not None:
             phase = self.phase_rad
-        return 25.0 + self.swing_c * np.sin(2.0 * math.pi * t / self.cycle_s + phase)
+        wt = 2.0 * math.pi / self.cycle_s * lag_s
+        return 25.0 + self.swing_c / math.hypot(1.0, wt) * np.sin(2.0 * math.pi * t / self.cycle_s + phase
+                                                                 - math.atan(wt))
 
     def acceleration_g(self, ctx, ax, ay):
-        temp = self._temp(ctx, ctx.t_s)
+        temp = self._temp(ctx, ctx.t_s, self.die_lag_s)  # the die's
         # the recording's temp_c is the board's latest STATUS value (recording format):
         # the temperature measured once per second (at a phase of the board's own), in
         # 0.01 °C, held until the next report

@@ -66,6 +66,13 @@ MIN_BANDWIDTH_HZ = 2.0  # a mount or CX low-pass below 2 Hz would swallow the mo
 MAX_DELAY_S = 0.25  # a reference logged more than ¼ s off is a clock problem, not a lag
 MAX_TILT_RAD_PER_M = 0.5  # 29°/m: a rail or an arm turning the sensor that much
 MAX_OFFSET_MG_PER_C = 10.0  # data sheet: order of mg/°C
+# the die's thermal lag behind the board's thermometer (first order): the ADXL202E's
+# ceramic LCC (5 × 5 × 2 mm, ≤ 0.2 g of alumina at 0.88 J/(g·K): ≤ 0.17 J/K) behind its
+# pads' thermal resistance to the board (small packages' junction-to-board resistances
+# in manufacturers' tables: 5–93 K/W; ≤ 100 K/W) gives τ ≤ 17 s, rounded up to 20 s; a
+# small plastic package on a board is specified at about 2 s (TI TMP401/TMP464 data
+# sheets: "thermal time constant approximately two seconds"); 0: no lag
+MAX_DIE_LAG_S = 20.0
 MAX_CROSS_GAIN = 0.15  # ±2 % cross-axis sensitivity + a few degrees of misalignment
 MAX_TILT_IN_MOTION_DEG = 5.0  # a tool tilting more than 5° under its drive is a machine out of order
 # host timing: a USB adapter's latency timer is at most 255 ms; a clock, even an RC

@@ -22,11 +22,11 @@ import math
 import numpy as np
 
 from gateway.core.diagnosis.context import MIN_TEMPERATURE_STD_C, USABLE_COLUMN_FRACTION, G
-from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC
+from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC, MAX_DIE_LAG_S
 from gateway.core.diagnosis.reading import shifted
 from gateway.core.diagnosis.signal_interface import Compensation, SignalEffect, _grid_best, _ls_coefficient
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
-from gateway.core.model_compensation import compensate_term, other_axis_motion
+from gateway.core.model_compensation import compensate_term, die_temperature_c, other_axis_motion
 from gateway.core.sensor_model import edge_reading_excess_mps2
 
 
@@ -111,32 +111,70 @@ class Tilt(SignalEffect):
 
 
 class TemperatureOffset(SignalEffect):
+    """The zero-g offset moves with the die's temperature: k·(T_die − T̄_die).
+
+    The board's thermometer is not the accelerometer's die. Heat from the drive reaches
+    the die through the board and the package, so the die's temperature follows the
+    thermometer's through a thermal lag: first order, T_die = T through 1/(1 + sτ)
+    (model_compensation.die_temperature_c, the one place the lag is computed, for the
+    fit and the compensation alike). τ is fitted within the package's physical range
+    0 … judgement.MAX_DIE_LAG_S (0: the die at the thermometer's temperature), so the
+    candidate has two parameters and the criterion counts both. Fitted without its lag,
+    a heating that follows the machine's duty leaves a residual that follows the strokes,
+    and an offset growing with travel (tilt) takes it."""
+
     name = "temperature_offset"
-    summary = "zero-g offset moves with the board temperature: k·(T − T̄) (data sheet: mg/°C)"
-    param_names = ("offset_mps2_per_c",)
+    summary = ("zero-g offset moves with the die's temperature: k·(T_die − T̄), the die lagging the board's "
+               "thermometer by τ (data sheet: mg/°C)")
+    param_names = ("offset_mps2_per_c", "die_lag_s")
+    # the starting grid of the lag (the joint fit then polishes it within the bounds):
+    # 0 and geometric steps of ~1.6× up to the range's top
+    LAG_GRID_S = (0.0, *np.geomspace(0.25, MAX_DIE_LAG_S, 10))
 
     def unusable(self, prep):
         if not prep.data.column_ok("temp_c", min_std=MIN_TEMPERATURE_STD_C):
             return "needs a temperature column that varies (temp_c)"
         return None
 
-    def _regressor(self, prep):
-        temp = prep.data.temperature_c  # the reports' staircase made smooth again
+    @staticmethod
+    def _die_temperature(prep, lag_s):
+        return die_temperature_c(prep.data.t_s, prep.data.temperature_c, float(lag_s))
+
+    def _regressor(self, prep, lag_s):
+        temp = self._die_temperature(prep, lag_s)  # the reports' staircase made smooth, lagged
         fill = float(np.nanmean(temp))
         return np.nan_to_num(temp, nan=fill) - fill
 
     def initial(self, prep, residual, sig):
-        return np.array([_ls_coefficient(residual, self._regressor(prep), prep.fit_mask)])
+        """The lag on a grid; at each, the coefficient by least squares on the residual."""
+        m = prep.fit_mask
+        y = residual[m] - residual[m].mean()
+        best, best_cost = np.array([0.0, 0.0]), np.inf
+        for lag in self.LAG_GRID_S:
+            x = self._regressor(prep, lag)
+            k = _ls_coefficient(residual, x, m)
+            r = y - k * (x[m] - x[m].mean())
+            cost = float(np.dot(r, r))
+            if cost < best_cost:
+                best, best_cost = np.array([k, lag]), cost
+        return best
+
+    def bounds(self, prep):
+        # the coefficient free (a fit beyond the part's range is reported as not
+        # physical); the lag within its physical range, the fit held at its ends
+        return [-np.inf, 0.0], [np.inf, MAX_DIE_LAG_S]
 
     def apply(self, prep, theta, sig):
-        sig.out = sig.out + theta[0] * self._regressor(prep)
+        sig.out = sig.out + theta[0] * self._regressor(prep, theta[1])
 
     def report(self, theta, std):
-        return {"offset_mg_per_c": (float(theta[0] / G * 1e3), float(std[0] / G * 1e3))}
+        return {"offset_mg_per_c": (float(theta[0] / G * 1e3), float(std[0] / G * 1e3)),
+                "die_lag_s": (float(theta[1]), float(std[1]))}
 
     def model_params(self, prep, theta):
-        temp = prep.data.temperature_c
-        return {"offset_mps2_per_c": float(theta[0]), "reference_c": float(np.nanmean(temp))}
+        die = self._die_temperature(prep, theta[1])
+        return {"offset_mps2_per_c": float(theta[0]), "die_lag_s": float(theta[1]),
+                "reference_c": float(np.nanmean(die))}
 
     def compensate(self, prep, theta, acc, est):
         return Compensation(acc_mps2=compensate_term(self.name, self.model_params(prep, theta), acc, est))
