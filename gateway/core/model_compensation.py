@@ -45,8 +45,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.signal import lfilter, lfilter_zi
 
+from gateway.core.jit import jit
 from gateway.core.units import STANDARD_GRAVITY_MPS2 as G
 
 MODEL_FORMAT = "adxlgw-sensor-model"
@@ -127,29 +127,34 @@ def die_temperature_c(t_s: np.ndarray, temp_c: np.ndarray, lag_s: float) -> np.n
     then trades k against τ while the die's offset swing itself is found (docs/diagnosis.md
     §3; why not a fitted start: decisions/0192).
 
-    Exact for a temperature linear between samples (first-order hold on a uniform grid
-    of the record's median interval; the samples' own times read back by interpolation,
-    so gaps and uneven times are followed). NaN where temp_c is NaN."""
+    Exact for a temperature linear between the samples' own times, whatever their spacing
+    (gaps, bursts, repeated times: no time passes, nothing changes). NaN where temp_c is
+    NaN."""
     temp = np.asarray(temp_c, dtype=float)
     t = np.asarray(t_s, dtype=float)
     ok = np.isfinite(temp) & np.isfinite(t)
     if lag_s <= 0.0 or np.count_nonzero(ok) < 2:
         return temp.copy()
-    tk, xk = t[ok], temp[ok]
-    step = float(np.median(np.diff(tk)))
-    if not step > 0.0:
-        return temp.copy()
-    grid = tk[0] + step * np.arange(int(math.floor((tk[-1] - tk[0]) / step)) + 2)
-    x = np.interp(grid, tk, xk)
-    # y' = (x − y)/τ with x linear over a step h: y₊ = a·y + (1 − c)·x₊ + (c − a)·x,
-    # a = e^(−h/τ), c = τ(1 − a)/h
-    a = math.exp(-step / lag_s)
-    c = lag_s * (1.0 - a) / step
-    b_coef, a_coef = [1.0 - c, c - a], [1.0, -a]
-    y, _ = lfilter(b_coef, a_coef, x, zi=lfilter_zi(b_coef, a_coef) * x[0])
     out = np.full(temp.shape, np.nan)
-    out[ok] = np.interp(tk, grid, y)
+    out[ok] = _first_order_lag(t[ok], temp[ok], float(lag_s))
     return out
+
+
+@jit
+def _first_order_lag(t, x, tau):
+    """y' = (x − y)/τ, y(t₀) = x(t₀), x linear between samples; over a step h:
+    y₊ = a·y + (1 − c)·x₊ + (c − a)·x, a = e^(−h/τ), c = τ(1 − a)/h."""
+    y = np.empty(x.size)
+    y[0] = x[0]
+    for k in range(1, x.size):
+        h = t[k] - t[k - 1]
+        if h <= 0.0:
+            y[k] = y[k - 1]
+            continue
+        a = math.exp(-h / tau)
+        c = tau * (1.0 - a) / h
+        y[k] = a * y[k - 1] + (1.0 - c) * x[k] + (c - a) * x[k - 1]
+    return y
 
 
 def _temperature_term(t_s: np.ndarray, temp: np.ndarray, ref_c: float, lag_s: float) -> np.ndarray:

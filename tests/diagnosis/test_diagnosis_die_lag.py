@@ -60,6 +60,20 @@ def test_the_die_temperature_is_the_first_order_lag_of_the_board_s():
     assert np.array_equal(die_temperature_c(t, x, 0.0), x, equal_nan=True)
 
 
+def test_the_die_temperature_follows_hostile_times_in_their_own_steps():
+    """A recording's times can be anything the reader lets through: a gap of months
+    between two samples, repeated times (a bursty logger). The lag follows the samples'
+    own steps — no grid over the record's span (a uniform grid at the median step over a
+    10⁷ s gap asked for 37 GiB) — and a repeated time changes nothing."""
+    t = np.r_[np.arange(0.0, 10.0, 0.002), 1e7, 1e7, 1e7 + 0.002]
+    x = np.r_[np.full(5000, 25.0), 30.0, 30.0, 30.0]
+    y = die_temperature_c(t, x, 2.0)
+    assert np.isfinite(y).all()
+    assert np.allclose(y[:5000], 25.0)
+    assert y[5000] == pytest.approx(30.0 - 5.0 * 2.0 / 1e7)  # settled after 10⁷ s of a ramp
+    assert y[5001] == y[5000]  # no time passed
+
+
 def test_the_model_file_applies_the_lag_it_was_fitted_with_and_checks_its_range():
     t = np.arange(0.0, 30.0, 0.002)
     board = 25.0 + 3.0 * np.sin(2.0 * math.pi * t / 8.0)
