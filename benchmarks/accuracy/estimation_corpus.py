@@ -184,19 +184,24 @@ def shifted(rest: np.ndarray, t_s: np.ndarray, shift_s: float) -> np.ndarray:
 ALIGN_HINT = os.environ.get("ADXLGW_CORPUS_ALIGN_HINT") == "1"  # --align-hint (set before the workers spawn)
 
 
-def settings_overrides(text: str) -> dict[str, float]:
-    """--set NAME=VALUE,…: EstimatorSettings fields (numbers) replaced on every case's own
-    settings — to judge a setting on the whole corpus, side by side with the shipped one."""
+def numeric_settings() -> list[str]:
+    """The EstimatorSettings fields a number replaces (--set, settings_lofo --setting)."""
     from dataclasses import fields
 
     from gateway.core.estimator_settings import EstimatorSettings
 
-    numeric = {f.name for f in fields(EstimatorSettings) if f.type in ("float", "int")}
+    return sorted(f.name for f in fields(EstimatorSettings) if f.type in ("float", "int"))
+
+
+def settings_overrides(text: str) -> dict[str, float]:
+    """--set NAME=VALUE,…: EstimatorSettings fields (numbers) replaced on every case's own
+    settings — to judge a setting on the whole corpus, side by side with the shipped one."""
+    numeric = numeric_settings()
     out = {}
     for item in filter(None, text.split(",")):
         name, _, value = item.partition("=")
         if name not in numeric:
-            raise ValueError(f"--set {item}: not a numeric EstimatorSettings field ({', '.join(sorted(numeric))})")
+            raise ValueError(f"--set {item}: not a numeric EstimatorSettings field ({', '.join(numeric)})")
         try:
             out[name] = float(value)
         except ValueError:

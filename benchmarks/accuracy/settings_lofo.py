@@ -26,11 +26,17 @@ from __future__ import annotations
 import argparse
 import datetime
 import multiprocessing
-from dataclasses import fields
 
 import numpy as np
 
-from benchmarks.accuracy.estimation_corpus import ROBOT_FILES, robot_case, score, shifted, sim_robot_case
+from benchmarks.accuracy.estimation_corpus import (
+    ROBOT_FILES,
+    numeric_settings,
+    robot_case,
+    score,
+    shifted,
+    sim_robot_case,
+)
 from benchmarks.harness import machine
 from gateway.core.estimator_settings import EstimatorSettings
 
@@ -64,7 +70,7 @@ def objective(table: dict, files: list[str], value: float) -> tuple[int, float, 
 
 
 def main() -> int:
-    numeric = sorted(f.name for f in fields(EstimatorSettings) if f.type in ("float", "int"))
+    numeric = numeric_settings()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--setting", required=True, choices=numeric, metavar="NAME",
                         help="a numeric EstimatorSettings field")

@@ -24,7 +24,13 @@ import numpy as np
 from gateway.core.diagnosis.context import MIN_TEMPERATURE_STD_C, USABLE_COLUMN_FRACTION, G
 from gateway.core.diagnosis.judgement import CAPACITOR_TOLERANCE_FRAC, MAX_DIE_LAG_S
 from gateway.core.diagnosis.reading import shifted
-from gateway.core.diagnosis.signal_interface import Compensation, SignalEffect, _grid_best, _ls_coefficient
+from gateway.core.diagnosis.signal_interface import (
+    Compensation,
+    SignalEffect,
+    _grid_best,
+    _grid_with_free_gains,
+    _ls_coefficient,
+)
 from gateway.core.filters import mount_resonance, moved_pole, one_pole_lowpass
 from gateway.core.model_compensation import compensate_term, die_temperature_c, other_axis_motion
 from gateway.core.sensor_model import edge_reading_excess_mps2
@@ -147,17 +153,12 @@ class TemperatureOffset(SignalEffect):
 
     def initial(self, prep, residual, sig):
         """The lag on a grid; at each, the coefficient by least squares on the residual."""
-        m = prep.fit_mask
-        y = residual[m] - residual[m].mean()
-        best, best_cost = np.array([0.0, 0.0]), np.inf
-        for lag in self.LAG_GRID_S:
-            x = self._regressor(prep, lag)
-            k = _ls_coefficient(residual, x, m)
-            r = y - k * (x[m] - x[m].mean())
-            cost = float(np.dot(r, r))
-            if cost < best_cost:
-                best, best_cost = np.array([k, lag]), cost
-        return best
+        best = _grid_with_free_gains(prep, residual, [(lag,) for lag in self.LAG_GRID_S],
+                                     lambda point: [self._regressor(prep, point[0])])
+        if best is None:
+            return np.array([0.0, 0.0])
+        (lag,), (k,) = best
+        return np.array([k, lag])
 
     def bounds(self, prep):
         # the coefficient free (a fit beyond the part's range is reported as not
@@ -208,19 +209,13 @@ class Vibration(SignalEffect):
     def initial(self, prep, residual, sig):
         """A grid over (f0, ζ); at each, gain and quadrature by least squares on the residual."""
         top = min(0.8 * self._nyquist(prep), 400.0)
-        m = prep.fit_mask
-        y = residual[m] - residual[m].mean()
-        best, best_cost = (2.0, 0.05, 1.0, 0.0), np.inf
-        for f in np.geomspace(2.0, top, 36):
-            for z in (0.02, 0.05, 0.12, 0.3):
-                ring, dring = self._ringing(prep, sig.full, f, z)
-                x = np.column_stack([ring[prep.where][m], dring[prep.where][m]])
-                x = x - x.mean(axis=0)
-                coef = np.linalg.lstsq(x, y, rcond=None)[0]
-                cost = float(np.sum((y - x @ coef) ** 2))
-                if cost < best_cost:
-                    best, best_cost = (f, z, float(coef[0]), float(coef[1])), cost
-        return np.asarray(best, dtype=float)
+        grid = [(f, z) for f in np.geomspace(2.0, top, 36) for z in (0.02, 0.05, 0.12, 0.3)]
+        best = _grid_with_free_gains(prep, residual, grid, lambda point: [
+            r[prep.where] for r in self._ringing(prep, sig.full, *point)])
+        if best is None:
+            return np.array([2.0, 0.05, 1.0, 0.0])
+        (f, z), (gain, quad) = best
+        return np.array([f, z, gain, quad])
 
     def bounds(self, prep):
         # the fit's search range, wider than the physical range (judgement.physical) so

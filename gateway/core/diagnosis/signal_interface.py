@@ -88,6 +88,24 @@ def _ls_coefficient(residual: np.ndarray, regressor: np.ndarray, mask: np.ndarra
     return float(np.dot(x, y)) / den if den > 0 else 0.0
 
 
+def _grid_with_free_gains(prep: Prepared, residual, grid, columns):
+    """For an effect linear in some parameters (gains) and not in others: over a grid of
+    the others, the gains of `columns(point)` (regressors on the residual's samples) by
+    least squares on the residual, means removed. Returns the point and its gains that
+    leave the least squared misfit, or None when no point gives a finite one."""
+    m = prep.fit_mask
+    y = residual[m] - residual[m].mean()
+    best, best_cost = None, np.inf
+    for point in grid:
+        x = np.column_stack([c[m] for c in columns(point)])
+        x = x - x.mean(axis=0)
+        gains = np.linalg.lstsq(x, y, rcond=None)[0]
+        cost = float(np.sum((y - x @ gains) ** 2))
+        if cost < best_cost:
+            best, best_cost = (tuple(point), tuple(float(g) for g in gains)), cost
+    return best
+
+
 def _grid_best(prep: Prepared, residual, sig: Signal, effect, grid):
     """The grid point whose model change best explains the residual (with a free scale)."""
     best, best_cost = grid[0], np.inf
